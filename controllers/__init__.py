@@ -1,0 +1,1 @@
+"""Torque-level Cartesian impedance control and mink inverse kinematics for the Panda."""

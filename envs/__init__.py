@@ -1,0 +1,1 @@
+"""Simulated Franka Panda peg-in-hole testbed (MuJoCo)."""

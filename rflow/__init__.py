@@ -1,0 +1,1 @@
+"""RiemannianFlow: stable skills on Riemannian manifolds learned with ImitationFlow. Never imports MuJoCo."""

@@ -1,0 +1,63 @@
+"""`pih`: one console command, one subcommand per module in `scripts/`.
+
+Each subcommand module exposes ``add_arguments(parser)`` and ``main(args) -> int``. Errors of the
+project's own exception types are printed as one line on stderr and give exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+from controllers.errors import ControllerError
+from envs.errors import EnvError
+from rflow.errors import RFlowError
+
+# subcommand -> (module under scripts/, one-line help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "demos": ("scripts.demos", "record scripted peg-in-hole demonstrations in physics"),
+    "train": ("scripts.train", "train RiemannianFlow position and orientation models on demos"),
+    "evaluate": ("scripts.evaluate", "execute a trained skill from perturbed starts and score it"),
+    "render": ("scripts.render", "render an episode or a demo to MP4"),
+    "lasa": ("scripts.lasa", "Riemannian LASA benchmark (SPD and unit quaternions)"),
+    "bench": ("scripts.bench", "speed benchmark: control loop, rendering, IK, flow"),
+    "run": ("scripts.run", "the main job: demos -> train -> evaluate -> figures and video"),
+}
+
+USER_ERRORS = (EnvError, ControllerError, RFlowError, FileNotFoundError)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the `pih` parser with one subparser per available subcommand."""
+    parser = argparse.ArgumentParser(prog="pih", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module_name, help_text) in SUBCOMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as err:
+            if err.name != module_name:
+                raise
+            continue  # subcommand not built yet
+        sp = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(sp)
+        sp.set_defaults(_main=module.main)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `pih` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args._main(args) or 0)
+    except USER_ERRORS as err:
+        print(f"pih {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"pih {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

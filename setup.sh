@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Set up pih-rflow on a fresh Debian machine: system packages for headless rendering (Mesa EGL/OSMesa),
+# a virtual environment in .venv with the CPU build of torch, and the project with its test extras.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+    need=()
+    for pkg in libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libosmesa6 libglu1-mesa; do
+        dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
+    done
+    if [ "${#need[@]}" -gt 0 ]; then
+        export DEBIAN_FRONTEND=noninteractive
+        apt-get update -qq
+        apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null
+    fi
+fi
+
+PYTHON="${PYTHON:-python3}"
+[ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+# The CPU build first, pinned, so no resolver ever pulls CUDA wheels.
+.venv/bin/python -m pip install -q "torch==2.13.0"
+.venv/bin/python -m pip install -q -e ".[test]"
+echo "setup.sh: ready -- activate with: source .venv/bin/activate"
