@@ -1,0 +1,442 @@
+"""Scene composition: the Panda, a floor, a table, the shape sorter and a peg, as one MuJoCo model.
+
+The root is the Panda MJCF (world origin = robot base); the sorter ("sorter/...") and the peg ("peg/...")
+are separate MJCF models attached to it. By default the peg is held rigidly: it is attached at the hand's
+``peg_mount`` site, without a joint, and the jointless finger bodies are moved onto its sides, so nq = 7.
+With ``peg_mode="free"`` it floats on a free joint above its hole instead (for physics tests).
+
+Goal: the peg_tip pose with the peg inserted ``insertion_depth_m`` into the hole of ``config.shape``:
+    p_goal = p_hole - insertion_depth * z_hole,  R_goal = R_hole Rx(pi)   (peg_tip z points down the hole).
+By default the goal is the paper's g_p with the heading of g_q, the peg vertical (``goal_pose_from_paper``).
+
+The robot stands on the floor (z = 0); the sorter (blind holes, see envs.sorter) stands on a table whose
+height follows from the goal. Cameras: ``CAMERAS``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Mapping, Sequence
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+from dm_control import mjcf
+
+import assets
+from envs.contact import ContactConfig
+from envs.errors import EnvError
+from envs.geometry import (
+    R_FLIP_X,
+    FloatArray,
+    as_vector,
+    look_at_xyaxes,
+    mat_to_quat,
+    normalize_quat,
+    quat_to_mat,
+    tilt_from_down_deg,
+    z_down_rotation,
+    z_down_yaw_deg,
+)
+from envs.peg import build_peg
+from envs.shapes import PEG_LENGTH_M, SHAPES, check_shape, grip_half_width_m, hole_inradius_m
+from envs.sorter import SorterLayout, build_sorter, check_clearance, check_hole_depth, sorter_layout, symmetry_order
+from envs.success import HoleSpec
+
+PAPER_GOAL_POS_M: tuple[float, float, float] = (0.675, -0.051, 0.203)
+"""g_p of the paper's peg-in-hole experiment, robot base frame."""
+PAPER_GOAL_QUAT: tuple[float, float, float, float] = (0.022, 0.991, -0.125, 0.035)
+"""g_q = 0.022 + [0.991, -0.125, 0.035] (w, x, y, z) of the paper; its z axis is 4.7 deg from vertical."""
+PAPER_GOAL_YAW_DEG: float = z_down_yaw_deg(PAPER_GOAL_QUAT)
+"""Heading of the z-down orientation nearest to g_q (about -14.4 deg)."""
+
+PEG_MODES: tuple[str, ...] = ("held", "free")
+MAX_GOAL_TILT_DEG: float = 5.0
+TABLE_MARGIN_M: float = 0.05
+MIN_TABLE_HEIGHT_M: float = 0.02
+ROBOT_KEEP_OUT_RADIUS_M: float = 0.15
+"""The table must stay this far (horizontally) from the robot base axis."""
+ARM_JOINTS: tuple[str, ...] = tuple(f"joint{i}" for i in range(1, 8))
+ARM_ACTUATORS: tuple[str, ...] = tuple(f"actuator{i}" for i in range(1, 8))
+CAMERAS: tuple[str, ...] = ("front", "side", "top", "closeup", "wrist")
+
+
+def goal_pose_from_paper(
+    pos: Sequence[float] = PAPER_GOAL_POS_M, quat: Sequence[float] = PAPER_GOAL_QUAT
+) -> tuple[FloatArray, FloatArray]:
+    """The paper's goal made exactly vertical: position kept, orientation = nearest z-down orientation.
+
+    R = Rz(psi) Rx(pi) with psi = atan2(Q01 + Q10, Q00 - Q11) (``z_down_yaw_deg``).
+
+    Returns:
+        (position m, quaternion w, x, y, z).
+    """
+    yaw_deg = z_down_yaw_deg(quat)
+    return as_vector(pos, 3, "goal pos"), mat_to_quat(z_down_rotation(yaw_deg))
+
+
+def goal_from_hole(
+    hole_pos: npt.ArrayLike, hole_quat: npt.ArrayLike, insertion_depth_m: float
+) -> tuple[FloatArray, FloatArray]:
+    """Goal peg_tip pose inside a hole: p = p_hole - depth z_hole, R = R_hole Rx(pi)."""
+    rot_hole = quat_to_mat(hole_quat)
+    pos = np.asarray(hole_pos, dtype=np.float64) - insertion_depth_m * rot_hole[:, 2]
+    return pos, mat_to_quat(rot_hole @ R_FLIP_X)
+
+
+def hole_from_goal(
+    goal_pos: npt.ArrayLike, goal_quat: npt.ArrayLike, insertion_depth_m: float
+) -> tuple[FloatArray, FloatArray]:
+    """Inverse of ``goal_from_hole``: R_hole = R_goal Rx(pi), p_hole = p_goal + depth z_hole."""
+    rot_hole = quat_to_mat(goal_quat) @ R_FLIP_X
+    pos = np.asarray(goal_pos, dtype=np.float64) + insertion_depth_m * rot_hole[:, 2]
+    return pos, mat_to_quat(rot_hole)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """What to build (defaults: the paper's goal, square peg held by the hand, 1 mm clearance).
+
+    Attributes:
+        shape: the peg's shape and the target hole (the others are on the sorter too).
+        clearance_m: total hole-minus-peg clearance, in [0.1 mm, 5 mm].
+        hole_depth_m: depth of the blind holes, in [30, 200] mm.
+        insertion_depth_m: how deep the goal peg_tip is below the hole opening, in (0, hole_depth_m].
+        goal_pos: goal peg_tip position (m, robot base frame); the sorter is placed to match it.
+        goal_yaw_deg: heading of the goal peg_tip x axis; the peg axis is vertical, z down.
+        peg_mode: "held" (rigidly in the hand, nq = 7) or "free" (free joint above its hole).
+        hole_at_goal: optional (pos, quat) goal peg_tip pose that overrides goal_pos/goal_yaw_deg; its z
+            axis must point down within 5 deg, and the sorter is tilted to match it exactly.
+        free_peg_height_m: free mode: height of the peg_tip above its hole's opening at qpos0.
+        contact: contact parameters of the peg, sorter and table.
+
+    Raises:
+        EnvError: on any invalid field (one line naming it).
+    """
+
+    shape: str = "square"
+    clearance_m: float = 0.001
+    hole_depth_m: float = 0.04
+    insertion_depth_m: float = 0.03
+    goal_pos: tuple[float, float, float] = PAPER_GOAL_POS_M
+    goal_yaw_deg: float = PAPER_GOAL_YAW_DEG
+    peg_mode: str = "held"
+    hole_at_goal: tuple[Sequence[float], Sequence[float]] | None = None
+    free_peg_height_m: float = 0.05
+    contact: ContactConfig = field(default_factory=ContactConfig)
+
+    def __post_init__(self) -> None:
+        check_shape(self.shape)
+        check_clearance(self.clearance_m)
+        check_hole_depth(self.hole_depth_m)
+        if not (np.isfinite(self.insertion_depth_m) and 0.0 < self.insertion_depth_m <= self.hole_depth_m):
+            raise EnvError(
+                f"insertion_depth_m={self.insertion_depth_m} must lie in (0, hole_depth_m={self.hole_depth_m}]"
+            )
+        object.__setattr__(self, "goal_pos", tuple(float(v) for v in as_vector(self.goal_pos, 3, "goal_pos")))
+        if not np.isfinite(self.goal_yaw_deg):
+            raise EnvError(f"goal_yaw_deg={self.goal_yaw_deg} must be finite")
+        if self.peg_mode not in PEG_MODES:
+            raise EnvError(f"peg_mode={self.peg_mode!r} must be one of {', '.join(PEG_MODES)}")
+        if not (np.isfinite(self.free_peg_height_m) and self.free_peg_height_m >= 0.0):
+            raise EnvError(f"free_peg_height_m={self.free_peg_height_m} must be >= 0")
+        if not isinstance(self.contact, ContactConfig):
+            raise EnvError(f"contact={self.contact!r} must be a ContactConfig")
+        if self.hole_at_goal is not None:
+            self.goal_rotation()
+            pos, quat = self.hole_at_goal
+            object.__setattr__(self, "hole_at_goal", (tuple(float(v) for v in pos), tuple(float(v) for v in quat)))
+
+    def goal_rotation(self) -> FloatArray:
+        """Rotation matrix of the goal peg_tip frame (from hole_at_goal if given).
+
+        Raises:
+            EnvError: if hole_at_goal is malformed or tilted more than 5 deg from z-down.
+        """
+        if self.hole_at_goal is None:
+            return z_down_rotation(self.goal_yaw_deg)
+        try:
+            pos, quat = self.hole_at_goal
+        except (TypeError, ValueError) as error:
+            raise EnvError(f"hole_at_goal={self.hole_at_goal!r} must be a pair (pos, quat)") from error
+        as_vector(pos, 3, "hole_at_goal pos")
+        rot = quat_to_mat(normalize_quat(quat, "hole_at_goal quat"))
+        tilt = tilt_from_down_deg(rot)
+        if tilt > MAX_GOAL_TILT_DEG:
+            raise EnvError(
+                f"hole_at_goal quat={tuple(quat)} tilts the peg axis {tilt:.1f} deg from vertical (max "
+                f"{MAX_GOAL_TILT_DEG:g} deg)"
+            )
+        return rot
+
+    def goal_position(self) -> FloatArray:
+        """Goal peg_tip position (from hole_at_goal if given)."""
+        if self.hole_at_goal is None:
+            return as_vector(self.goal_pos, 3, "goal_pos")
+        return as_vector(self.hole_at_goal[0], 3, "hole_at_goal pos")
+
+
+@dataclass(frozen=True)
+class SceneIds:
+    """MuJoCo ids and addresses of what the controllers, episodes and tests use.
+
+    ``sorter_geoms`` are the sorter's colliding geoms (its visual-only skin is left out); ``peg_qpos_adr``
+    and ``peg_dof_adr`` address the free joint (None when the peg is held); ``home_key`` is the Panda's
+    "home" keyframe (None if panda.xml has none).
+    """
+
+    flange_site: int
+    peg_mount_site: int
+    peg_tip_site: int
+    hole_sites: Mapping[str, int]
+    hand_body: int
+    peg_body: int
+    peg_geoms: tuple[int, ...]
+    sorter_body: int
+    sorter_geoms: tuple[int, ...]
+    arm_joints: tuple[int, ...]
+    arm_qpos_adr: tuple[int, ...]
+    arm_dof_adr: tuple[int, ...]
+    actuators: tuple[int, ...]
+    peg_qpos_adr: int | None
+    peg_dof_adr: int | None
+    home_key: int | None
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A compiled scene and where things are in it.
+
+    Attributes:
+        model: the compiled MuJoCo model (treat as read-only).
+        config: what was built.
+        ids: ids and addresses.
+        layout: the sorter geometry in the sorter frame.
+        sorter_pos, sorter_quat: pose of the sorter frame (bottom-face centre) in the world.
+        build_time_s: wall-clock time build_scene took.
+    """
+
+    model: mujoco.MjModel
+    config: SceneConfig
+    ids: SceneIds
+    layout: SorterLayout
+    sorter_pos: FloatArray
+    sorter_quat: FloatArray
+    build_time_s: float
+    mjcf_xml: str = field(repr=False)
+
+    def hole_pose(self, shape: str) -> tuple[FloatArray, FloatArray]:
+        """World pose (position m, quaternion w, x, y, z) of site ``hole_<shape>``.
+
+        Raises:
+            EnvError: for an unknown shape.
+        """
+        check_shape(shape)
+        rot_sorter = quat_to_mat(self.sorter_quat)
+        return self.sorter_pos + rot_sorter @ self.layout.hole_position(shape), self.sorter_quat.copy()
+
+    def goal_pose(self) -> tuple[FloatArray, FloatArray]:
+        """Goal peg_tip pose (position m, quaternion w, x, y, z) in the hole of ``config.shape``."""
+        return goal_from_hole(*self.hole_pose(self.config.shape), self.config.insertion_depth_m)
+
+    def hole_spec(self, shape: str) -> HoleSpec:
+        """Everything the success scorer needs about the hole of ``shape``."""
+        pos, quat = self.hole_pose(shape)
+        return HoleSpec(
+            shape=shape,
+            pos=tuple(float(v) for v in pos),
+            quat=tuple(float(v) for v in quat),
+            symmetry_order=symmetry_order(shape),
+            inradius_m=hole_inradius_m(shape, self.config.clearance_m),
+            depth_m=self.config.hole_depth_m,
+            clearance_m=self.config.clearance_m,
+        )
+
+    def hole_specs(self) -> Mapping[str, HoleSpec]:
+        """``hole_spec`` of every hole."""
+        return MappingProxyType({shape: self.hole_spec(shape) for shape in SHAPES})
+
+    def xml(self) -> str:
+        """The composed MJCF (for debugging; meshes are inline)."""
+        return self.mjcf_xml
+
+
+def _sorter_placement(config: SceneConfig, layout: SorterLayout) -> tuple[FloatArray, FloatArray]:
+    """Sorter frame pose making hole ``config.shape`` the goal's hole: R_s = R_h, p_s = p_h - R_h p_hole_in_sorter."""
+    goal_rot = config.goal_rotation()
+    hole_pos, hole_quat = hole_from_goal(config.goal_position(), mat_to_quat(goal_rot), config.insertion_depth_m)
+    rot = quat_to_mat(hole_quat)
+    return hole_pos - rot @ layout.hole_position(config.shape), hole_quat
+
+
+def _add_environment(root: mjcf.RootElement, layout: SorterLayout, sorter_pos: FloatArray, sorter_quat: FloatArray,
+                     contact: ContactConfig) -> None:
+    """Floor, table under the sorter, lights, skybox and offscreen buffer size."""
+    root.asset.add("texture", name="skybox", type="skybox", builtin="gradient", rgb1=[0.55, 0.7, 0.85],
+                   rgb2=[0.1, 0.12, 0.15], width=256, height=256)
+    root.asset.add("texture", name="floor_grid", type="2d", builtin="checker", rgb1=[0.32, 0.34, 0.36],
+                   rgb2=[0.26, 0.28, 0.30], width=256, height=256, mark="edge", markrgb=[0.4, 0.42, 0.44])
+    root.asset.add("material", name="floor", texture="floor_grid", texrepeat=[8, 8], reflectance=0.05)
+    root.worldbody.add("geom", name="floor", type="plane", size=[2.0, 2.0, 0.05], material="floor",
+                       **contact.geom_attributes())
+    rot = quat_to_mat(sorter_quat)
+    table_height = float(sorter_pos[2])
+    size_x, size_y = layout.size_xy_m
+    half = np.array([size_x / 2.0 + TABLE_MARGIN_M, size_y / 2.0 + TABLE_MARGIN_M])
+    if table_height < MIN_TABLE_HEIGHT_M:
+        raise EnvError(
+            f"goal height puts the sorter bottom at z={table_height:.3f} m, below the minimum table height "
+            f"{MIN_TABLE_HEIGHT_M} m"
+        )
+    yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+    base_in_table = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]]) @ -sorter_pos[:2]
+    if np.linalg.norm(base_in_table - np.clip(base_in_table, -half, half)) < ROBOT_KEEP_OUT_RADIUS_M:
+        raise EnvError(
+            f"the sorter table at {np.round(sorter_pos[:2], 3).tolist()} m comes within "
+            f"{ROBOT_KEEP_OUT_RADIUS_M} m of the robot base"
+        )
+    root.worldbody.add("geom", name="table", type="box", size=[half[0], half[1], table_height / 2.0],
+                       pos=[sorter_pos[0], sorter_pos[1], table_height / 2.0],
+                       quat=[np.cos(yaw / 2.0), 0.0, 0.0, np.sin(yaw / 2.0)], rgba=[0.45, 0.33, 0.22, 1.0],
+                       **contact.geom_attributes())
+    root.worldbody.add("light", name="key", pos=[0.4, -0.6, 2.0], dir=[-0.1, 0.3, -1.0], directional=True,
+                       diffuse=[0.7, 0.7, 0.7], castshadow=True)
+    root.worldbody.add("light", name="fill", pos=[1.5, 1.0, 1.5], dir=[-1.0, -0.6, -0.8], directional=True,
+                       diffuse=[0.3, 0.3, 0.3], castshadow=False)
+    offscreen = getattr(root.visual, "global")
+    offscreen.offwidth, offscreen.offheight = 1920, 1080
+
+
+def _add_cameras(root: mjcf.RootElement, goal_pos: FloatArray) -> None:
+    """Named cameras: front, side and closeup look at the goal hole, top looks down on robot and sorter,
+    wrist rides on the hand looking down the peg."""
+    gx, gy, gz = goal_pos
+    world_views = {  # name: (position, target, up hint)
+        "front": ([gx + 0.75, gy + 0.35, gz + 0.45], [gx - 0.25, gy, gz + 0.15], [0, 0, 1]),
+        "side": ([gx - 0.2, gy - 1.15, gz + 0.35], [gx - 0.2, gy, gz + 0.15], [0, 0, 1]),
+        "top": ([0.55 * gx, gy, gz + 1.4], [0.55 * gx, gy, 0.0], [1, 0, 0]),
+        "closeup": ([gx + 0.16, gy - 0.16, gz + 0.12], [gx, gy, gz + 0.03], [0, 0, 1]),
+    }
+    for name, (pos, target, up) in world_views.items():
+        root.worldbody.add("camera", name=name, pos=pos, xyaxes=look_at_xyaxes(pos, target, up), fovy=45)
+    hand, mount = _find(root, "body", "hand"), _find(root, "site", "peg_mount")
+    wrist_pos = [0.09, 0.0, 0.03]
+    wrist_target = np.asarray(mount.pos, dtype=np.float64) + [0.0, 0.0, PEG_LENGTH_M + 0.03]  # past the peg_tip
+    hand.add("camera", name="wrist", pos=wrist_pos, xyaxes=look_at_xyaxes(wrist_pos, wrist_target, [-1, 0, 0]),
+             fovy=60)
+
+
+def _find(root: mjcf.RootElement, kind: str, name: str) -> mjcf.Element:
+    element = root.find(kind, name)
+    if element is None:
+        raise EnvError(f"{assets.PANDA_XML} has no {kind} named {name!r}, which the scene needs")
+    return element
+
+
+def _attach_peg(
+    root: mjcf.RootElement, config: SceneConfig, hole_pos: FloatArray, goal_rot: FloatArray
+) -> mjcf.Element:
+    """Attach the peg at peg_mount with the fingers on its sides (held), or on a free joint above its hole.
+
+    Returns:
+        The attachment frame (the peg's body).
+    """
+    peg = build_peg(config.shape, config.contact)
+    if config.peg_mode == "held":
+        frame = _find(root, "site", "peg_mount").attach(peg)
+        for name, sign in (("left_finger", 1.0), ("right_finger", -1.0)):
+            finger = _find(root, "body", name)
+            pad = _find(root, "geom", f"{name}_pad")
+            finger.pos = [finger.pos[0], sign * grip_half_width_m(config.shape, float(pad.size[0])), finger.pos[2]]
+            root.contact.add("exclude", body1=finger, body2=frame)
+        return frame
+    tip = hole_pos + config.free_peg_height_m * (-goal_rot[:, 2])
+    frame = root.worldbody.attach(peg)
+    frame.pos = tip - PEG_LENGTH_M * goal_rot[:, 2]
+    frame.quat = mat_to_quat(goal_rot)
+    frame.add("freejoint")
+    return frame
+
+
+def _scene_ids(model: mujoco.MjModel, peg_mode: str) -> SceneIds:
+    def named(kind: mujoco.mjtObj, name: str) -> int:
+        index = mujoco.mj_name2id(model, kind, name)
+        if index < 0:
+            raise EnvError(f"the composed scene has no {kind.name[6:].lower()} named {name!r}")
+        return index
+
+    body = mujoco.mjtObj.mjOBJ_BODY
+    peg_body = named(body, "peg/")
+    sorter_body = named(body, "sorter/")
+    joints = tuple(named(mujoco.mjtObj.mjOBJ_JOINT, name) for name in ARM_JOINTS)
+    free = int(model.body_jntadr[peg_body]) if peg_mode == "free" else -1
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    return SceneIds(
+        flange_site=named(mujoco.mjtObj.mjOBJ_SITE, "flange"),
+        peg_mount_site=named(mujoco.mjtObj.mjOBJ_SITE, "peg_mount"),
+        peg_tip_site=named(mujoco.mjtObj.mjOBJ_SITE, "peg/peg_tip"),
+        hole_sites=MappingProxyType({s: named(mujoco.mjtObj.mjOBJ_SITE, f"sorter/hole_{s}") for s in SHAPES}),
+        hand_body=named(body, "hand"),
+        peg_body=peg_body,
+        peg_geoms=tuple(int(g) for g in np.flatnonzero(model.geom_bodyid == peg_body)),
+        sorter_body=sorter_body,
+        sorter_geoms=tuple(
+            int(g)
+            for g in np.flatnonzero(model.geom_bodyid == sorter_body)
+            if model.geom_contype[g] or model.geom_conaffinity[g]
+        ),
+        arm_joints=joints,
+        arm_qpos_adr=tuple(int(model.jnt_qposadr[j]) for j in joints),
+        arm_dof_adr=tuple(int(model.jnt_dofadr[j]) for j in joints),
+        actuators=tuple(named(mujoco.mjtObj.mjOBJ_ACTUATOR, name) for name in ARM_ACTUATORS),
+        peg_qpos_adr=int(model.jnt_qposadr[free]) if free >= 0 else None,
+        peg_dof_adr=int(model.jnt_dofadr[free]) if free >= 0 else None,
+        home_key=key if key >= 0 else None,
+    )
+
+
+def build_scene(config: SceneConfig = SceneConfig()) -> Scene:
+    """Compose and compile the scene described by ``config`` (well under a second).
+
+    Raises:
+        EnvError: if the Panda MJCF lacks a body/site the scene needs, the goal puts the sorter below the
+            floor or onto the robot base, or MuJoCo rejects the composed model.
+    """
+    start = time.perf_counter()
+    layout = sorter_layout(config.clearance_m, config.hole_depth_m)
+    sorter_pos, sorter_quat = _sorter_placement(config, layout)
+    try:
+        root = mjcf.from_path(str(assets.PANDA_XML))
+    except (OSError, ValueError) as error:
+        raise EnvError(f"cannot read the Panda MJCF {assets.PANDA_XML}: {error}") from error
+    config.contact.apply_options(root)
+    _add_environment(root, layout, sorter_pos, sorter_quat, config.contact)
+    frame = root.worldbody.attach(build_sorter(layout, config.contact))
+    frame.pos, frame.quat = sorter_pos, sorter_quat
+    goal_rot = config.goal_rotation()
+    hole_pos = sorter_pos + quat_to_mat(sorter_quat) @ layout.hole_position(config.shape)
+    peg_frame = _attach_peg(root, config, hole_pos, goal_rot)
+    _add_cameras(root, config.goal_position())
+    if config.peg_mode == "free":
+        for key in root.keyframe.key:  # append the free peg's initial pose to every keyframe
+            key.qpos = np.concatenate([np.asarray(key.qpos, dtype=np.float64), peg_frame.pos, peg_frame.quat])
+    xml = root.to_xml_string()
+    try:
+        model = mujoco.MjModel.from_xml_string(xml, root.get_assets())
+    except ValueError as error:
+        raise EnvError(f"MuJoCo rejected the composed scene: {error}") from error
+    ids = _scene_ids(model, config.peg_mode)
+    if config.peg_mode == "held" and model.nq != len(ARM_JOINTS):
+        raise EnvError(f"the held-peg scene has nq={model.nq}, expected {len(ARM_JOINTS)} (arm joints only)")
+    return Scene(
+        model=model,
+        config=config,
+        ids=ids,
+        layout=layout,
+        sorter_pos=sorter_pos,
+        sorter_quat=sorter_quat,
+        build_time_s=time.perf_counter() - start,
+        mjcf_xml=xml,
+    )
