@@ -1,1 +1,6 @@
-"""Torque-level Cartesian impedance control and mink inverse kinematics for the Panda."""
+"""Torque-level Cartesian impedance control and mink inverse kinematics for the Panda.
+
+Modules: `impedance` (CartesianImpedanceController, ImpedanceConfig), `ik` (solve_ik, NullspaceReference,
+IKConfig), `benchmark` (measure_control_rate, measure_ik_rate for `pih bench`), `validation` (input checks),
+`errors` (ControllerError). Nothing is imported here, so `controllers.errors` stays cheap to import.
+"""

@@ -1,0 +1,124 @@
+"""Throughput of the controllers for `pih bench`: closed-loop physics steps/s and mink IK solves/s.
+
+Timings are medians over repeats on one core; run them on an otherwise idle machine for comparable figures.
+"""
+
+from __future__ import annotations
+
+import time
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from controllers.errors import ControllerError
+from controllers.ik import solve_ik
+from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
+from controllers.validation import site_id
+
+
+def measure_control_rate(
+    model: mujoco.MjModel,
+    site: int | str = "peg_mount",
+    n_steps: int = 2000,
+    repeats: int = 7,
+    config: ImpedanceConfig = ImpedanceConfig(),
+) -> dict[str, float]:
+    """Time the closed loop (mj_step1 + controller + mj_step2) against bare mj_step on one core.
+
+    The arm starts at the keyframe "home" when the model has one (else qpos0) and is commanded 5 cm below its
+    start pose, so the controller runs its full law. Each repeat times n_steps of each loop; medians are reported.
+
+    Args:
+        model: model to time (the Panda alone, or a scene with the peg).
+        site: controlled site name or id.
+        n_steps: physics steps per timed repeat.
+        repeats: timed repeats (median taken).
+        config: controller gains and limits.
+
+    Returns:
+        {"closed_loop_steps_per_s", "bare_steps_per_s", "ratio" (closed / bare), "controller_us_per_step"}.
+
+    Raises:
+        ControllerError: n_steps or repeats < 1, or a model the controller cannot drive.
+    """
+    if n_steps < 1 or repeats < 1:
+        raise ControllerError(f"n_steps={n_steps} and repeats={repeats} must be >= 1")
+    controller = CartesianImpedanceController(model, site, config)
+    data = mujoco.MjData(model)
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+
+    def start() -> tuple[npt.NDArray, npt.NDArray]:
+        if key >= 0:
+            mujoco.mj_resetDataKeyframe(model, data, key)
+        else:
+            mujoco.mj_resetData(model, data)
+        mujoco.mj_forward(model, data)
+        controller.reset(data.qfrc_bias[controller.dof_slice])
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, data.site_xmat[controller.site_id])
+        return data.site_xpos[controller.site_id] - np.array([0.0, 0.0, 0.05]), quat
+
+    closed, bare = [], []
+    for _ in range(repeats):
+        pos, quat = start()
+        t0 = time.perf_counter()
+        controller.step(data, pos, quat, n_substeps=n_steps)
+        closed.append(n_steps / (time.perf_counter() - t0))
+        start()
+        t0 = time.perf_counter()
+        for _ in range(n_steps):
+            mujoco.mj_step(model, data)
+        bare.append(n_steps / (time.perf_counter() - t0))
+    closed_rate, bare_rate = float(np.median(closed)), float(np.median(bare))
+    return {
+        "closed_loop_steps_per_s": closed_rate,
+        "bare_steps_per_s": bare_rate,
+        "ratio": closed_rate / bare_rate,
+        "controller_us_per_step": 1e6 * (1.0 / closed_rate - 1.0 / bare_rate),
+    }
+
+
+def measure_ik_rate(
+    model: mujoco.MjModel,
+    site: int | str = "peg_mount",
+    n_solves: int = 20,
+    spread_rad: float = 0.4,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Time `solve_ik` on poses of random configurations near the "home" keyframe (or qpos0).
+
+    Args:
+        model: the arm or a scene containing it.
+        site: the site to place.
+        n_solves: number of timed solves (the median time is reported).
+        spread_rad: half-width of the uniform joint perturbation that generates the target poses.
+        seed: seed of the perturbations (the same workload on every run).
+
+    Returns:
+        {"ik_solves_per_s": median rate, "ik_ms_median": median time per solve in ms}.
+
+    Raises:
+        ControllerError: n_solves < 1, or a generated pose that cannot be reached.
+    """
+    if n_solves < 1:
+        raise ControllerError(f"n_solves={n_solves} must be >= 1")
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    q_home = model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
+    data = mujoco.MjData(model)
+    target_site = site_id(model, site)
+    rng = np.random.default_rng(seed)
+    times = []
+    for _ in range(n_solves):
+        data.qpos[:] = np.clip(
+            q_home + rng.uniform(-spread_rad, spread_rad, model.nq), model.jnt_range[:, 0], model.jnt_range[:, 1]
+        )
+        mujoco.mj_kinematics(model, data)
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, data.site_xmat[target_site])
+        pos = data.site_xpos[target_site].copy()
+        start = time.perf_counter()
+        solve_ik(model, site, pos, quat, q_home)
+        times.append(time.perf_counter() - start)
+    median = float(np.median(times))
+    return {"ik_solves_per_s": 1.0 / median, "ik_ms_median": 1e3 * median}

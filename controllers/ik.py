@@ -1,0 +1,253 @@
+"""Inverse kinematics of a site with mink (daqp QP solver): one-shot poses and a nullspace joint reference.
+
+Each mink iteration solves the differential IK quadratic program
+
+    min_dq  || J dq + e(q) ||^2_W  +  c_post || dq - (q_nom - q) ||^2  +  mu || dq ||^2
+    s.t.    q_min <= q + dq <= q_max        (ConfigurationLimit)
+
+with e the site pose error (a body twist, FrameTask) and a posture task toward the nominal joints, then
+integrates q <- q + dq. `solve_ik` first iterates with the posture task (to choose the redundant posture near
+q_nominal), then refines with a vanishing posture cost so the pose is met exactly (a posture cost biases the
+fixed point off the target by about c_post / (J J^T)).
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+
+import mink
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from controllers.errors import ControllerError
+from controllers.validation import as_unit_quaternion, as_vector, site_name
+
+_SOLVER = "daqp"
+
+
+@dataclass(frozen=True)
+class IKConfig:
+    """Settings of the iterative IK.
+
+    Attributes:
+        position_tolerance_m: accepted site position residual in m.
+        orientation_tolerance_deg: accepted site orientation residual in degrees.
+        posture_cost: weight of the posture task while choosing the posture (per rad, vs 1 per m / per rad).
+        refine_posture_cost: posture weight while refining to tolerance (keeps the QP strictly convex).
+        lm_damping: Levenberg-Marquardt scale of the frame task (damps steps toward far or infeasible targets).
+        max_iterations: iterations of each of the two phases before the pose is declared unreachable.
+        floor_height_m: targets below this height are rejected (the scene's floor is at z = 0).
+    """
+
+    position_tolerance_m: float = 1e-4
+    orientation_tolerance_deg: float = 0.05
+    posture_cost: float = 1e-2
+    refine_posture_cost: float = 1e-6
+    lm_damping: float = 1.0
+    max_iterations: int = 100
+    floor_height_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, zero_allowed in (
+            ("position_tolerance_m", False),
+            ("orientation_tolerance_deg", False),
+            ("refine_posture_cost", False),
+            ("posture_cost", True),
+            ("lm_damping", True),
+        ):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Real) or not np.isfinite(value) or value < 0.0 or (
+                value == 0.0 and not zero_allowed
+            ):
+                kind = "non-negative" if zero_allowed else "positive"
+                raise ControllerError(f"IKConfig.{name}={value!r} must be a {kind} finite number")
+        if not isinstance(self.max_iterations, int) or self.max_iterations < 1:
+            raise ControllerError(f"IKConfig.max_iterations={self.max_iterations!r} must be an integer >= 1")
+        if not isinstance(self.floor_height_m, numbers.Real) or not np.isfinite(self.floor_height_m):
+            raise ControllerError(f"IKConfig.floor_height_m={self.floor_height_m!r} must be a finite number")
+
+
+def pose_residual(
+    data: mujoco.MjData, site_id: int, target_pos: npt.NDArray, target_quat: npt.NDArray
+) -> tuple[float, float]:
+    """Position residual ||p_d - p|| in m and orientation residual ||Log(conj(q) q_d)|| in degrees."""
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[site_id])
+    rotation = np.zeros(3)
+    mujoco.mju_subQuat(rotation, target_quat, quat)
+    return float(np.linalg.norm(target_pos - data.site_xpos[site_id])), float(np.degrees(np.linalg.norm(rotation)))
+
+
+class _MinkProblem:
+    """The mink configuration, tasks and limit for one site of one model."""
+
+    def __init__(self, model: mujoco.MjModel, site: int | str, config: IKConfig) -> None:
+        self.model = model
+        self.site_name = site_name(model, site)
+        self.site_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, self.site_name)
+        self.configuration = mink.Configuration(model)
+        self.frame_task = mink.FrameTask(
+            self.site_name, "site", position_cost=1.0, orientation_cost=1.0, lm_damping=config.lm_damping
+        )
+        self.posture_task = mink.PostureTask(model, cost=config.posture_cost)
+        self.limits = [mink.ConfigurationLimit(model)]
+        self.lower, self.upper = model.jnt_range[:, 0], model.jnt_range[:, 1]
+
+    def joints(self, value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:
+        """A joint vector of the model's size, clipped into the joint limits."""
+        q = as_vector(value, self.model.nq, name)
+        limited = self.model.jnt_limited.astype(bool)
+        q[limited] = np.clip(q[limited], self.lower[limited], self.upper[limited])
+        return q
+
+    def set_target(self, target_pos: npt.NDArray, target_quat: npt.NDArray) -> None:
+        self.frame_task.set_target(mink.SE3(wxyz_xyz=np.concatenate([target_quat, target_pos])))
+
+    def iterate(self) -> None:
+        """One differential-IK QP step, integrated into the configuration (dt = 1: dq = v)."""
+        try:
+            velocity = mink.solve_ik(
+                self.configuration,
+                [self.frame_task, self.posture_task],
+                dt=1.0,
+                solver=_SOLVER,
+                damping=1e-9,
+                limits=self.limits,
+            )
+        except mink.MinkError as error:
+            raise ControllerError(f"mink IK step failed for site {self.site_name!r}: {error}") from error
+        self.configuration.integrate_inplace(velocity, 1.0)
+
+    def residual(self, target_pos: npt.NDArray, target_quat: npt.NDArray) -> tuple[float, float]:
+        return pose_residual(self.configuration.data, self.site_id, target_pos, target_quat)
+
+
+def solve_ik(
+    model: mujoco.MjModel,
+    site: int | str,
+    target_pos: npt.ArrayLike,
+    target_quat: npt.ArrayLike,
+    q_nominal: npt.ArrayLike,
+    config: IKConfig = IKConfig(),
+) -> npt.NDArray[np.float64]:
+    """Joint positions that put a site at a pose, within joint limits, near a nominal posture.
+
+    Args:
+        model: the arm or a scene containing it (extra fixed bodies are fine).
+        site: name or id of the site (e.g. "peg_mount", or the scene's peg tip).
+        target_pos: site position in m, world frame.
+        target_quat: site orientation, unit quaternion (w, x, y, z).
+        q_nominal: start and posture reference (rad), length nq; clipped into the joint limits.
+        config: tolerances and weights.
+
+    Returns:
+        q (rad), length nq, inside the joint limits, with the site within the tolerances of the pose.
+
+    Raises:
+        ControllerError: bad inputs, a target below the floor, or a pose not reached to tolerance (the message
+            names the pose and the residual in mm and deg).
+    """
+    problem = _MinkProblem(model, site, config)
+    pos = as_vector(target_pos, 3, "target_pos")
+    quat = as_unit_quaternion(target_quat, "target_quat")
+    q_nom = problem.joints(q_nominal, "q_nominal")
+    pose = f"p={np.round(pos, 4).tolist()} m, q={np.round(quat, 4).tolist()}"
+    if pos[2] < config.floor_height_m:
+        raise ControllerError(
+            f"IK target {pose} for site {problem.site_name!r} is below the floor (z < {config.floor_height_m} m)"
+        )
+    problem.configuration.update(q_nom)
+    problem.posture_task.set_target(q_nom)
+    problem.set_target(pos, quat)
+
+    previous = problem.configuration.q.copy()
+    for _ in range(config.max_iterations):  # choose the posture
+        problem.iterate()
+        if np.max(np.abs(problem.configuration.q - previous)) < 1e-6:
+            break
+        previous = problem.configuration.q.copy()
+    problem.posture_task.set_cost(config.refine_posture_cost)
+    residual = problem.residual(pos, quat)
+    for _ in range(config.max_iterations):  # meet the pose to tolerance
+        if _within(residual, config):
+            break
+        problem.iterate()
+        residual = problem.residual(pos, quat)
+    if _within(residual, config):
+        return problem.configuration.q.copy()
+    raise ControllerError(
+        f"IK target {pose} for site {problem.site_name!r} is unreachable: residual {1e3 * residual[0]:.2f} mm, "
+        f"{residual[1]:.3f} deg (tolerance {1e3 * config.position_tolerance_m:.2f} mm, "
+        f"{config.orientation_tolerance_deg} deg)"
+    )
+
+
+def _within(residual: tuple[float, float], config: IKConfig) -> bool:
+    return residual[0] <= config.position_tolerance_m and residual[1] <= config.orientation_tolerance_deg
+
+
+class NullspaceReference:
+    """Joint reference for the impedance controller's nullspace that follows the commanded pose.
+
+    Every `update` runs a few warm-started mink iterations (frame task + posture task toward q_nominal, joint
+    limits) from the previous reference, so the reference tracks a moving target at the command rate (100 Hz)
+    without solving to convergence.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        site: int | str,
+        q_nominal: npt.ArrayLike,
+        iterations: int = 3,
+        config: IKConfig = IKConfig(),
+    ) -> None:
+        """Args:
+            model: the arm or a scene containing it.
+            site: name or id of the controlled site.
+            q_nominal: posture reference and initial reference (rad).
+            iterations: mink iterations per update (>= 1).
+            config: posture cost and LM damping (tolerances unused).
+
+        Raises:
+            ControllerError: bad site, q_nominal or iterations.
+        """
+        if int(iterations) < 1:
+            raise ControllerError(f"iterations={iterations!r} must be >= 1")
+        self._problem = _MinkProblem(model, site, config)
+        self._iterations = int(iterations)
+        self.q_nominal = self._problem.joints(q_nominal, "q_nominal")
+        self._problem.posture_task.set_target(self.q_nominal)
+        self.reset()
+
+    def reset(self, q: npt.ArrayLike | None = None) -> None:
+        """Restart the reference from q (rad), or from q_nominal when None."""
+        start = self.q_nominal if q is None else self._problem.joints(q, "q")
+        self._problem.configuration.update(start.copy())
+
+    @property
+    def q(self) -> npt.NDArray[np.float64]:
+        """Copy of the current joint reference (rad)."""
+        return self._problem.configuration.q.copy()
+
+    def update(self, target_pos: npt.ArrayLike, target_quat: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Advance the reference toward the pose and return it.
+
+        Args:
+            target_pos: commanded site position in m.
+            target_quat: commanded site orientation (w, x, y, z).
+
+        Returns:
+            The joint reference (rad), length nq, within the joint limits.
+
+        Raises:
+            ControllerError: bad target or a failed QP.
+        """
+        pos = as_vector(target_pos, 3, "target_pos")
+        quat = as_unit_quaternion(target_quat, "target_quat")
+        self._problem.set_target(pos, quat)
+        for _ in range(self._iterations):
+            self._problem.iterate()
+        return self.q

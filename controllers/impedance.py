@@ -1,0 +1,383 @@
+"""Torque-level Cartesian impedance control of a site at the physics rate.
+
+The control law (all vectors in the world frame, twist order [linear; angular]):
+
+    e     = [p_d - p ; Log(q_d * conj(q))]                    pose error, rotation vector in rad
+    v     = J qdot                                            site twist
+    F     = K e - D v                                         impedance wrench
+    tau_0 = K_n (q_ref - q) - D_n qdot                        posture torque (K_n = 0 without q_ref)
+    tau   = J^T F + (I - J^T Jbar^T) tau_0 + c(q, qdot)       c = qfrc_bias (Coriolis + gravity)
+
+with Lambda = (J M^-1 J^T)^-1 the Cartesian inertia, Jbar = M^-1 J^T Lambda its dynamically consistent inverse,
+and D the damping of the double diagonalisation of (Lambda, K): with Lambda = P P^T and K = P W P^T
+(W diagonal), D = P diag(2 zeta sqrt(w_i)) P^T, i.e. every decoupled mode of the closed loop
+Lambda x'' + D x' + K x = 0 has damping ratio zeta. P comes from a Cholesky factor C of
+Lambda^-1 = C C^T (so Lambda = C^-T C^-1) and the eigenvectors U of C^T K C: P = C^-T U.
+The same P gives the nullspace term without inverting Lambda: Lambda x = P (P^T x).
+
+The commanded torque is then limited to the Panda's joint torques and torque rate, relative to the last command
+(the controller's one piece of state, set by `reset`):
+
+    tau_k = clip(clip(tau, tau_{k-1} - rate dt, tau_{k-1} + rate dt), -tau_max, tau_max)
+
+`step` runs mj_step1 -> torque -> mj_step2, so the torque sees the state it acts on (no one-step lag).
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+from scipy.linalg import blas, lapack
+
+from controllers.errors import ControllerError
+from controllers.validation import as_unit_quaternion, as_vector, site_id
+
+PANDA_TORQUE_LIMITS_NM: tuple[float, ...] = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
+PANDA_TORQUE_RATE_LIMIT_NM_PER_S: float = 1000.0
+_INERTIA_REGULARISATION: float = 1e-6  # added to J M^-1 J^T so Lambda stays finite at singularities
+
+
+@dataclass(frozen=True)
+class ImpedanceConfig:
+    """Gains and limits of the Cartesian impedance controller.
+
+    Defaults: 1500 N/m and 80 N m/rad turn a 10 N contact force into a 6.7 mm deflection and a 0.5 N m contact
+    torque into 0.36 deg -- compliant enough for the peg to yield to the hole's walls instead of jamming with large
+    forces, stiff enough to track the learned pose trajectory to millimetres in free space (gravity is compensated
+    by the model, so there is no steady-state sag).
+    A damping ratio of 1 (critical) tracks without overshoot. The posture stiffness is weak (10 N m/rad) so it
+    only resolves the redundancy.
+
+    Attributes:
+        translational_stiffness: K for x, y, z in N/m.
+        rotational_stiffness: K for rotations about x, y, z in N m/rad.
+        damping_ratio: zeta of every decoupled Cartesian mode (1 = critical).
+        nullspace_stiffness: K_n of the posture torque in N m/rad.
+        nullspace_damping: D_n of the posture torque in N m s/rad.
+        torque_limits: |tau_i| bound per joint in N m (the Panda's, by default).
+        torque_rate_limit: |d tau_i / dt| bound in N m/s (the Panda's, by default).
+    """
+
+    translational_stiffness: float = 1500.0
+    rotational_stiffness: float = 80.0
+    damping_ratio: float = 1.0
+    nullspace_stiffness: float = 10.0
+    nullspace_damping: float = 3.0
+    torque_limits: tuple[float, ...] = PANDA_TORQUE_LIMITS_NM
+    torque_rate_limit: float = PANDA_TORQUE_RATE_LIMIT_NM_PER_S
+
+    def __post_init__(self) -> None:
+        for name, minimum_excluded in (
+            ("translational_stiffness", True),
+            ("rotational_stiffness", True),
+            ("torque_rate_limit", True),
+            ("damping_ratio", False),
+            ("nullspace_stiffness", False),
+            ("nullspace_damping", False),
+        ):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Real) or not np.isfinite(value) or value < 0.0 or (
+                minimum_excluded and value == 0.0
+            ):
+                kind = "positive" if minimum_excluded else "non-negative"
+                raise ControllerError(f"ImpedanceConfig.{name}={value!r} must be a {kind} finite number")
+        try:
+            limits = np.asarray(self.torque_limits, dtype=float)
+        except (TypeError, ValueError):
+            limits = np.array([np.nan])
+        if limits.ndim != 1 or limits.size == 0 or not np.all(np.isfinite(limits)) or np.any(limits <= 0.0):
+            raise ControllerError(f"ImpedanceConfig.torque_limits={self.torque_limits!r} must be positive numbers")
+
+    def stiffness_matrix(self) -> npt.NDArray[np.float64]:
+        """The diagonal 6x6 stiffness diag(k_t, k_t, k_t, k_r, k_r, k_r) in [N/m, N m/rad]."""
+        return np.diag([self.translational_stiffness] * 3 + [self.rotational_stiffness] * 3)
+
+
+def validate_stiffness(stiffness: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Check that a Cartesian stiffness is a finite, symmetric, positive definite 6x6 matrix.
+
+    Args:
+        stiffness: 6x6 matrix [[K_pp, K_pr], [K_rp, K_rr]] in N/m, N/rad, N m/m, N m/rad (world frame).
+
+    Returns:
+        The matrix as a C-contiguous float64 array.
+
+    Raises:
+        ControllerError: wrong shape, non-finite entries, asymmetry or a non-positive eigenvalue.
+    """
+    try:
+        k = np.ascontiguousarray(stiffness, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ControllerError(f"stiffness must be a 6x6 numeric matrix, got {type(stiffness).__name__}") from error
+    if k.shape != (6, 6):
+        raise ControllerError(f"stiffness must have shape (6, 6), got {k.shape}")
+    if not np.all(np.isfinite(k)):
+        raise ControllerError("stiffness has non-finite entries")
+    scale = float(np.max(np.abs(k)))
+    if float(np.max(np.abs(k - k.T))) > 1e-9 * max(scale, 1.0):
+        raise ControllerError("stiffness is not symmetric (max |K - K^T| too large)")
+    smallest = float(np.linalg.eigvalsh(k)[0])
+    if smallest <= 0.0:
+        raise ControllerError(f"stiffness is not positive definite (smallest eigenvalue {smallest:.3g})")
+    return k
+
+
+def modal_factors(
+    lambda_inv: npt.NDArray[np.float64], stiffness: npt.NDArray[np.float64]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Double diagonalisation of the Cartesian inertia and a stiffness.
+
+    With Lambda^-1 = C C^T (Cholesky) and C^T K C = U diag(w) U^T (symmetric eigendecomposition), P = C^-T U
+    satisfies Lambda = P P^T and K = P diag(w) P^T, so D = P diag(2 zeta sqrt(w)) P^T damps every mode of
+    Lambda x'' + D x' + K x = 0 with ratio zeta. LAPACK/BLAS are called directly: for 6x6 matrices the
+    numpy.linalg wrappers cost more than the arithmetic.
+
+    Args:
+        lambda_inv: J M^-1 J^T (6x6, symmetric positive definite).
+        stiffness: K (6x6, symmetric positive definite).
+
+    Returns:
+        (P, w): the 6x6 modal matrix and the 6 modal stiffnesses (eigenvalues of Lambda^-1 K).
+
+    Raises:
+        ControllerError: lambda_inv not positive definite, or a failed eigendecomposition.
+    """
+    chol, info = lapack.dpotrf(lambda_inv, lower=1, clean=1)
+    if info != 0:
+        raise ControllerError(f"J M^-1 J^T is not positive definite (dpotrf info {info})")
+    w, u, info = lapack.dsyevd(chol.T @ stiffness @ chol, compute_v=1, lower=1)
+    if info != 0:
+        raise ControllerError(f"eigendecomposition of C^T K C failed (dsyevd info {info})")
+    return blas.dtrsm(1.0, chol, u, lower=1, trans_a=1), w  # dtrsm solves C^T P = U
+
+
+class CartesianImpedanceController:
+    """Cartesian impedance controller of one site of a torque-actuated arm (see the module docstring).
+
+    The arm is what the model's actuators drive: motor i (gear 1) on the i-th of a contiguous block of hinge or
+    slide joints (`dof_slice`, `qpos_slice`). Other dofs (e.g. a free peg in a physics test) are allowed when
+    they lie on other kinematic trees, so the mass matrix is block diagonal and the arm's block is exact.
+    """
+
+    def __init__(
+        self, model: mujoco.MjModel, site: int | str, config: ImpedanceConfig = ImpedanceConfig()
+    ) -> None:
+        """Args:
+            model: the MuJoCo model the controller will drive.
+            site: name or id of the controlled site (e.g. "flange", "peg_mount"), on the arm.
+            config: gains and limits (one torque limit per actuator).
+
+        Raises:
+            ControllerError: unknown site, a site off the arm, or actuators that are not gear-1 joint motors on
+                a contiguous block of arm joints.
+        """
+        n = model.nu
+        if n == 0 or len(config.torque_limits) != n:
+            raise ControllerError(
+                f"controller needs one torque limit per actuator: nu={n}, torque_limits has "
+                f"{len(config.torque_limits)}"
+            )
+        joints = model.actuator_trnid[:, 0]
+        if (
+            np.any(model.actuator_trntype != mujoco.mjtTrn.mjTRN_JOINT)
+            or not np.allclose(model.actuator_gear[:, 0], 1.0)
+            or np.any(
+                (model.jnt_type[joints] != mujoco.mjtJoint.mjJNT_HINGE)
+                & (model.jnt_type[joints] != mujoco.mjtJoint.mjJNT_SLIDE)
+            )
+        ):
+            raise ControllerError("every actuator must be a gear-1 motor on a hinge or slide joint")
+        dof_adr, qpos_adr = model.jnt_dofadr[joints], model.jnt_qposadr[joints]
+        block = np.arange(n)
+        if not (np.array_equal(dof_adr, dof_adr[0] + block) and np.array_equal(qpos_adr, qpos_adr[0] + block)):
+            raise ControllerError("actuator i must drive the i-th joint of one contiguous block of arm joints")
+        self.dof_slice = slice(int(dof_adr[0]), int(dof_adr[0]) + n)
+        self.qpos_slice = slice(int(qpos_adr[0]), int(qpos_adr[0]) + n)
+        arm_trees = set(model.dof_treeid[self.dof_slice].tolist())
+        other = np.ones(model.nv, dtype=bool)
+        other[self.dof_slice] = False
+        if arm_trees & set(model.dof_treeid[other].tolist()):
+            raise ControllerError("dofs outside the actuated arm must lie on other kinematic trees")
+        self.model = model
+        self.site_id = site_id(model, site)
+        if int(model.body_treeid[model.site_bodyid[self.site_id]]) not in arm_trees:
+            raise ControllerError(f"site {site!r} is not on the actuated arm")
+        self.config = config
+        self.default_stiffness = config.stiffness_matrix()
+        self._tau_max = np.asarray(config.torque_limits, dtype=np.float64)
+        self._tau_min = -self._tau_max
+        self._tau_step = config.torque_rate_limit * model.opt.timestep
+        self._four_zeta_sq = 4.0 * config.damping_ratio**2
+        self._reg = _INERTIA_REGULARISATION * np.eye(6)
+        # Preallocated buffers (full nv for J and J M^-1, arm-sized otherwise); the hot loop allocates only
+        # inside numpy.linalg.
+        self._jac = np.zeros((6, model.nv))
+        self._jac_arm = self._jac[:, self.dof_slice]
+        self._jac_minv = np.zeros((6, model.nv))
+        self._jac_minv_arm = self._jac_minv[:, self.dof_slice]
+        self._lambda_inv = np.zeros((6, 6))
+        self._error = np.zeros(6)
+        self._quat = np.zeros(4)
+        self._rot_local = np.zeros(3)
+        self._twists = np.zeros((2, 6))
+        self._tau0 = np.zeros(n)
+        self._tau = np.zeros(n)
+        self._last_tau = np.zeros(n)
+
+    def reset(self, tau0: npt.ArrayLike | None = None) -> None:
+        """Set the last commanded torque, the reference of the torque-rate limit.
+
+        Args:
+            tau0: arm torque in N m, one per actuator (e.g. data.qfrc_bias[controller.dof_slice] after
+                mj_forward, to start holding against gravity); zeros when None.
+
+        Raises:
+            ControllerError: wrong length or non-finite values.
+        """
+        if tau0 is None:
+            self._last_tau[:] = 0.0
+            return
+        tau = as_vector(tau0, self.model.nu, "tau0")
+        np.clip(tau, -self._tau_max, self._tau_max, out=self._last_tau)
+
+    @property
+    def last_torque(self) -> npt.NDArray[np.float64]:
+        """Copy of the last commanded torque in N m."""
+        return self._last_tau.copy()
+
+    def compute_torque(
+        self,
+        data: mujoco.MjData,
+        target_pos: npt.ArrayLike,
+        target_quat: npt.ArrayLike,
+        stiffness: npt.ArrayLike | None = None,
+        q_nullspace: npt.ArrayLike | None = None,
+    ) -> npt.NDArray[np.float64]:
+        """Validated torque for the current state (positions, velocities and mass matrix of `data` must be
+        current, e.g. after mj_step1 or mj_forward). Updates the last-command state.
+
+        Args:
+            data: MuJoCo data of `self.model`.
+            target_pos: desired site position in m, world frame.
+            target_quat: desired site orientation, unit quaternion (w, x, y, z).
+            stiffness: optional 6x6 SPD stiffness (world frame); the config's diagonal stiffness when None.
+            q_nullspace: optional arm joint reference for the posture torque (rad, one per actuator); only
+                posture damping when None.
+
+        Returns:
+            A copy of the limited joint torque in N m.
+
+        Raises:
+            ControllerError: bad target, stiffness or joint reference.
+        """
+        pos, quat, k, q_ref = self._validate(target_pos, target_quat, stiffness, q_nullspace)
+        return self._torque(data, pos, quat, k, q_ref).copy()
+
+    def step(
+        self,
+        data: mujoco.MjData,
+        target_pos: npt.ArrayLike,
+        target_quat: npt.ArrayLike,
+        stiffness: npt.ArrayLike | None = None,
+        q_nullspace: npt.ArrayLike | None = None,
+        n_substeps: int = 1,
+    ) -> None:
+        """Advance the simulation n_substeps physics steps under impedance control toward a fixed target.
+
+        Each substep: mj_step1 (positions, velocities, mass matrix, bias), torque, data.ctrl, mj_step2.
+        Inputs are validated once per call, not per substep.
+
+        Args:
+            data: MuJoCo data of `self.model`.
+            target_pos, target_quat, stiffness, q_nullspace: as in `compute_torque`.
+            n_substeps: number of physics steps (e.g. 10 for a 100 Hz command at 1 kHz physics).
+
+        Raises:
+            ControllerError: bad inputs or n_substeps < 1.
+        """
+        if int(n_substeps) < 1:
+            raise ControllerError(f"n_substeps={n_substeps!r} must be >= 1")
+        pos, quat, k, q_ref = self._validate(target_pos, target_quat, stiffness, q_nullspace)
+        model = self.model
+        ctrl = data.ctrl
+        for _ in range(int(n_substeps)):
+            mujoco.mj_step1(model, data)
+            ctrl[:] = self._torque(data, pos, quat, k, q_ref)
+            mujoco.mj_step2(model, data)
+
+    def _validate(
+        self,
+        target_pos: npt.ArrayLike,
+        target_quat: npt.ArrayLike,
+        stiffness: npt.ArrayLike | None,
+        q_nullspace: npt.ArrayLike | None,
+    ) -> tuple[npt.NDArray, npt.NDArray, npt.NDArray, npt.NDArray | None]:
+        pos = as_vector(target_pos, 3, "target_pos")
+        quat = as_unit_quaternion(target_quat, "target_quat")
+        k = self.default_stiffness if stiffness is None else validate_stiffness(stiffness)
+        q_ref = None if q_nullspace is None else as_vector(q_nullspace, self.model.nu, "q_nullspace")
+        return pos, quat, k, q_ref
+
+    def _torque(
+        self,
+        data: mujoco.MjData,
+        pos: npt.NDArray[np.float64],
+        quat: npt.NDArray[np.float64],
+        stiffness: npt.NDArray[np.float64],
+        q_ref: npt.NDArray[np.float64] | None,
+    ) -> npt.NDArray[np.float64]:
+        """The control law of the module docstring on validated inputs; returns the internal torque buffer."""
+        model, jac, jac_minv, lambda_inv = self.model, self._jac, self._jac_minv, self._lambda_inv
+        error, twists, tau0, tau, last = self._error, self._twists, self._tau0, self._tau, self._last_tau
+        site, dofs = self.site_id, self.dof_slice
+        qvel = data.qvel
+
+        # Kinematics and Cartesian inertia: J, J M^-1, Lambda^-1 = J M^-1 J^T (+ regularisation).
+        mujoco.mj_jacSite(model, data, jac[:3], jac[3:], site)
+        mujoco.mj_solveM(model, data, jac_minv, jac)
+        np.matmul(jac_minv, jac.T, out=lambda_inv)
+        lambda_inv += self._reg
+
+        p, w = modal_factors(lambda_inv, stiffness)
+        np.multiply(w, self._four_zeta_sq, out=w)
+        np.sqrt(w, out=w)  # modal damping 2 zeta sqrt(w_i)
+
+        # Pose error e = [p_d - p; R Log(conj(q) q_d)] in the world frame.
+        np.subtract(pos, data.site_xpos[site], out=error[:3])
+        mujoco.mju_mat2Quat(self._quat, data.site_xmat[site])
+        mujoco.mju_subQuat(self._rot_local, quat, self._quat)
+        mujoco.mju_rotVecQuat(error[3:], self._rot_local, self._quat)
+
+        # Posture torque tau_0 = K_n (q_ref - q) - D_n qdot on the arm joints.
+        np.multiply(qvel[dofs], -self.config.nullspace_damping, out=tau0)
+        if q_ref is not None:
+            tau0 += self.config.nullspace_stiffness * (q_ref - data.qpos[self.qpos_slice])
+
+        # Rows: twist v = J qdot and x = J M^-1 tau_0; then D v = P S P^T v and Lambda x = P P^T x.
+        np.matmul(jac, qvel, out=twists[0])
+        np.matmul(self._jac_minv_arm, tau0, out=twists[1])
+        modal = twists @ p
+        modal[0] *= w
+        damping_and_null = modal @ p.T
+        wrench = stiffness @ error
+        wrench -= damping_and_null[0]
+        wrench -= damping_and_null[1]
+
+        # tau = J^T (F - Lambda J M^-1 tau_0) + tau_0 + c.
+        np.matmul(wrench, self._jac_arm, out=tau)
+        tau += tau0
+        tau += data.qfrc_bias[dofs]
+
+        # Torque-rate limit relative to the last command, then the joint torque limits.
+        tau -= last
+        np.minimum(tau, self._tau_step, out=tau)
+        np.maximum(tau, -self._tau_step, out=tau)
+        tau += last
+        np.minimum(tau, self._tau_max, out=tau)
+        np.maximum(tau, self._tau_min, out=tau)
+        last[:] = tau
+        return tau

@@ -1,0 +1,228 @@
+"""Closed-loop behaviour of the Cartesian impedance controller on the Panda holding a peg."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from assets import PANDA_XML
+from controllers.errors import ControllerError
+from controllers.impedance import CartesianImpedanceController, ImpedanceConfig, modal_factors
+
+PEG_LENGTH_M = 0.08
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    """The Panda with a 30 x 30 x 80 mm wooden peg held at peg_mount and a site at its tip."""
+    spec = mujoco.MjSpec.from_file(str(PANDA_XML))
+    mount = spec.site("peg_mount")
+    peg = spec.body("hand").add_body()
+    peg.pos = mount.pos
+    geom = peg.add_geom()
+    geom.type = mujoco.mjtGeom.mjGEOM_BOX
+    geom.size = [0.015, 0.015, PEG_LENGTH_M / 2]
+    geom.pos = [0.0, 0.0, PEG_LENGTH_M / 2]
+    geom.density = 700.0
+    tip = peg.add_site()
+    tip.name = "peg_tip"
+    tip.pos = [0.0, 0.0, PEG_LENGTH_M]
+    return spec.compile()
+
+
+def _random_spd(rng, scale):
+    basis, _ = np.linalg.qr(rng.normal(size=(6, 6)))
+    return basis @ np.diag(scale * rng.uniform(0.1, 1.0, 6)) @ basis.T
+
+
+def test_modal_factors_diagonalise_inertia_and_stiffness():
+    rng = np.random.default_rng()
+    lambda_inv, stiffness = _random_spd(rng, 10.0), _random_spd(rng, 1000.0)
+    p, w = modal_factors(lambda_inv, stiffness)
+    np.testing.assert_allclose(p @ p.T, np.linalg.inv(lambda_inv), rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(p @ np.diag(w) @ p.T, stiffness, rtol=1e-8, atol=1e-8)
+
+
+def test_modal_damping_is_critical_for_decoupled_axes():
+    mass_kg, stiffness = np.array([2.0, 3.0, 5.0, 0.1, 0.2, 0.3]), np.array([1e3, 2e3, 3e3, 50.0, 60.0, 70.0])
+    p, w = modal_factors(np.diag(1.0 / mass_kg), np.diag(stiffness))
+    damping = p @ np.diag(2.0 * np.sqrt(w)) @ p.T
+    np.testing.assert_allclose(damping, np.diag(2.0 * np.sqrt(mass_kg * stiffness)), rtol=1e-9, atol=1e-9)
+
+
+def _start(model, site="peg_tip", config=ImpedanceConfig()):
+    """Data at the home keyframe, a controller reset to gravity compensation, and the site's pose."""
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    mujoco.mj_forward(model, data)
+    controller = CartesianImpedanceController(model, site, config)
+    controller.reset(data.qfrc_bias[controller.dof_slice])
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[controller.site_id])
+    return data, controller, data.site_xpos[controller.site_id].copy(), quat
+
+
+def _rotation_error_deg(data, site_id, quat):
+    current = np.zeros(4)
+    mujoco.mju_mat2Quat(current, data.site_xmat[site_id])
+    error = np.zeros(3)
+    mujoco.mju_subQuat(error, quat, current)
+    return np.degrees(np.linalg.norm(error))
+
+
+def test_holds_pose_under_gravity_within_1_mm(model):
+    data, controller, pos, quat = _start(model)
+    data.qvel[:] = 0.2  # start from a disturbed state so holding is not trivial
+    controller.step(data, pos, quat, q_nullspace=model.key("home").qpos, n_substeps=4000)
+    assert np.linalg.norm(data.site_xpos[controller.site_id] - pos) < 1e-3
+    assert _rotation_error_deg(data, controller.site_id, quat) < 0.1
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_10_cm_step_settles_within_1_mm(model, axis):
+    data, controller, pos, quat = _start(model)
+    target = pos.copy()
+    target[axis] -= 0.1
+    errors_m = []
+    for _ in range(2000):
+        controller.step(data, target, quat, q_nullspace=model.key("home").qpos)
+        errors_m.append(np.linalg.norm(data.site_xpos[controller.site_id] - target))
+    outside = np.nonzero(np.asarray(errors_m) > 1e-3)[0]
+    settling_s = (outside[-1] + 1) * model.opt.timestep
+    print(f"axis {axis}: 10 cm step settles to 1 mm in {settling_s:.3f} s")
+    assert settling_s < 1.5
+
+
+def test_step_response_does_not_overshoot(model):
+    data, controller, pos, quat = _start(model)
+    progress_m = []
+    for _ in range(1500):
+        controller.step(data, pos + [0.1, 0.0, 0.0], quat, q_nullspace=model.key("home").qpos)
+        progress_m.append(data.site_xpos[controller.site_id][0] - pos[0])
+    assert max(progress_m) < 0.1 + 1e-3  # critical damping of the Cartesian modes
+
+
+def test_torque_and_torque_rate_limits_hold_at_every_step(model):
+    data, controller, pos, quat = _start(model)
+    config = controller.config
+    flipped = np.zeros(4)
+    mujoco.mju_mulQuat(flipped, np.array([0.0, 0.0, 0.0, 1.0]), quat)  # 180 deg about world z: saturates
+    previous = controller.last_torque
+    max_rate, max_ratio = 0.0, 0.0
+    for _ in range(1000):
+        controller.step(data, pos + [0.3, 0.3, -0.2], flipped)
+        max_rate = max(max_rate, np.max(np.abs(data.ctrl - previous)))
+        max_ratio = max(max_ratio, np.max(np.abs(data.ctrl) / config.torque_limits))
+        previous = data.ctrl.copy()
+    assert max_rate <= config.torque_rate_limit * model.opt.timestep + 1e-9
+    assert max_ratio <= 1.0 + 1e-12
+    assert max_rate == pytest.approx(config.torque_rate_limit * model.opt.timestep)  # the limit was active
+
+
+def test_torque_at_rest_on_target_is_gravity_compensation(model):
+    data, controller, pos, quat = _start(model)
+    mujoco.mj_step1(model, data)
+    tau = controller.compute_torque(data, pos, quat, q_nullspace=data.qpos.copy())
+    np.testing.assert_allclose(tau, data.qfrc_bias, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "stiffness",
+    [
+        np.eye(3),
+        np.eye(6)[:, :5],
+        np.diag([1000.0, 1000.0, 1000.0, 50.0, 50.0, -1.0]),
+        np.eye(6) + np.triu(np.ones((6, 6)), 1),
+        np.full((6, 6), np.nan),
+        "stiff",
+    ],
+    ids=["3x3", "6x5", "negative", "asymmetric", "nan", "string"],
+)
+def test_bad_stiffness_raises_controller_error(model, stiffness):
+    data, controller, pos, quat = _start(model)
+    with pytest.raises(ControllerError, match="stiffness"):
+        controller.step(data, pos, quat, stiffness=stiffness)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"target_pos": [0.0, 0.0]}, "target_pos"),
+        ({"target_quat": [0.0, 0.0, 0.0, 0.0]}, "target_quat"),
+        ({"q_nullspace": np.zeros(6)}, "q_nullspace"),
+        ({"n_substeps": 0}, "n_substeps"),
+    ],
+)
+def test_bad_inputs_raise_controller_error(model, kwargs, match):
+    data, controller, pos, quat = _start(model)
+    call = {"target_pos": pos, "target_quat": quat, **kwargs}
+    with pytest.raises(ControllerError, match=match):
+        controller.step(data, **call)
+
+
+def test_unknown_site_raises_controller_error(model):
+    with pytest.raises(ControllerError, match="no_such_site"):
+        CartesianImpedanceController(model, "no_such_site")
+
+
+def test_non_positive_gain_raises_controller_error():
+    with pytest.raises(ControllerError, match="translational_stiffness"):
+        ImpedanceConfig(translational_stiffness=0.0)
+
+
+def _deflection_under_force(model, stiffness, force_n):
+    """Steady site deflection when a constant force pushes the peg at its centre of mass."""
+    data, controller, pos, quat = _start(model)
+    peg_body = model.site("peg_tip").bodyid[0]
+    data.xfrc_applied[peg_body, :3] = force_n
+    controller.step(data, pos, quat, stiffness=stiffness, q_nullspace=model.key("home").qpos, n_substeps=3000)
+    return data.site_xpos[controller.site_id] - pos
+
+
+@pytest.mark.parametrize("k_n_per_m", [800.0, 3000.0])
+def test_deflection_follows_hookes_law(model, k_n_per_m):
+    force = np.array([10.0, 0.0, 0.0])
+    stiffness = np.diag([k_n_per_m] * 3 + [80.0] * 3)
+    deflection = _deflection_under_force(model, stiffness, force)
+    np.testing.assert_allclose(deflection, force / k_n_per_m, atol=0.2 * 10.0 / k_n_per_m)
+
+
+def test_stiffer_gain_deflects_less(model):
+    force = np.array([0.0, 10.0, 0.0])
+    soft = _deflection_under_force(model, np.diag([800.0] * 3 + [80.0] * 3), force)
+    stiff = _deflection_under_force(model, np.diag([3000.0] * 3 + [80.0] * 3), force)
+    assert np.linalg.norm(stiff) < 0.5 * np.linalg.norm(soft)
+
+
+def test_full_stiffness_matrix_deflects_along_its_compliance(model):
+    rng = np.random.default_rng()
+    basis, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    stiffness = np.zeros((6, 6))
+    stiffness[:3, :3] = basis @ np.diag([600.0, 1500.0, 3000.0]) @ basis.T
+    stiffness[3:, 3:] = 80.0 * np.eye(3)
+    force = np.array([6.0, -8.0, 5.0])
+    expected = np.linalg.solve(stiffness[:3, :3], force)
+    deflection = _deflection_under_force(model, stiffness, force)
+    assert np.linalg.norm(deflection - expected) < 0.2 * np.linalg.norm(expected)
+
+
+@pytest.fixture(scope="module")
+def model_with_free_peg() -> mujoco.MjModel:
+    """The Panda beside a peg on a free joint (another kinematic tree): nv = 13, nu = 7."""
+    spec = mujoco.MjSpec.from_file(str(PANDA_XML))
+    peg = spec.worldbody.add_body(pos=[0.3, -0.4, 0.2])
+    peg.add_freejoint()
+    peg.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.015, 0.015, 0.04])
+    peg.add_site(name="free_peg_site")
+    return spec.compile()
+
+
+def test_holds_pose_beside_a_free_body(model_with_free_peg):
+    model = model_with_free_peg
+    data, controller, pos, quat = _start(model, site="peg_mount")
+    controller.step(data, pos + [0.0, 0.0, 0.05], quat, n_substeps=2000)
+    assert np.linalg.norm(data.site_xpos[controller.site_id] - pos - [0.0, 0.0, 0.05]) < 1e-3
+
+
+def test_site_off_the_arm_raises_controller_error(model_with_free_peg):
+    with pytest.raises(ControllerError, match="free_peg_site"):
+        CartesianImpedanceController(model_with_free_peg, "free_peg_site")
