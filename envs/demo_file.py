@@ -1,0 +1,221 @@
+"""The demonstration file: N peg_tip pose trajectories of M samples sharing a goal (``.npz``).
+
+Schema (all arrays, float64 unless noted):
+    pos          (N, M, 3)  peg_tip positions, metres, world frame
+    quat         (N, M, 4)  peg_tip orientations, unit quaternions (w, x, y, z), continuous in m
+    dt           ()         sampling time, seconds (duration / (M - 1))
+    goal_pos     (3,)       shared goal position; pos[n, -1] == goal_pos for every n
+    goal_quat    (4,)       shared goal orientation; quat[n, -1] == goal_quat for every n
+    shape        () str     hole/peg shape name
+    clearance_m  ()         radial peg-hole clearance, metres
+    config_json  () str     JSON with the configuration that produced the file (free-form)
+Optional:
+    residual_pos_m   (N,)   |measured settled position - goal| before snapping to the goal, metres
+    residual_rot_deg (N,)   angle between measured settled orientation and goal, degrees
+
+Files are written atomically (temp file + os.replace) and read with ``allow_pickle=False``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from envs.errors import EnvError
+from envs.poses import quat_angle_rad
+
+FloatArray = npt.NDArray[np.float64]
+
+REQUIRED_KEYS: tuple[str, ...] = ("pos", "quat", "dt", "goal_pos", "goal_quat", "shape", "clearance_m",
+                                  "config_json")
+OPTIONAL_KEYS: tuple[str, ...] = ("residual_pos_m", "residual_rot_deg")
+
+#: A demo "ends at the goal" when its last sample is this close to the stored goal.
+GOAL_TOL_M: float = 1e-6
+GOAL_TOL_RAD: float = 1e-6
+#: Largest |norm - 1| of a stored quaternion.
+UNIT_TOL: float = 1e-6
+
+
+@dataclass(frozen=True)
+class DemoSet:
+    """Demonstrations in memory; see the module docstring for the meaning of each field."""
+
+    pos: FloatArray
+    quat: FloatArray
+    dt: float
+    goal_pos: FloatArray
+    goal_quat: FloatArray
+    shape: str
+    clearance_m: float
+    config: dict[str, Any] = field(default_factory=dict)
+    residual_pos_m: FloatArray | None = None
+    residual_rot_deg: FloatArray | None = None
+
+    @property
+    def num_demos(self) -> int:
+        """N, the number of demonstrations."""
+        return int(self.pos.shape[0])
+
+    @property
+    def num_samples(self) -> int:
+        """M, the number of samples per demonstration."""
+        return int(self.pos.shape[1])
+
+    @property
+    def duration_s(self) -> float:
+        """Duration of every demonstration, (M - 1) dt."""
+        return float(self.dt * (self.num_samples - 1))
+
+
+def validate_demos(demos: DemoSet, source: str = "demos") -> None:
+    """Check shapes, finiteness, unit quaternions and the shared goal of a DemoSet.
+
+    Raises:
+        EnvError: one line naming ``source`` and the first problem found.
+    """
+    pos, quat = np.asarray(demos.pos), np.asarray(demos.quat)
+    if pos.ndim != 3 or pos.shape[2] != 3:
+        raise EnvError(f"{source}: 'pos' must have shape (N, M, 3), got {pos.shape}")
+    if quat.shape != pos.shape[:2] + (4,):
+        raise EnvError(f"{source}: 'quat' must have shape {pos.shape[:2] + (4,)} to match 'pos', got {quat.shape}")
+    if pos.shape[0] < 1 or pos.shape[1] < 2:
+        raise EnvError(f"{source}: need at least 1 demo of at least 2 samples, got {pos.shape[:2]}")
+    goal_pos, goal_quat = np.asarray(demos.goal_pos), np.asarray(demos.goal_quat)
+    if goal_pos.shape != (3,):
+        raise EnvError(f"{source}: 'goal_pos' must have shape (3,), got {goal_pos.shape}")
+    if goal_quat.shape != (4,):
+        raise EnvError(f"{source}: 'goal_quat' must have shape (4,), got {goal_quat.shape}")
+    for name, arr in (("pos", pos), ("quat", quat), ("goal_pos", goal_pos), ("goal_quat", goal_quat)):
+        if not np.all(np.isfinite(arr)):
+            bad = np.argwhere(~np.isfinite(arr))[0].tolist()
+            raise EnvError(f"{source}: '{name}' contains NaN or inf (first at index {bad})")
+    if not (np.isfinite(demos.dt) and demos.dt > 0.0):
+        raise EnvError(f"{source}: 'dt' must be a finite positive number of seconds, got {demos.dt}")
+    if not (np.isfinite(demos.clearance_m) and demos.clearance_m >= 0.0):
+        raise EnvError(f"{source}: 'clearance_m' must be finite and >= 0, got {demos.clearance_m}")
+    if not demos.shape:
+        raise EnvError(f"{source}: 'shape' is empty")
+    norms = np.linalg.norm(quat, axis=-1)
+    worst = np.unravel_index(np.argmax(np.abs(norms - 1.0)), norms.shape)
+    if abs(norms[worst] - 1.0) > UNIT_TOL:
+        raise EnvError(f"{source}: 'quat' is not unit at demo {worst[0]}, sample {worst[1]} "
+                       f"(norm {norms[worst]:.6g})")
+    if abs(np.linalg.norm(goal_quat) - 1.0) > UNIT_TOL:
+        raise EnvError(f"{source}: 'goal_quat' {goal_quat.tolist()} is not unit")
+    pos_err = np.linalg.norm(pos[:, -1] - goal_pos, axis=-1)
+    rot_err = quat_angle_rad(quat[:, -1], goal_quat)
+    for n in range(pos.shape[0]):
+        if pos_err[n] > GOAL_TOL_M or rot_err[n] > GOAL_TOL_RAD:
+            raise EnvError(f"{source}: demo {n} does not end at the goal (final sample off by "
+                           f"{pos_err[n] * 1e3:.3g} mm, {np.rad2deg(rot_err[n]):.3g} deg)")
+    for name, arr in (("residual_pos_m", demos.residual_pos_m), ("residual_rot_deg", demos.residual_rot_deg)):
+        if arr is not None and np.asarray(arr).shape != (pos.shape[0],):
+            raise EnvError(f"{source}: '{name}' must have shape ({pos.shape[0]},), got {np.asarray(arr).shape}")
+
+
+def save_demos(path: str | os.PathLike[str], demos: DemoSet) -> Path:
+    """Validate and write ``demos`` to ``path`` atomically (temp file in the same folder + os.replace).
+
+    Returns:
+        the written path.
+
+    Raises:
+        EnvError: invalid demos, or the folder cannot be written.
+    """
+    out = Path(path)
+    validate_demos(demos, source=str(out))
+    arrays: dict[str, Any] = {
+        "pos": np.asarray(demos.pos, dtype=np.float64),
+        "quat": np.asarray(demos.quat, dtype=np.float64),
+        "dt": np.float64(demos.dt),
+        "goal_pos": np.asarray(demos.goal_pos, dtype=np.float64),
+        "goal_quat": np.asarray(demos.goal_quat, dtype=np.float64),
+        "shape": np.str_(demos.shape),
+        "clearance_m": np.float64(demos.clearance_m),
+        "config_json": np.str_(json.dumps(demos.config, sort_keys=True)),
+    }
+    if demos.residual_pos_m is not None:
+        arrays["residual_pos_m"] = np.asarray(demos.residual_pos_m, dtype=np.float64)
+    if demos.residual_rot_deg is not None:
+        arrays["residual_rot_deg"] = np.asarray(demos.residual_rot_deg, dtype=np.float64)
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise EnvError(f"cannot write demos to {out}: folder {folder} does not exist")
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(handle, **arrays)
+        os.replace(tmp_name, out)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return out
+
+
+def _scalar(archive: Any, key: str, source: str, kind: type) -> Any:
+    value = archive[key]
+    if value.shape != ():
+        raise EnvError(f"{source}: '{key}' must be a scalar, got shape {value.shape}")
+    try:
+        return kind(value.item())
+    except (TypeError, ValueError):
+        raise EnvError(f"{source}: '{key}' is not a {kind.__name__} (dtype {value.dtype})") from None
+
+
+def load_demos(path: str | os.PathLike[str]) -> DemoSet:
+    """Read and validate a demonstration file written by :func:`save_demos`.
+
+    Raises:
+        EnvError: missing file, not a readable .npz, missing keys, wrong shapes or types, NaN,
+            non-unit quaternions, or demos that do not end at the stored goal.
+    """
+    src = str(path)
+    if not Path(path).is_file():
+        raise EnvError(f"demo file {src} not found")
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            missing = [k for k in REQUIRED_KEYS if k not in archive.files]
+            if missing:
+                raise EnvError(f"{src}: missing keys {missing} (a demo file needs {list(REQUIRED_KEYS)})")
+            arrays = {k: archive[k] for k in ("pos", "quat", "goal_pos", "goal_quat")}
+            for key, arr in arrays.items():
+                if not np.issubdtype(arr.dtype, np.number):
+                    raise EnvError(f"{src}: '{key}' must be numeric, got dtype {arr.dtype}")
+            dt = _scalar(archive, "dt", src, float)
+            clearance_m = _scalar(archive, "clearance_m", src, float)
+            shape = _scalar(archive, "shape", src, str)
+            config_text = _scalar(archive, "config_json", src, str)
+            optional = {k: np.asarray(archive[k], dtype=float) for k in OPTIONAL_KEYS if k in archive.files}
+    except EnvError:
+        raise
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as err:
+        raise EnvError(f"{src}: not a readable .npz demo file ({type(err).__name__}: {err})") from None
+    try:
+        config = json.loads(config_text)
+    except json.JSONDecodeError as err:
+        raise EnvError(f"{src}: 'config_json' is not valid JSON ({err})") from None
+    if not isinstance(config, dict):
+        raise EnvError(f"{src}: 'config_json' must hold a JSON object, got {type(config).__name__}")
+    demos = DemoSet(
+        pos=np.asarray(arrays["pos"], dtype=float),
+        quat=np.asarray(arrays["quat"], dtype=float),
+        dt=dt,
+        goal_pos=np.asarray(arrays["goal_pos"], dtype=float),
+        goal_quat=np.asarray(arrays["goal_quat"], dtype=float),
+        shape=shape,
+        clearance_m=clearance_m,
+        config=config,
+        residual_pos_m=optional.get("residual_pos_m"),
+        residual_rot_deg=optional.get("residual_rot_deg"),
+    )
+    validate_demos(demos, source=src)
+    return demos

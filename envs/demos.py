@@ -1,0 +1,514 @@
+"""Scripted peg-in-hole demonstrations executed in physics and recorded as measured peg_tip poses.
+
+The scripted expert plans one smooth peg_tip pose path in the hole frame (axis a out of the hole, opening
+o; the start offset s - o splits into the height h0 = (s - o) . a and the lateral part l0):
+  - lateral offset l(t) = l0 (1 - sigma(t / T_align)) and orientation slerp(q_start, q_goal, sigma(t / T_align)),
+    with sigma(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5 (minimum jerk): the peg reaches the hole axis, aligned,
+    at T_align, high above the opening;
+  - height h(t): a quintic from h0 (at rest) to the entry height h_e above the opening, reached at the
+    slow entry speed v_e at T_approach; the constant speed v_e down to the entry depth -d_e below the
+    opening (T_entry = (h_e + d_e) / v_e); a second quintic from -d_e (speed v_e) to the goal depth -d
+    (at rest) in T_insert (quintics with zero acceleration at their ends, so h is C2);
+  - hold at the goal for T_hold.
+The path is C2 and never stops before the goal (no spurious rest point for the learned dynamics). The
+slow entry matters: the controller damps the absolute velocity through the (non-diagonal) Cartesian
+inertia, so a fast vertical motion drags the peg sideways by ~0.013 mm per mm/s -- at the
+minimum-jerk peak speed of a plain descent that exceeds the 0.5 mm half clearance.
+Every demo lasts the same T = T_approach + T_entry + T_insert + T_hold (7 s by default), so all demos
+share one sampling time dt = T / (M - 1).
+The impedance controller executes the path; the MEASURED peg_tip pose is recorded every control step
+and resampled to M samples on a uniform grid (positions linearly, quaternions by slerp).
+
+A demo is kept only if the success tracker declared success and the settled pose (mean over the last
+``settle_window_s``) is within ``goal_tol_m`` / ``goal_tol_deg`` of the nominal goal. The residual is then
+removed smoothly over the hold segment: with w(t) the minimum-jerk ramp from 0 at the start of the hold
+to 1 at its end, p'(t) = p(t) + w (g_p - p_settled) and q'(t) = exp(w Log(g_q conj(q_settled))) q(t), and
+the last sample is set to the goal, so every demo ends exactly at the shared goal (p_M = g) while the
+recorded motion is changed by at most the residual (reported per demo). Failed demos are recorded with
+their reason and replaced by a new start from the same random stream; none is silently kept.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import numpy.typing as npt
+
+from controllers.impedance import ImpedanceConfig
+from envs.contact import ContactConfig
+from envs.demo_file import DemoSet
+from envs.env import EpisodeConfig, PegInHoleEnv, StepResult
+from envs.errors import EnvError
+from envs.poses import (
+    Pose,
+    StartRegion,
+    format_pose,
+    make_continuous,
+    mean_quat,
+    minimum_jerk,
+    quintic_hermite,
+    quat_angle_rad,
+    quat_conj,
+    quat_from_rotvec,
+    quat_mul,
+    quat_to_rotvec,
+    resample_trajectory,
+    slerp,
+)
+from envs.scene import SceneConfig
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ExpertConfig:
+    """The scripted expert and the demo recording (defaults: M = 4000 samples, as in the paper).
+
+    Attributes:
+        entry_height_m: h_e, height above the opening (on the axis) where the constant entry speed begins.
+        entry_depth_m: d_e, depth below the opening where the constant entry speed ends.
+        entry_speed_m_s: v_e, speed along the axis from h_e to -d_e.
+        align_duration_s: T_align, time to reach the hole axis and the goal orientation.
+        approach_duration_s: T_approach, time from the start height down to h_e (>= T_align).
+        insertion_duration_s: T_insert, time from -d_e to the goal depth.
+        hold_duration_s: T_hold, time holding the goal at the end.
+        settle_window_s: the settled pose is the mean measured pose over this last part of the hold.
+        num_samples: M, samples per recorded demo.
+        goal_tol_m, goal_tol_deg: largest accepted distance of the settled pose from the goal.
+        max_attempts: give up after this many attempts (kept + failed) in one collection.
+        start_region: where starts are sampled.
+    """
+
+    entry_height_m: float = 0.005
+    entry_depth_m: float = 0.005
+    entry_speed_m_s: float = 0.01
+    align_duration_s: float = 2.0
+    approach_duration_s: float = 3.0
+    insertion_duration_s: float = 2.0
+    hold_duration_s: float = 1.0
+    settle_window_s: float = 0.3
+    num_samples: int = 4000
+    goal_tol_m: float = 1e-3
+    goal_tol_deg: float = 1.0
+    max_attempts: int = 1000
+    start_region: StartRegion = field(default_factory=StartRegion)
+
+    def __post_init__(self) -> None:
+        for name in ("entry_height_m", "align_duration_s", "approach_duration_s", "insertion_duration_s",
+                     "hold_duration_s", "settle_window_s", "goal_tol_m", "goal_tol_deg"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0.0):
+                raise EnvError(f"ExpertConfig.{name}={value!r} must be a positive finite number")
+        if not (np.isfinite(self.entry_speed_m_s) and self.entry_speed_m_s > 0.0):
+            raise EnvError(f"ExpertConfig.entry_speed_m_s={self.entry_speed_m_s!r} must be > 0")
+        if not (np.isfinite(self.entry_depth_m) and self.entry_depth_m >= 0.0):
+            raise EnvError(f"ExpertConfig.entry_depth_m={self.entry_depth_m!r} must be >= 0")
+        if self.align_duration_s > self.approach_duration_s:
+            raise EnvError(f"ExpertConfig.align_duration_s={self.align_duration_s} exceeds approach_duration_s="
+                           f"{self.approach_duration_s}")
+        if self.settle_window_s > self.hold_duration_s:
+            raise EnvError(f"ExpertConfig.settle_window_s={self.settle_window_s} exceeds hold_duration_s="
+                           f"{self.hold_duration_s}")
+        if not isinstance(self.num_samples, int) or self.num_samples < 2:
+            raise EnvError(f"ExpertConfig.num_samples={self.num_samples!r} must be an integer >= 2")
+        if self.max_attempts < 1:
+            raise EnvError(f"ExpertConfig.max_attempts={self.max_attempts} must be >= 1")
+
+    @property
+    def entry_duration_s(self) -> float:
+        """T_entry = (h_e + d_e) / v_e, the constant-speed entry."""
+        return (self.entry_height_m + self.entry_depth_m) / self.entry_speed_m_s
+
+    @property
+    def hold_start_s(self) -> float:
+        """Time at which the planned path reaches the goal."""
+        return self.approach_duration_s + self.entry_duration_s + self.insertion_duration_s
+
+    @property
+    def duration_s(self) -> float:
+        """T, the duration of every demo."""
+        return self.hold_start_s + self.hold_duration_s
+
+
+def plan_expert_path(start: Pose, opening_pos: npt.ArrayLike, hole_axis: npt.ArrayLike, goal: Pose,
+                     config: ExpertConfig, times: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """The scripted expert's commanded peg_tip poses at ``times`` (see the module docstring).
+
+    Args:
+        start: start pose (t = 0).
+        opening_pos: centre of the hole opening o.
+        hole_axis: hole axis a, pointing out of the hole.
+        goal: goal pose on the axis below the opening, reached at ``config.hold_start_s`` and held.
+        config: entry height/speed and segment durations.
+        times: (K,) query times in seconds.
+
+    Returns:
+        (pos (K, 3), quat (K, 4)), quaternions continuous and ending at +goal.quat.
+
+    Raises:
+        EnvError: a start not above the entry height, or a height profile that would not descend
+            monotonically (entry speed too high for the distances and durations).
+    """
+    t = np.asarray(times, dtype=float)
+    axis = np.asarray(hole_axis, dtype=float)
+    axis = axis / np.linalg.norm(axis)
+    opening = np.asarray(opening_pos, dtype=float)
+    offset = start.pos - opening
+    h0 = float(offset @ axis)
+    lateral0 = offset - h0 * axis
+    depth = float((opening - goal.pos) @ axis)
+    h_e, d_e, v_e = config.entry_height_m, config.entry_depth_m, config.entry_speed_m_s
+    t_a, t_e, t_i = config.approach_duration_s, config.entry_duration_s, config.insertion_duration_s
+    if h0 <= h_e:
+        raise EnvError(f"start {format_pose(start)} is {h0 * 1e3:.1f} mm above the opening, not above the entry "
+                       f"height {h_e * 1e3:.1f} mm")
+    if depth <= d_e:
+        raise EnvError(f"goal depth {depth * 1e3:.1f} mm is not below the entry depth {d_e * 1e3:.1f} mm")
+    approach = (h0, 0.0, h_e, -v_e * t_a)
+    insertion = (-d_e, -v_e * t_i, -depth, 0.0)
+    grid = np.linspace(0.0, 1.0, 201)  # both quintics must descend monotonically
+    for p0, v0, p1, v1 in (approach, insertion):
+        if np.any(np.diff(quintic_hermite(grid, p0, v0, p1, v1)) > 1e-12):
+            raise EnvError(f"entry speed {v_e} m/s is too high for a monotone descent from {p0 * 1e3:.1f} mm to "
+                           f"{p1 * 1e3:.1f} mm (start {format_pose(start)})")
+    height = np.where(t < t_a, quintic_hermite(t / t_a, *approach),
+                      np.where(t < t_a + t_e, h_e - v_e * (t - t_a),
+                               quintic_hermite((t - t_a - t_e) / t_i, *insertion)))
+    sigma = minimum_jerk(t / config.align_duration_s)
+    pos = opening + height[:, None] * axis + (1.0 - sigma)[:, None] * lateral0
+    quat = slerp(start.quat, goal.quat, sigma)
+    return pos, make_continuous(quat, reference=goal.quat)
+
+
+@dataclass(frozen=True)
+class DemoAttempt:
+    """One executed demonstration (kept or failed).
+
+    Attributes:
+        start: the start pose.
+        ok: kept.
+        reason: "ok" or why it failed.
+        times: (K,) control-step times of the measured samples (from 0).
+        pos, quat: (K, 3), (K, 4) measured peg_tip poses.
+        commanded_pos: (K, 3) commanded peg_tip positions (for drawing).
+        residual_pos_m, residual_rot_deg: settled pose minus goal (NaN when not reached).
+        wall_s: wall-clock seconds the attempt took.
+    """
+
+    start: Pose
+    ok: bool
+    reason: str
+    times: FloatArray
+    pos: FloatArray
+    quat: FloatArray
+    commanded_pos: FloatArray
+    residual_pos_m: float
+    residual_rot_deg: float
+    wall_s: float
+
+
+def settled_pose(times: FloatArray, pos: FloatArray, quat: FloatArray, window_s: float) -> Pose:
+    """Mean pose over the last ``window_s`` seconds: arithmetic mean position, normalised-sum quaternion."""
+    keep = times >= times[-1] - window_s - 1e-9
+    return Pose(pos=pos[keep].mean(axis=0), quat=mean_quat(quat[keep]))
+
+
+def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
+                 on_step: Callable[[StepResult], None] | None = None) -> DemoAttempt:
+    """Run the scripted expert from ``start`` in physics and judge the result (never raises for a failure).
+
+    The environment must not stop on success (the expert holds the peg to let it settle) and its time
+    limit must exceed ``config.duration_s``.
+
+    Returns:
+        DemoAttempt with the measured trajectory at every control step (t = 0 included).
+    """
+    wall = time.perf_counter()
+    goal = env.goal
+    period = env.control_period_s
+    num_steps = int(round(config.duration_s / period))
+    step_times = period * np.arange(1, num_steps + 1)
+    nan = float("nan")
+    empty = np.zeros((0, 3))
+    try:
+        cmd_pos, cmd_quat = plan_expert_path(start, env.hole.pos, env.hole_axis, goal, config, step_times)
+    except EnvError as err:
+        return DemoAttempt(start, False, f"no path: {err}", np.zeros(0), empty, np.zeros((0, 4)), empty, nan, nan,
+                           time.perf_counter() - wall)
+
+    def failed(reason: str, times: FloatArray = np.zeros(0), pos: FloatArray = empty,
+               quat: FloatArray = np.zeros((0, 4))) -> DemoAttempt:
+        return DemoAttempt(start, False, reason, times, pos, quat, cmd_pos, nan, nan, time.perf_counter() - wall)
+
+    try:
+        obs = env.reset(start_pose=start)
+    except EnvError as err:
+        return failed(f"{UNREACHABLE_PREFIX}: {err}")
+    times, pos, quat = [0.0], [obs.peg_tip.pos], [obs.peg_tip.quat]
+    result: StepResult | None = None
+    for k in range(num_steps):
+        result = env.step((cmd_pos[k], cmd_quat[k]))
+        if on_step is not None:
+            on_step(result)
+        times.append(result.obs.time_s)
+        pos.append(result.obs.peg_tip.pos)
+        quat.append(result.obs.peg_tip.quat)
+        if result.done:
+            break
+    t_arr, p_arr, q_arr = np.asarray(times), np.asarray(pos), make_continuous(np.asarray(quat))
+    if result is not None and result.done and result.reason != "success":
+        return failed(f"episode ended early: {result.reason}", t_arr, p_arr, q_arr)
+    if result is None or not result.obs.success:
+        ins = env.observation.insertion
+        return failed(f"not inserted (depth {ins.depth_m * 1e3:.1f} mm, lateral {ins.lateral_m * 1e3:.2f} mm, "
+                      f"tilt {ins.tilt_deg:.2f} deg, hole {env.observation.hole})", t_arr, p_arr, q_arr)
+    settled = settled_pose(t_arr, p_arr, q_arr, config.settle_window_s)
+    res_pos = float(np.linalg.norm(settled.pos - goal.pos))
+    res_rot = float(np.rad2deg(quat_angle_rad(settled.quat, goal.quat)))
+    ok = res_pos <= config.goal_tol_m and res_rot <= config.goal_tol_deg
+    reason = "ok" if ok else (f"settled {res_pos * 1e3:.2f} mm / {res_rot:.2f} deg from the goal "
+                              f"(tolerance {config.goal_tol_m * 1e3:g} mm / {config.goal_tol_deg:g} deg)")
+    return DemoAttempt(start, ok, reason, t_arr, p_arr, q_arr, cmd_pos, res_pos, res_rot, time.perf_counter() - wall)
+
+
+def finalize_demo(attempt: DemoAttempt, goal: Pose, config: ExpertConfig) -> tuple[FloatArray, FloatArray]:
+    """Resample a kept attempt to M samples on [0, T] and make it end exactly at the goal.
+
+    Returns:
+        (pos (M, 3), quat (M, 4)), quaternions continuous and ending at +goal.quat.
+    """
+    grid = np.linspace(0.0, config.duration_s, config.num_samples)
+    pos, quat = resample_trajectory(attempt.times, attempt.pos, attempt.quat, grid)
+    settled = settled_pose(attempt.times, attempt.pos, make_continuous(attempt.quat), config.settle_window_s)
+    weight = minimum_jerk((grid - config.hold_start_s) / config.hold_duration_s)
+    pos = pos + weight[:, None] * (goal.pos - settled.pos)
+    correction = quat_to_rotvec(quat_mul(goal.quat, quat_conj(settled.quat)))
+    quat = quat_mul(quat_from_rotvec(weight[:, None] * correction), quat)
+    pos[-1] = goal.pos
+    quat[-1] = goal.quat
+    quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
+    return pos, make_continuous(quat, reference=goal.quat)
+
+
+def demo_episode_config(config: ExpertConfig, base: EpisodeConfig = EpisodeConfig()) -> EpisodeConfig:
+    """The episode settings the expert needs: no stop on success, a time limit past the demo's end."""
+    return dataclasses.replace(base, stop_on_success=False, time_limit_s=config.duration_s + 1.0,
+                               start_region=config.start_region)
+
+
+def _jsonable(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+@dataclass(frozen=True)
+class Collection:
+    """Result of :func:`collect_demos`: the demo set, every attempt, and timing."""
+
+    demos: DemoSet
+    attempts: list[DemoAttempt]
+    wall_s: float
+
+    @property
+    def failures(self) -> list[DemoAttempt]:
+        """The attempts that were not kept."""
+        return [a for a in self.attempts if not a.ok]
+
+
+def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = SceneConfig(),
+                  expert: ExpertConfig = ExpertConfig(),
+                  controller_config: ImpedanceConfig = ImpedanceConfig(),
+                  env: PegInHoleEnv | None = None,
+                  on_attempt: Callable[[int, DemoAttempt], None] | None = None,
+                  on_step: Callable[[StepResult], None] | None = None,
+                  before_attempt: Callable[[PegInHoleEnv, Pose, FloatArray], None] | None = None) -> Collection:
+    """Record ``num`` successful scripted demonstrations from starts sampled with ``seed``.
+
+    Args:
+        num: demonstrations to keep (N).
+        seed: seed of the start-pose stream (failed attempts draw the next start from the same stream).
+        scene_config, expert, controller_config: the setup (ignored scene/controller when ``env`` given).
+        env: reuse an environment (its episode config must come from :func:`demo_episode_config`).
+        on_attempt: called with (attempt index, DemoAttempt) after each attempt.
+        on_step: called with every StepResult (e.g. to render).
+        before_attempt: called with (env, start, planned positions (K, 3)) before each attempt.
+
+    Returns:
+        Collection with the DemoSet (N, M) ending at the shared goal.
+
+    Raises:
+        EnvError: bad arguments, or ``expert.max_attempts`` attempts without collecting ``num`` demos.
+    """
+    if not isinstance(num, int) or num < 1:
+        raise EnvError(f"number of demos must be a positive integer, got {num!r}")
+    wall = time.perf_counter()
+    if env is None:
+        env = PegInHoleEnv(scene_config, controller_config, demo_episode_config(expert))
+    elif env.config.stop_on_success or env.config.time_limit_s <= expert.duration_s:
+        raise EnvError("the demo environment must not stop on success and must outlast the demo "
+                       "(build it with demo_episode_config)")
+    rng = np.random.default_rng(seed)
+    goal = env.goal
+    attempts: list[DemoAttempt] = []
+    kept: list[tuple[FloatArray, FloatArray]] = []
+    while len(kept) < num:
+        if len(attempts) >= expert.max_attempts:
+            reasons = "; ".join(sorted({a.reason.split(" (")[0] for a in attempts if not a.ok}))
+            raise EnvError(f"only {len(kept)} of {num} demos succeeded in {len(attempts)} attempts ({reasons})")
+        start = env.sample_start(rng)
+        if before_attempt is not None:
+            grid = env.control_period_s * np.arange(0, int(round(expert.duration_s / env.control_period_s)) + 1)
+            try:
+                planned = plan_expert_path(start, env.hole.pos, env.hole_axis, goal, expert, grid)[0]
+            except EnvError:
+                planned = np.zeros((0, 3))
+            before_attempt(env, start, planned)
+        attempt = execute_demo(env, start, expert, on_step)
+        attempts.append(attempt)
+        if on_attempt is not None:
+            on_attempt(len(attempts) - 1, attempt)
+        if attempt.ok:
+            kept.append(finalize_demo(attempt, goal, expert))
+    kept_attempts = [a for a in attempts if a.ok]
+    config = {
+        "scene": _jsonable(env.scene.config),
+        "controller": _jsonable(env.controller.config),
+        "episode": _jsonable(env.config),
+        "expert": _jsonable(expert),
+        "seed": seed,
+        "starts": [{"pos": a.start.pos.tolist(), "quat": a.start.quat.tolist()} for a in kept_attempts],
+        "failures": [{"attempt": i, "reason": a.reason, "start": format_pose(a.start)}
+                     for i, a in enumerate(attempts) if not a.ok],
+        "attempts": len(attempts),
+        "seconds_per_attempt": float(np.mean([a.wall_s for a in attempts])),
+    }
+    json.dumps(config)  # fail here, not at save time, if something is not serialisable
+    demos = DemoSet(
+        pos=np.stack([p for p, _ in kept]),
+        quat=np.stack([q for _, q in kept]),
+        dt=expert.duration_s / (expert.num_samples - 1),
+        goal_pos=goal.pos.copy(),
+        goal_quat=goal.quat.copy(),
+        shape=env.shape,
+        clearance_m=float(env.scene.config.clearance_m),
+        config=config,
+        residual_pos_m=np.array([a.residual_pos_m for a in kept_attempts]),
+        residual_rot_deg=np.array([a.residual_rot_deg for a in kept_attempts]),
+    )
+    return Collection(demos=demos, attempts=attempts, wall_s=time.perf_counter() - wall)
+
+
+UNREACHABLE_PREFIX = "reset failed"
+
+
+@dataclass(frozen=True)
+class SuccessRate:
+    """Outcome of :func:`expert_success_rate`.
+
+    Attributes:
+        num_starts: starts drawn.
+        num_success: demos that succeeded.
+        num_unreachable: starts the arm cannot be put at (IK or collision), a property of the start region.
+        failures: (index, reason) of every start that did not give a kept demo (unreachable included).
+        seconds_per_demo: median wall-clock time of an executed demo.
+        max_residual_pos_m, max_residual_rot_deg: worst settled distance from the goal among successes.
+    """
+
+    num_starts: int
+    num_success: int
+    num_unreachable: int
+    failures: list[tuple[int, str]]
+    seconds_per_demo: float
+    max_residual_pos_m: float
+    max_residual_rot_deg: float
+
+    @property
+    def rate(self) -> float:
+        """Successes over all drawn starts (unreachable starts count as failures)."""
+        return self.num_success / self.num_starts
+
+    @property
+    def rate_reachable(self) -> float:
+        """Successes over the starts the arm could be put at (the expert's own success rate)."""
+        reachable = self.num_starts - self.num_unreachable
+        return self.num_success / reachable if reachable else float("nan")
+
+
+def expert_success_rate(num_starts: int = 100, seed: int | None = 0, scene_config: SceneConfig = SceneConfig(),
+                        expert: ExpertConfig = ExpertConfig(),
+                        controller_config: ImpedanceConfig = ImpedanceConfig(),
+                        on_attempt: Callable[[int, DemoAttempt], None] | None = None) -> SuccessRate:
+    """Run the scripted expert once from each of ``num_starts`` seeded starts (no redraws) and count the
+    successes (inserted, settled within the goal tolerances). The bar is >= 99 % of 100.
+
+    Raises:
+        EnvError: num_starts < 1.
+    """
+    if num_starts < 1:
+        raise EnvError(f"num_starts={num_starts} must be >= 1")
+    env = PegInHoleEnv(scene_config, controller_config, demo_episode_config(expert))
+    rng = np.random.default_rng(seed)
+    failures: list[tuple[int, str]] = []
+    walls, res_pos, res_rot = [], [], []
+    unreachable = 0
+    for i in range(num_starts):
+        attempt = execute_demo(env, env.sample_start(rng), expert)
+        if attempt.ok:
+            res_pos.append(attempt.residual_pos_m)
+            res_rot.append(attempt.residual_rot_deg)
+        else:
+            failures.append((i, attempt.reason))
+        if attempt.reason.startswith(UNREACHABLE_PREFIX):
+            unreachable += 1
+        else:
+            walls.append(attempt.wall_s)
+        if on_attempt is not None:
+            on_attempt(i, attempt)
+    return SuccessRate(
+        num_starts=num_starts,
+        num_success=num_starts - len(failures),
+        num_unreachable=unreachable,
+        failures=failures,
+        seconds_per_demo=float(np.median(walls)) if walls else float("nan"),
+        max_residual_pos_m=float(max(res_pos, default=float("nan"))),
+        max_residual_rot_deg=float(max(res_rot, default=float("nan"))),
+    )
+
+
+def scene_config_from_demos(demos: DemoSet) -> SceneConfig:
+    """The SceneConfig a demo file was recorded in (shape, clearance, depths and goal from config_json).
+
+    Raises:
+        EnvError: a stored scene configuration that does not build a valid SceneConfig.
+    """
+    stored = demos.config.get("scene", {}) if isinstance(demos.config, dict) else {}
+    fields = {}
+    for name in ("hole_depth_m", "insertion_depth_m", "goal_yaw_deg"):
+        if name in stored:
+            fields[name] = float(stored[name])
+    if "goal_pos" in stored:
+        fields["goal_pos"] = tuple(float(v) for v in stored["goal_pos"])
+    if stored.get("hole_at_goal") is not None:
+        pos, quat = stored["hole_at_goal"]
+        fields["hole_at_goal"] = (tuple(float(v) for v in pos), tuple(float(v) for v in quat))
+    try:
+        if isinstance(stored.get("contact"), dict):
+            fields["contact"] = ContactConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                                for k, v in stored["contact"].items()})
+        return SceneConfig(shape=demos.shape, clearance_m=demos.clearance_m, **fields)
+    except (TypeError, ValueError) as err:
+        raise EnvError(f"demo file scene configuration is invalid: {err}") from None

@@ -1,0 +1,126 @@
+"""The scripted expert: path planning (pure) and recorded demonstrations (physics)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import envs.demos as demos_module
+from envs.demo_file import load_demos, save_demos
+from envs.demos import (
+    DemoAttempt,
+    ExpertConfig,
+    collect_demos,
+    demo_episode_config,
+    plan_expert_path,
+    scene_config_from_demos,
+)
+from envs.env import PegInHoleEnv
+from envs.errors import EnvError
+from envs.poses import Pose, StartRegion, quat_angle_rad, quat_from_rotvec, quat_mul
+
+OPENING = np.array([0.6, 0.0, 0.2])
+AXIS = np.array([0.0, 0.0, 1.0])
+GOAL = Pose(OPENING - 0.03 * AXIS, np.array([0.0, 1.0, 0.0, 0.0]))
+START = Pose(OPENING + [-0.12, 0.05, 0.17], quat_mul(quat_from_rotvec([0.2, -0.1, 0.1]), GOAL.quat))
+CONFIG = ExpertConfig()
+TIMES = np.linspace(0.0, CONFIG.duration_s, 6501)
+
+
+@pytest.fixture(scope="module")
+def path() -> tuple[np.ndarray, np.ndarray]:
+    return plan_expert_path(START, OPENING, AXIS, GOAL, CONFIG, TIMES)
+
+
+def test_path_starts_at_start_and_ends_at_goal(path) -> None:
+    pos, quat = path
+    np.testing.assert_allclose(pos[0], START.pos, atol=1e-12)
+    np.testing.assert_allclose(pos[-1], GOAL.pos, atol=1e-12)
+    assert quat_angle_rad(quat[0], START.quat) < 1e-9 and np.allclose(quat[-1], GOAL.quat)
+
+
+def test_path_height_never_rises(path) -> None:
+    assert np.all(np.diff(path[0] @ AXIS) <= 1e-12)
+
+
+def test_path_is_on_the_axis_and_aligned_before_the_opening(path) -> None:
+    pos, quat = path
+    near = (pos - OPENING) @ AXIS <= 0.02
+    lateral = np.linalg.norm((pos - OPENING) - np.outer((pos - OPENING) @ AXIS, AXIS), axis=1)
+    assert np.all(lateral[near] < 1e-9) and np.all(quat_angle_rad(quat[near], GOAL.quat) < 1e-9)
+
+
+def test_path_velocity_is_continuous(path) -> None:
+    velocity = np.diff(path[0], axis=0) / np.diff(TIMES)[:, None]
+    assert np.max(np.linalg.norm(np.diff(velocity, axis=0), axis=1)) < 1e-3  # m/s per 1 ms sample
+
+
+def test_path_crosses_the_opening_at_the_entry_speed(path) -> None:
+    height = path[0] @ AXIS - OPENING @ AXIS
+    inside = (height <= CONFIG.entry_height_m - 1e-4) & (height >= -CONFIG.entry_depth_m + 1e-4)
+    speed = -np.diff(height) / np.diff(TIMES)
+    np.testing.assert_allclose(speed[inside[:-1]], CONFIG.entry_speed_m_s, rtol=1e-6)
+
+
+def test_start_below_the_entry_height_is_refused() -> None:
+    low = Pose(OPENING + [0.0, 0.0, 0.001], GOAL.quat)
+    with pytest.raises(EnvError, match="entry height"):
+        plan_expert_path(low, OPENING, AXIS, GOAL, CONFIG, TIMES)
+
+
+@pytest.fixture(scope="module")
+def collection():
+    return collect_demos(2, seed=0, expert=ExpertConfig(num_samples=300))
+
+
+def test_quick_collection_succeeds_and_ends_at_the_goal(collection) -> None:
+    demos = collection.demos
+    assert demos.pos.shape == (2, 300, 3) and demos.quat.shape == (2, 300, 4)
+    np.testing.assert_allclose(demos.pos[:, -1], np.tile(demos.goal_pos, (2, 1)), atol=1e-12)
+    assert demos.dt == pytest.approx(CONFIG.duration_s / 299)
+
+
+def test_kept_demos_settled_within_tolerance(collection) -> None:
+    assert np.all(collection.demos.residual_pos_m <= 1e-3)
+    assert np.all(collection.demos.residual_rot_deg <= 1.0)
+
+
+def test_recorded_demos_start_at_the_sampled_starts(collection) -> None:
+    starts = collection.demos.config["starts"]
+    for n, start in enumerate(starts):
+        assert np.linalg.norm(collection.demos.pos[n, 0] - start["pos"]) < 1e-3
+
+
+def test_collected_file_validates(collection, tmp_path: Path) -> None:
+    loaded = load_demos(save_demos(tmp_path / "demos.npz", collection.demos))
+    assert loaded.num_demos == 2 and loaded.shape == "square"
+    assert scene_config_from_demos(loaded).clearance_m == pytest.approx(0.001)
+
+
+def test_failed_attempt_is_recorded_and_resampled(monkeypatch: pytest.MonkeyPatch) -> None:
+    real = demos_module.execute_demo
+    calls = []
+
+    def fail_first(env, start, config, on_step=None) -> DemoAttempt:
+        attempt = real(env, start, config, on_step)
+        calls.append(start)
+        if len(calls) == 1:
+            return DemoAttempt(start, False, "injected failure", attempt.times, attempt.pos, attempt.quat,
+                               attempt.commanded_pos, np.nan, np.nan, attempt.wall_s)
+        return attempt
+
+    monkeypatch.setattr(demos_module, "execute_demo", fail_first)
+    result = collect_demos(1, seed=0, expert=ExpertConfig(num_samples=50))
+    assert len(result.attempts) == 2 and result.demos.num_demos == 1
+    assert result.demos.config["failures"][0]["reason"] == "injected failure"
+    assert np.linalg.norm(result.demos.pos[0, 0] - calls[1].pos) < 1e-3
+
+
+def test_collection_gives_up_when_no_start_is_reachable() -> None:
+    far = StartRegion(height_above_opening_m=1.5, toward_base_m=0.0, pos_half_width_m=(0.0, 0.0, 0.0))
+    expert = ExpertConfig(num_samples=50, max_attempts=3, start_region=far)
+    env = PegInHoleEnv(episode_config=demo_episode_config(expert))
+    with pytest.raises(EnvError, match="only 0 of 1 demos succeeded in 3 attempts"):
+        collect_demos(1, seed=0, expert=expert, env=env)

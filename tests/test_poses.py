@@ -1,0 +1,113 @@
+"""Quaternion helpers, trajectory resampling, time scalings and start-pose sampling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from envs.errors import EnvError
+from envs.poses import (
+    Pose,
+    StartRegion,
+    make_continuous,
+    minimum_jerk,
+    quat_angle_rad,
+    quat_conj,
+    quat_from_rotvec,
+    quat_mul,
+    quat_to_rotvec,
+    quintic_hermite,
+    resample_trajectory,
+    rotate,
+    sample_start_poses,
+    slerp,
+    validate_pose,
+)
+
+rotvecs = st.lists(st.floats(-1.8, 1.8), min_size=3, max_size=3).map(np.array)
+
+
+@given(rotvecs)
+def test_rotvec_round_trip(r: np.ndarray) -> None:
+    np.testing.assert_allclose(quat_to_rotvec(quat_from_rotvec(r)), r, atol=1e-9)
+
+
+@given(rotvecs)
+def test_quaternion_times_conjugate_is_identity(r: np.ndarray) -> None:
+    q = quat_from_rotvec(r)
+    np.testing.assert_allclose(quat_mul(q, quat_conj(q)), [1.0, 0.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_rotate_quarter_turn_about_z() -> None:
+    q = quat_from_rotvec([0.0, 0.0, np.pi / 2])
+    np.testing.assert_allclose(rotate(q, [1.0, 0.0, 0.0]), [0.0, 1.0, 0.0], atol=1e-12)
+
+
+@given(rotvecs, rotvecs, st.floats(0.0, 1.0))
+def test_slerp_splits_the_angle(a: np.ndarray, b: np.ndarray, s: float) -> None:
+    q0, q1 = quat_from_rotvec(a), quat_from_rotvec(b)
+    total = quat_angle_rad(q0, q1)
+    mid = slerp(q0, q1, s)
+    assert quat_angle_rad(q0, mid) == pytest.approx(s * total, abs=1e-7)
+
+
+def test_make_continuous_removes_sign_flips_and_ends_on_reference() -> None:
+    q = np.array([[1.0, 0, 0, 0], [-1.0, 0, 0, 0], [1.0, 0, 0, 0]])
+    out = make_continuous(q, reference=[-1.0, 0, 0, 0])
+    assert np.all(out[:, 0] == -1.0)
+
+
+def test_resample_is_exact_for_linear_motion() -> None:
+    t = np.linspace(0.0, 1.0, 11)
+    pos = np.outer(t, [1.0, 2.0, 3.0])
+    quat = quat_from_rotvec(np.outer(t, [0.0, 0.0, 1.0]))
+    new_t = np.linspace(0.0, 1.0, 37)
+    new_pos, new_quat = resample_trajectory(t, pos, quat, new_t)
+    np.testing.assert_allclose(new_pos, np.outer(new_t, [1.0, 2.0, 3.0]), atol=1e-12)
+    np.testing.assert_allclose(quat_to_rotvec(new_quat)[:, 2], new_t, atol=1e-9)
+
+
+def test_resample_rejects_non_increasing_times() -> None:
+    with pytest.raises(EnvError, match="strictly increasing"):
+        resample_trajectory([0.0, 0.0], np.zeros((2, 3)), np.tile([1.0, 0, 0, 0], (2, 1)), [0.0])
+
+
+def test_minimum_jerk_has_zero_end_velocities() -> None:
+    s = np.array([0.0, 1e-4, 1.0 - 1e-4, 1.0])
+    values = minimum_jerk(s)
+    assert values[0] == 0.0 and values[-1] == 1.0
+    assert values[1] < 1e-9 and 1.0 - values[2] < 1e-9
+
+
+def test_quintic_hermite_meets_its_end_velocities() -> None:
+    h = 1e-6
+    p = lambda s: quintic_hermite(s, 1.0, -0.3, 0.2, -0.5)  # noqa: E731
+    assert (p(h) - p(0.0)) / h == pytest.approx(-0.3, abs=1e-4)
+    assert (p(1.0) - p(1.0 - h)) / h == pytest.approx(-0.5, abs=1e-4)
+
+
+def test_validate_pose_rejects_non_unit_quaternion() -> None:
+    with pytest.raises(EnvError, match="not unit"):
+        validate_pose([0.0, 0.0, 0.0], [1.0, 0.1, 0.0, 0.0])
+
+
+def test_validate_pose_rejects_nan() -> None:
+    with pytest.raises(EnvError, match="NaN"):
+        validate_pose([0.0, np.nan, 0.0], [1.0, 0.0, 0.0, 0.0])
+
+
+@settings(max_examples=20)
+@given(st.integers(0, 2**32 - 1))
+def test_sampled_starts_lie_in_the_region(seed: int) -> None:
+    region = StartRegion()
+    nominal = Pose(np.array([0.5, 0.0, 0.4]), np.array([0.0, 1.0, 0.0, 0.0]))
+    for pose in sample_start_poses(nominal, region, np.random.default_rng(seed), 20):
+        assert np.all(np.abs(pose.pos - nominal.pos) <= np.array(region.pos_half_width_m) + 1e-12)
+        assert np.rad2deg(quat_angle_rad(pose.quat, nominal.quat)) <= region.max_angle_deg + 1e-9
+
+
+def test_start_region_rejects_negative_widths() -> None:
+    with pytest.raises(EnvError, match="pos_half_width_m"):
+        StartRegion(pos_half_width_m=(0.1, -0.1, 0.1))
