@@ -1,0 +1,206 @@
+"""Generation with a trained RiemannianFlow (Algorithm 1 of the paper), on the numpy inference path.
+
+Open loop (`rollout`): start point -> tangent at the goal -> normalise -> latent q_0 = b^-1(.) ->
+exact latent steps q_k = Phi^k q_0 (Phi = expm(V dt)) -> batched passes b(q_k) over all starts and steps
+(chunks of CHUNK_POINTS points, so finished rollouts stop costing) -> denormalise -> Exp_g.
+A rollout stops at the first step whose tangent vector is shorter than xi and holds the goal afterwards.
+Closed loop (`next_point`, `velocity`): the current point through b^-1, one latent step, back through b.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from rflow.errors import RFlowError
+from rflow.model import RiemannianFlow
+
+CHUNK_POINTS = 8192  # points per batched flow pass: small enough to stay in cache
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """Generated trajectories.
+
+    Attributes:
+        points: (B, steps+1, *point_shape) points on the manifold; entries from `lengths` on hold the goal.
+        tangent: (B, steps+1, D) tangent vectors at the goal (zero once stopped).
+        lengths: (B,) number of generated points up to and including the first with ||tangent|| < xi
+            (steps+1 if never).
+        converged: (B,) True where some point within the step limit had ||tangent|| < xi.
+    """
+
+    points: np.ndarray
+    tangent: np.ndarray
+    lengths: np.ndarray
+    converged: np.ndarray
+
+
+def _check_starts(model: RiemannianFlow, starts: npt.ArrayLike) -> tuple[np.ndarray, bool]:
+    try:
+        arr = np.asarray(starts, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise RFlowError(f"starts are not a numeric array: {err}") from None
+    if arr.shape == model.point_shape:
+        return arr[None], True
+    if arr.ndim != model.manifold.point_ndim + 1 or tuple(arr.shape[1:]) != model.point_shape:
+        raise RFlowError(f"starts have shape {arr.shape}, expected (B, {', '.join(map(str, model.point_shape))})")
+    return arr, False
+
+
+def rollout(
+    model: RiemannianFlow,
+    starts: npt.ArrayLike,
+    steps: int = 1000,
+    xi: float = 1e-3,
+    dt: float | None = None,
+) -> Rollout:
+    """Generate trajectories from many start points at once (Algorithm 1, exact latent steps).
+
+    Args:
+        model: trained model.
+        starts: (B, *point_shape) start points on the manifold (or one point).
+        steps: step limit; the trajectories have steps+1 points, the first being the start.
+        xi: stop threshold on ||tangent|| (tangent units: m for positions, rad for quaternions).
+        dt: step (s); default the demos' sampling time.
+
+    Returns:
+        The `Rollout` (a batch of one for a single start point).
+
+    Raises:
+        RFlowError: bad start shapes, points off the manifold, steps < 0, xi <= 0.
+    """
+    if steps < 0 or int(steps) != steps:
+        raise RFlowError(f"steps {steps} must be a non-negative integer")
+    if not xi > 0:
+        raise RFlowError(f"stop threshold xi={xi} must be > 0")
+    steps = int(steps)
+    arr, _ = _check_starts(model, starts)
+    net = model.inference
+    b = arr.shape[0]
+    dim = model.dim
+    tangent0 = model.to_tangent(arr).reshape(b, dim)
+    q_path = net.latent_path(net.inverse(model.normalise(tangent0)), steps, dt)
+    tangent = np.empty((b, steps + 1, dim))
+    lengths = np.full(b, steps + 1, dtype=np.int64)
+    converged = np.zeros(b, dtype=bool)
+    active = np.arange(b)
+    chunk_steps = max(1, CHUNK_POINTS // max(b, 1))
+    k0 = 0
+    while k0 <= steps and active.size:
+        k1 = min(steps + 1, k0 + chunk_steps)
+        z = net.forward(q_path[active, k0:k1].reshape(-1, dim))
+        v = model.denormalise(z).reshape(active.size, k1 - k0, dim)
+        if k0 == 0:
+            v[:, 0] = tangent0[active]  # the start itself, not its round trip through the flow
+        tangent[active, k0:k1] = v
+        below = np.linalg.norm(v, axis=-1) < xi
+        hit = below.any(axis=1)
+        first = np.argmax(below, axis=1)
+        lengths[active[hit]] = k0 + first[hit] + 1
+        converged[active[hit]] = True
+        active = active[~hit]
+        k0 = k1
+    after = np.arange(steps + 1)[None, :] >= lengths[:, None]
+    tangent[after] = 0.0
+    points = model.from_tangent(tangent)
+    return Rollout(points=points, tangent=tangent, lengths=lengths, converged=converged)
+
+
+def _check_point(model: RiemannianFlow, arr: np.ndarray) -> tuple[np.ndarray, bool]:
+    nd = model.manifold.point_ndim
+    single = arr.ndim == nd
+    if tuple(arr.shape[-nd:]) != model.point_shape or arr.ndim not in (nd, nd + 1):
+        want = ", ".join(map(str, model.point_shape))
+        raise RFlowError(f"point has shape {arr.shape}, expected ({want}) or a batch (B, {want})")
+    return arr, single
+
+
+def _step_tangent(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Tangent vectors now and one step later, (B, D) each, and whether a single point was given."""
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
+        raise RFlowError(f"step dt={dt} must be > 0")
+    try:
+        arr = np.asarray(point, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise RFlowError(f"point is not a numeric array: {err}") from None
+    norm = model.normalisation
+    if arr.shape == model.point_shape:  # the control-loop path: one point, no torch, few numpy calls
+        tangent = model.chart.log(arr)
+        nxt = model.inference.step_single((tangent - norm.mean) / norm.std, dt)
+        return tangent[None], (nxt * norm.std + norm.mean)[None], True
+    arr, single = _check_point(model, arr)
+    tangent = model.to_tangent(arr).reshape(-1, model.dim)
+    nxt = model.denormalise(model.inference.step(model.normalise(tangent), dt))
+    return tangent, nxt, single
+
+
+def next_point(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
+    """The point one step dt later (closed loop): Exp_g(denorm(b(Phi(dt) b^-1(norm(Log_g(point)))))).
+
+    Args:
+        model: trained model.
+        point: current point (*point_shape) or a batch (B, *point_shape).
+        dt: step (s); default the demos' sampling time.
+
+    Returns:
+        The next point(s), same shape as ``point``.
+
+    Raises:
+        RFlowError: bad shape, point off the manifold, NaN, dt <= 0.
+    """
+    _, nxt, single = _step_tangent(model, point, dt)
+    if single:
+        return model.chart.exp(nxt[0])
+    return model.from_tangent(nxt)
+
+
+def velocity(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
+    """Tangent velocity at ``point``: (Log_g(next_point) - Log_g(point)) / dt, the velocity of one exact step.
+
+    Args:
+        model: trained model.
+        point: current point (*point_shape) or a batch (B, *point_shape).
+        dt: step (s); default the demos' sampling time.
+
+    Returns:
+        (D,) or (B, D) tangent velocity (tangent units per second).
+
+    Raises:
+        RFlowError: bad shape, point off the manifold, NaN, dt <= 0.
+    """
+    tangent, nxt, single = _step_tangent(model, point, dt)
+    vel = (nxt - tangent) / (model.dt if dt is None else float(dt))
+    return vel[0] if single else vel
+
+
+def benchmark_flow(model: RiemannianFlow, repeats: int = 50, seed: int = 0) -> dict[str, float]:
+    """Median timings (ms) of the generation paths, for `pih bench`.
+
+    Returns:
+        {"step_ms": one closed-loop `next_point`, "rollout_1000_ms": one 1000-step rollout,
+         "rollouts_100x1000_ms": 100 rollouts of 1000 steps batched, "repeats": repeats}.
+    """
+    rng = np.random.default_rng(seed)
+    tangent = model.denormalise(rng.standard_normal((100, model.dim)))
+    starts = model.from_tangent(tangent)
+    xi = 1e-12  # never stop early: time the full horizon
+
+    def median_ms(fn, n: int) -> float:
+        fn()
+        times = []
+        for _ in range(n):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return 1e3 * float(np.median(times))
+
+    return {
+        "step_ms": median_ms(lambda: next_point(model, starts[0]), repeats * 10),
+        "rollout_1000_ms": median_ms(lambda: rollout(model, starts[:1], 1000, xi), repeats),
+        "rollouts_100x1000_ms": median_ms(lambda: rollout(model, starts, 1000, xi), max(3, repeats // 10)),
+        "repeats": float(repeats),
+    }

@@ -1,0 +1,85 @@
+"""Tiny numpy/torch dispatch used by the manifold maps: the same equation runs on either array type."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from rflow.errors import RFlowError
+
+Array = Any  # numpy.ndarray or torch.Tensor
+
+
+def is_torch(x: Array) -> bool:
+    """True when ``x`` is a torch tensor (the maps then return tensors and stay differentiable)."""
+    return isinstance(x, torch.Tensor)
+
+
+def as_array(x: Any, name: str) -> Array:
+    """Return ``x`` as a floating numpy array (or the float tensor itself); reject NaN/inf.
+
+    Raises:
+        RFlowError: ``x`` is not numeric or holds NaN/inf.
+    """
+    if is_torch(x):
+        if not torch.is_floating_point(x):
+            x = x.to(torch.get_default_dtype())
+        if not bool(torch.isfinite(x).all()):
+            raise RFlowError(f"{name} contains NaN or inf")
+        return x
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise RFlowError(f"{name} is not a numeric array: {err}") from None
+    if not np.all(np.isfinite(arr)):
+        raise RFlowError(f"{name} contains NaN or inf")
+    return arr
+
+
+def check_last_dims(x: Array, dims: tuple[int, ...], name: str) -> None:
+    """Raise RFlowError unless the trailing dimensions of ``x`` equal ``dims``."""
+    shape = tuple(x.shape)
+    if len(shape) < len(dims) or shape[len(shape) - len(dims):] != dims:
+        want = "(..., " + ", ".join(str(d) for d in dims) + ")"
+        raise RFlowError(f"{name} has shape {shape}, expected {want}")
+
+
+def norm(x: Array, keepdims: bool = True) -> Array:
+    """Euclidean norm over the last axis."""
+    if is_torch(x):
+        return torch.linalg.vector_norm(x, dim=-1, keepdim=keepdims)
+    return np.linalg.norm(x, axis=-1, keepdims=keepdims)
+
+
+def xp(x: Array) -> Any:
+    """The array module (numpy or torch) matching ``x`` for functions named alike in both."""
+    return torch if is_torch(x) else np
+
+
+def concat(parts: list[Array], like: Array) -> Array:
+    """Concatenate along the last axis."""
+    return torch.cat(parts, dim=-1) if is_torch(like) else np.concatenate(parts, axis=-1)
+
+
+def stack(parts: list[Array], like: Array) -> Array:
+    """Stack along a new last axis."""
+    return torch.stack(parts, dim=-1) if is_torch(like) else np.stack(parts, axis=-1)
+
+
+def swap_last(x: Array) -> Array:
+    """Transpose the last two axes."""
+    return x.transpose(-1, -2) if is_torch(x) else np.swapaxes(x, -1, -2)
+
+
+def eigh(x: Array) -> tuple[Array, Array]:
+    """Symmetric eigendecomposition, batched over leading axes."""
+    return torch.linalg.eigh(x) if is_torch(x) else np.linalg.eigh(x)
+
+
+def max_abs(x: Array) -> float:
+    """Largest absolute entry as a Python float (0 for an empty array)."""
+    if is_torch(x):
+        return float(x.abs().max()) if x.numel() else 0.0
+    return float(np.abs(x).max()) if x.size else 0.0

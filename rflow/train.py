@@ -1,0 +1,301 @@
+"""Training RiemannianFlow: tangent space at the goal, normalisation, multi-step ImitationFlow likelihood.
+
+Pipeline (PAPER.md, Method): demos on the manifold (N, M, *point_shape) -> hemisphere continuity
+(quaternions) -> shared goal g -> tangent vectors Log_g -> per-dimension normalisation -> maximise
+    sum over transitions (x_t, x_{t+h}) of  log N(b^-1(x_{t+h}); Phi_h b^-1(x_t), Sigma_h) + log|det db^-1/dx (x_{t+h})|
+for horizons h in 1..horizon (steps of dt), with Adam (or Adamax), gradient clipping and a cosine lr decay.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import torch
+from tqdm import tqdm
+
+from rflow.errors import RFlowError
+from rflow.manifolds import Manifold, get_manifold
+from rflow.model import ImitationFlow, ModelConfig, RiemannianFlow
+from rflow.normalise import Normalisation
+
+OPTIMIZERS = ("adam", "adamax")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Hyperparameters of `fit`. Defaults follow the paper (11 layers, ReLU, Adam, lr 1e-3, batch 128).
+
+    Attributes:
+        layers, width, hidden_layers, activation, log_scale_clamp, min_rate: architecture (`ModelConfig`).
+        optimizer: "adam" or "adamax".
+        lr: initial learning rate (decays to lr * lr_final_fraction with a cosine schedule).
+        lr_final_fraction: final lr as a fraction of lr.
+        batch_size: transitions per gradient step.
+        epochs: passes over ``transitions_per_epoch`` sampled transitions.
+        transitions_per_epoch: transitions sampled per epoch (subsampling of all (t, h) pairs).
+        horizon: largest horizon h (steps of dt) of a transition x_t -> x_{t+h}; h is uniform in 1..horizon.
+        horizon_groups: distinct horizons per batch (each costs one matrix exponential per step).
+        val_fraction: fraction of (demo, time) start points held out for the validation loss.
+        grad_clip: max gradient norm.
+        init_noise: initial latent diffusion F (normalised units per sqrt(s)).
+        goal_tolerance: demo ends may differ from their mean by this fraction of the demos' extent.
+        seed: seeds torch and numpy generators (training is deterministic for a given seed and threads).
+        threads: torch intra-op threads for training (None: leave torch's setting). One thread is as fast
+            as two for these small layers and is not slowed down by other processes on a busy machine.
+    """
+
+    layers: int = 11
+    width: int = 64
+    hidden_layers: int = 1
+    activation: str = "relu"
+    log_scale_clamp: float = 2.0
+    min_rate: float = 0.05
+    optimizer: str = "adam"
+    lr: float = 1e-3
+    lr_final_fraction: float = 0.05
+    batch_size: int = 128
+    epochs: int = 80
+    transitions_per_epoch: int = 4000
+    horizon: int = 500
+    horizon_groups: int = 8
+    val_fraction: float = 0.1
+    grad_clip: float = 10.0
+    init_noise: float = 0.5
+    goal_tolerance: float = 0.01
+    seed: int = 0
+    threads: int | None = 1
+
+    def __post_init__(self) -> None:
+        self.model_config()  # validates the architecture fields
+        if self.optimizer not in OPTIMIZERS:
+            raise RFlowError(f"unknown optimizer {self.optimizer!r}; expected one of {OPTIMIZERS}")
+        if not (self.lr > 0 and 0 < self.lr_final_fraction <= 1):
+            raise RFlowError(f"need lr > 0 and 0 < lr_final_fraction <= 1, got {self.lr}, {self.lr_final_fraction}")
+        if min(self.batch_size, self.epochs, self.transitions_per_epoch, self.horizon, self.horizon_groups) < 1:
+            raise RFlowError("batch_size, epochs, transitions_per_epoch, horizon and horizon_groups must be >= 1")
+        if not 0 <= self.val_fraction < 1:
+            raise RFlowError(f"val_fraction {self.val_fraction} must be in [0, 1)")
+        if not (self.grad_clip > 0 and self.init_noise > 0 and self.goal_tolerance >= 0):
+            raise RFlowError("grad_clip and init_noise must be > 0, goal_tolerance >= 0")
+        if self.threads is not None and self.threads < 1:
+            raise RFlowError(f"threads {self.threads} must be >= 1")
+
+    def model_config(self) -> ModelConfig:
+        """The architecture part of the config."""
+        return ModelConfig(
+            layers=self.layers,
+            width=self.width,
+            hidden_layers=self.hidden_layers,
+            activation=self.activation,
+            log_scale_clamp=self.log_scale_clamp,
+            min_rate=self.min_rate,
+        )
+
+
+@dataclass
+class TrainHistory:
+    """Loss per epoch (negative log-likelihood per transition and dimension, nats) and wall time."""
+
+    train_loss: list[float] = field(default_factory=list)
+    val_loss: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def save(self, path: str | Path) -> Path:
+        """Write the history as JSON."""
+        out = Path(path)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(asdict(self), indent=2))
+        return out
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TrainHistory":
+        """Read a history written by `save`. Raises RFlowError on a missing or corrupt file."""
+        try:
+            data = json.loads(Path(path).read_text())
+            train = [float(x) for x in data["train_loss"]]
+            return cls(train, [float(x) for x in data["val_loss"]], float(data["seconds"]))
+        except FileNotFoundError:
+            raise RFlowError(f"no training history at {path}") from None
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise RFlowError(f"corrupt training history {path}: {err}") from None
+
+
+def shared_goal(demos: np.ndarray, manifold: Manifold, tolerance: float) -> np.ndarray:
+    """The common goal of the demos: the mean of their last points (one Karcher step from the first).
+
+    Raises:
+        RFlowError: "demos do not share a goal" when an end lies farther than tolerance x extent from it.
+    """
+    ends = demos[:, -1]
+    first = ends[0]
+    goal = np.asarray(manifold.exp(np.asarray(manifold.log(ends, first)).mean(axis=0), first))
+    end_error = np.linalg.norm(np.asarray(manifold.log(ends, goal)), axis=-1)
+    extent = float(np.linalg.norm(np.asarray(manifold.log(demos, goal)), axis=-1).max())
+    worst = int(np.argmax(end_error))
+    if end_error[worst] > tolerance * extent + 1e-12:
+        raise RFlowError(
+            f"demos do not share a goal: demo {worst} ends {end_error[worst]:.3g} from the mean end "
+            f"(tolerance {tolerance:g} x extent {extent:.3g})"
+        )
+    return goal
+
+
+def _check_demos(demos: npt.ArrayLike, manifold: Manifold) -> np.ndarray:
+    try:
+        arr = np.array(demos, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise RFlowError(f"demos are not a numeric array of equal-length trajectories: {err}") from None
+    if arr.ndim != 2 + manifold.point_ndim or arr.shape[0] < 1 or arr.shape[1] < 2:
+        raise RFlowError(
+            f"demos have shape {arr.shape}, expected (N, M, point) with {manifold.point_ndim}-D "
+            f"{manifold.name} points, N >= 1 and M >= 2"
+        )
+    return np.asarray(manifold.prepare(arr))
+
+
+def _split_starts(n: int, m: int, val_fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """Boolean (n * m,) mask of the transition start points (demo, t) held out for validation."""
+    held_out = np.zeros(n * m, dtype=bool)
+    held_out[rng.permutation(n * m)[: int(round(val_fraction * n * m))]] = True
+    return held_out
+
+
+def _sample(
+    allowed: np.ndarray,
+    n: int,
+    m: int,
+    batches: int,
+    batch_size: int,
+    horizon: int,
+    groups: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Random transitions (flat start index, horizon h), ``batches`` x ``batch_size`` of them.
+
+    Each batch draws ``groups`` horizons uniformly in 1..min(horizon, m-1) (few distinct h per batch: one
+    matrix exponential each) and every transition one of them; the start t is uniform in 0..m-1-h among
+    the starts ``allowed`` (train or validation split).
+    """
+    h_max = min(horizon, m - 1)
+    h_values = 1 + rng.integers(0, h_max, size=(batches, groups))
+    h = np.take_along_axis(h_values, rng.integers(0, groups, size=(batches, batch_size)), axis=1).reshape(-1)
+    demo = rng.integers(0, n, size=h.size)
+    start = demo * m + np.floor(rng.random(h.size) * (m - h)).astype(np.int64)
+    for _ in range(100):  # resample starts outside the split (a few % per round)
+        bad = np.flatnonzero(~allowed[start])
+        if bad.size == 0:
+            break
+        start[bad] = demo[bad] * m + np.floor(rng.random(bad.size) * (m - h[bad])).astype(np.int64)
+    keep = allowed[start]
+    return start[keep], h[keep]
+
+
+def fit(
+    demos: npt.ArrayLike,
+    manifold: str | Manifold,
+    dt: float,
+    config: TrainConfig = TrainConfig(),
+    progress: bool = True,
+) -> tuple[RiemannianFlow, TrainHistory]:
+    """Learn a stable skill from demonstrations on a manifold.
+
+    Args:
+        demos: N trajectories of M points on the manifold, all ending at the same goal:
+            (N, M, n) for "euclidean", (N, M, 4) unit quaternions w-x-y-z for "sphere",
+            (N, M, d, d) for "spd".
+        manifold: "euclidean", "sphere", "spd" or a `Manifold`.
+        dt: sampling time of the demos (s).
+        config: hyperparameters.
+        progress: show a tqdm progress bar.
+
+    Returns:
+        The trained model and the loss history (train/val per epoch).
+
+    Raises:
+        RFlowError: bad shapes, NaN, points off the manifold, demos without a shared goal, or a non-finite
+            loss: training stops, the message names the epoch, and the error carries ``.model`` (the model
+            with the last good weights, those of the previous epoch) and ``.history``.
+    """
+    man = get_manifold(manifold)
+    if not (np.isfinite(dt) and dt > 0):
+        raise RFlowError(f"sampling time dt={dt} must be > 0")
+    data = _check_demos(demos, man)
+    n, m = data.shape[:2]
+    goal = shared_goal(data, man, config.goal_tolerance)
+    tangent = np.asarray(man.log(data, goal))
+    norm = Normalisation.fit(tangent)
+    z = norm.apply(tangent).reshape(n * m, -1)
+    dim = z.shape[-1]
+
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    duration = dt * (m - 1)
+    network = ImitationFlow(
+        dim, config.model_config(), norm.goal, init_rate=3.0 / duration, init_noise=config.init_noise
+    )
+    network.float().train()
+    params = list(network.parameters())
+    opt_cls = torch.optim.Adam if config.optimizer == "adam" else torch.optim.Adamax
+    opt = opt_cls(params, lr=config.lr, fused=True)  # one kernel per step: much less overhead on CPU
+    steps_per_epoch = max(1, math.ceil(config.transitions_per_epoch / config.batch_size))
+    total = steps_per_epoch * config.epochs
+    final = config.lr_final_fraction
+    sched = torch.optim.lr_scheduler.LambdaLR(  # cosine decay from lr to final * lr
+        opt, lambda k: final + (1 - final) * 0.5 * (1 + math.cos(math.pi * min(k, total) / total))
+    )
+    z_t = torch.as_tensor(z, dtype=torch.float32)
+    held_out = _split_starts(n, m, config.val_fraction, rng)
+    val_s, val_h = _sample(held_out, n, m, 16, 128, config.horizon, config.horizon_groups, rng)
+    has_val = held_out.any() and val_s.size > 0
+    history = TrainHistory()
+    good_state = copy.deepcopy(network.state_dict())
+    t0 = time.perf_counter()
+    bar = tqdm(range(config.epochs), desc="train", unit="epoch", disable=not progress, leave=False)
+    for epoch in bar:
+        s, h = _sample(~held_out, n, m, steps_per_epoch, config.batch_size, config.horizon, config.horizon_groups, rng)
+        s_t, e_t, tau_t = torch.as_tensor(s), torch.as_tensor(s + h), torch.as_tensor(h * dt, dtype=torch.float32)
+        epoch_loss = 0.0
+        for k in range(steps_per_epoch):
+            sl = slice(k * config.batch_size, (k + 1) * config.batch_size)
+            logp = network.transition_log_prob(z_t[s_t[sl]], z_t[e_t[sl]], tau_t[sl])
+            loss = -logp.mean() / dim
+            grad_norm = torch.zeros(())
+            if torch.isfinite(loss):
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                grad_norm = torch.nn.utils.clip_grad_norm_(params, config.grad_clip)
+            if not (torch.isfinite(loss) and torch.isfinite(grad_norm)):
+                network.load_state_dict(good_state)
+                history.seconds = time.perf_counter() - t0
+                err = RFlowError(
+                    f"training diverged: non-finite loss at epoch {epoch + 1}; the last good weights are in "
+                    "this error's .model"
+                )
+                err.model = RiemannianFlow(  # type: ignore[attr-defined]
+                    man, goal, norm, dt, config.model_config(), network
+                )
+                err.history = history  # type: ignore[attr-defined]
+                raise err
+            opt.step()
+            sched.step()
+            epoch_loss += float(loss.detach())
+        history.train_loss.append(epoch_loss / steps_per_epoch)
+        if has_val:
+            with torch.no_grad():
+                val_tau = torch.as_tensor(val_h * dt, dtype=torch.float32)
+                val_logp = network.transition_log_prob(z_t[val_s], z_t[val_s + val_h], val_tau)
+                vl = -val_logp.mean() / dim
+            history.val_loss.append(float(vl))
+        good_state = copy.deepcopy(network.state_dict())
+        bar.set_postfix(loss=f"{history.train_loss[-1]:.3f}")
+    history.seconds = time.perf_counter() - t0
+    return RiemannianFlow(man, goal, norm, dt, config.model_config(), network), history

@@ -1,0 +1,88 @@
+"""Generation (rflow.generate): exact goal, batched rollouts, closed-loop steps."""
+
+import numpy as np
+import pytest
+
+from rflow.errors import RFlowError
+from rflow.generate import benchmark_flow, next_point, rollout, velocity
+from rflow.train import TrainConfig, fit
+
+GOAL = np.array([0.5, -0.1, 0.2])
+XI = 1e-3
+
+
+@pytest.fixture(scope="module")
+def model_and_demos():
+    s = np.linspace(0, 1, 200)[None, :, None]
+    starts = np.array([[0.3, 0.2, 0.1], [0.35, 0.1, 0.15], [0.25, 0.25, 0.05]])[:, None, :]
+    demos = (1 - s) ** 2 * starts + np.sin(np.pi * s) * (1 - s) * np.array([0.0, 0.0, 0.08]) + GOAL
+    config = TrainConfig(epochs=6, transitions_per_epoch=1024, horizon=100, width=32, threads=1)
+    model, _ = fit(demos, "euclidean", 0.01, config, progress=False)
+    return model, demos
+
+
+def test_random_starts_all_reach_the_goal(model_and_demos):
+    model, demos = model_and_demos
+    radius = 2 * np.abs(demos - GOAL).max(axis=(0, 1))
+    starts = GOAL + np.random.default_rng(0).uniform(-radius, radius, size=(1000, 3))
+    out = rollout(model, starts, steps=4000, xi=XI)
+    assert out.converged.all(), f"{(~out.converged).sum()} of 1000 rollouts did not reach ||tangent|| < xi"
+    assert np.all(np.isfinite(out.tangent))
+
+
+def test_rollout_holds_the_goal_after_stopping(model_and_demos):
+    model, demos = model_and_demos
+    out = rollout(model, demos[:, 0], steps=3000, xi=XI)
+    k = out.lengths[0]
+    assert np.linalg.norm(out.tangent[0, k - 1]) < XI <= np.linalg.norm(out.tangent[0, k - 2])
+    assert np.all(out.tangent[0, k:] == 0) and np.allclose(out.points[0, k:], GOAL)
+
+
+def test_rollout_shapes_and_start(model_and_demos):
+    model, demos = model_and_demos
+    out = rollout(model, demos[:, 0], steps=50)
+    assert out.points.shape == (3, 51, 3) and out.tangent.shape == (3, 51, 3) and out.lengths.shape == (3,)
+    assert np.allclose(out.points[:, 0], demos[:, 0])
+
+
+def test_next_point_is_the_first_rollout_step(model_and_demos):
+    model, demos = model_and_demos
+    out = rollout(model, demos[0, 0], steps=1)
+    assert np.allclose(next_point(model, demos[0, 0]), out.points[0, 1], atol=1e-12)
+
+
+def test_single_point_and_batch_agree(model_and_demos):
+    model, demos = model_and_demos
+    batch = next_point(model, demos[:, 10])
+    assert np.allclose(next_point(model, demos[1, 10]), batch[1], atol=1e-12)
+    assert np.allclose(velocity(model, demos[1, 10]), velocity(model, demos[:, 10])[1], atol=1e-9)
+
+
+def test_velocity_integrates_to_the_next_point(model_and_demos):
+    model, demos = model_and_demos
+    p = demos[0, 30]
+    assert np.allclose(p + velocity(model, p, dt=0.02) * 0.02, next_point(model, p, dt=0.02), atol=1e-12)
+
+
+def test_velocity_vanishes_at_the_goal(model_and_demos):
+    model, _ = model_and_demos
+    assert np.allclose(velocity(model, GOAL), 0.0, atol=1e-9)
+
+
+def test_bad_inputs_raise(model_and_demos):
+    model, _ = model_and_demos
+    with pytest.raises(RFlowError, match="shape"):
+        rollout(model, np.zeros((2, 4)))
+    with pytest.raises(RFlowError, match="xi"):
+        rollout(model, GOAL, xi=0.0)
+    with pytest.raises(RFlowError, match="NaN"):
+        next_point(model, np.array([np.nan, 0.0, 0.0]))
+    with pytest.raises(RFlowError, match="dt"):
+        next_point(model, GOAL, dt=-1.0)
+
+
+def test_benchmark_reports_timings(model_and_demos):
+    model, _ = model_and_demos
+    result = benchmark_flow(model, repeats=2)
+    assert {"step_ms", "rollout_1000_ms", "rollouts_100x1000_ms"} <= set(result)
+    assert all(v > 0 for v in result.values())

@@ -1,0 +1,91 @@
+"""The numpy inference path (rflow.inference) equals the torch model."""
+
+import numpy as np
+import pytest
+import scipy.linalg
+import torch
+
+from rflow.inference import TangentChart
+from rflow.manifolds import get_manifold
+from rflow.model import ImitationFlow, ModelConfig, RiemannianFlow
+from rflow.normalise import Normalisation
+
+
+CONFIGS = [ModelConfig(layers=11, width=32, hidden_layers=2), ModelConfig(layers=5, width=8, activation="tanh")]
+
+
+@pytest.fixture(params=CONFIGS)
+def model(request):
+    torch.manual_seed(0)
+    norm = Normalisation(np.array([0.1, -0.2, 0.05]), np.array([0.3, 0.2, 0.1]))
+    net = ImitationFlow(3, request.param, norm.goal)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.normal_(0.0, 0.3)
+    return RiemannianFlow("euclidean", np.zeros(3), norm, 0.01, request.param, net)
+
+
+def torch_step(model, p: np.ndarray) -> np.ndarray:
+    net = model.network
+    with torch.no_grad():
+        q, _ = net.latent(torch.as_tensor(p))
+        phi = torch.linalg.matrix_exp(net.dynamics.drift_matrix() * model.dt)
+        return net.observe(q @ phi.T)[0].numpy()
+
+
+def test_batch_inverse_equals_torch(model):
+    p = np.random.default_rng(0).normal(size=(1000, 3))
+    with torch.no_grad():
+        q = model.network.latent(torch.as_tensor(p))[0].numpy()
+    assert np.allclose(model.inference.inverse(p), q, atol=1e-6, rtol=0)
+
+
+def test_batch_step_equals_torch(model):
+    p = np.random.default_rng(1).normal(size=(300, 3))
+    assert np.allclose(model.inference.step(p), torch_step(model, p), atol=1e-6, rtol=0)
+
+
+def test_single_step_equals_torch(model):
+    p = np.random.default_rng(2).normal(size=3)
+    assert np.allclose(model.inference.step_single(p), torch_step(model, p[None])[0], atol=1e-6, rtol=0)
+
+
+def test_latent_path_is_repeated_steps(model):
+    net = model.inference
+    q0 = np.random.default_rng(3).normal(size=(2, 3))
+    path = net.latent_path(q0, 37)
+    phi = scipy.linalg.expm(net.drift * model.dt)
+    expected = q0.copy()
+    for _ in range(37):
+        expected = expected @ phi.T
+    assert path.shape == (2, 38, 3) and np.allclose(path[:, -1], expected, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "name, goal, point",
+    [
+        ("sphere", np.array([0.5, 0.5, 0.5, 0.5]), np.array([0.0, 0.6, 0.0, 0.8])),
+        ("euclidean", np.array([1.0, 2.0]), np.array([0.5, -1.0])),
+        ("spd", np.diag([2.0, 3.0]), np.array([[1.0, 0.2], [0.2, 1.5]])),
+    ],
+)
+def test_chart_equals_manifold_maps(name, goal, point):
+    manifold = get_manifold(name)
+    chart = TangentChart(manifold, goal)
+    v = chart.log(point)
+    assert np.allclose(v, manifold.log(point, goal), atol=1e-12)
+    assert np.allclose(chart.exp(v), manifold.exp(v, goal), atol=1e-12)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_spd_chart_batch_exp_equals_manifold_map(d):
+    rng = np.random.default_rng(d)
+    a = rng.normal(size=(d, d))
+    goal = a @ a.T + np.eye(d)
+    v = rng.normal(size=(50, d * (d + 1) // 2))
+    v[0] = 0.0
+    v[1, d:] = 1e-9  # nearly equal eigenvalues
+    manifold = get_manifold("spd")
+    chart = TangentChart(manifold, goal)
+    assert np.allclose(chart.exp(v), manifold.exp(v, goal), rtol=1e-10, atol=1e-10)
+    assert np.allclose(chart.log(chart.exp(v)), v, atol=1e-9)
