@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from rflow.manifolds import sphere
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -28,27 +29,13 @@ class Pose:
 
 
 def quat_mul(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:
-    """Hamilton product a * b of quaternions (w, x, y, z), broadcasting over leading axes."""
-    a = np.asarray(a, dtype=float)
-    b = np.asarray(b, dtype=float)
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
+    """Hamilton product a * b of quaternions (w, x, y, z), broadcasting over leading axes (rflow's S^3 product)."""
+    return sphere.quat_mul(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
 
 
 def quat_conj(q: npt.ArrayLike) -> FloatArray:
     """Conjugate (= inverse for unit quaternions): w + u -> w - u."""
-    q = np.array(q, dtype=float)
-    q[..., 1:] *= -1.0
-    return q
+    return sphere.quat_conj(np.asarray(q, dtype=float))
 
 
 def quat_from_rotvec(rotvec: npt.ArrayLike) -> FloatArray:
