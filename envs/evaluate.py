@@ -1,0 +1,637 @@
+"""Batch evaluation of a trained pose skill: perturbed starts, physics episodes, statistics, JSON record.
+
+Start poses. A centre pose is perturbed: position + d, d uniform in the box [-pos_range_m, pos_range_m]^3;
+orientation exp(r) * q, r a rotation vector (world frame) uniform in the ball of radius rot_range_deg
+(envs.poses.sample_start_poses). The centre (``around``) is the mean of the demos' start poses
+("mean", default: arithmetic mean position, normalised-sum quaternion) or, per episode, the start of a
+demo drawn uniformly ("demo": harder, it reaches up to 15 deg past the demos' own orientation range).
+Defaults: +-5 cm, +-15 deg. All starts come from one generator seeded with ``seed``, drawn before any
+episode runs, so the result does not depend on the number of workers.
+
+Episode. The arm is put at the start with mink IK (PegInHoleEnv.reset; an unreachable or colliding start
+is recorded as a failure with its reason, not raised), then each control period the policy
+(envs.skill) commands a peg_tip pose to the impedance controller. Success is the physics-based check of
+envs.success on the MEASURED peg_tip pose (criteria held for hold_s), never the plan. Any exception inside
+an episode is recorded as a failure "error: ..." and the batch goes on.
+
+Statistics. The success rate p = k/n with its 95 % Wilson score interval
+    (p + z^2/2n -+ z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n),  z = 1.96.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import os
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from envs.errors import EnvError
+from envs.poses import Pose, StartRegion, format_pose, mean_quat, quat_angle_rad, sample_start_poses
+from envs.skill import DEFAULT_LOOKAHEAD_S, MODES, feedforward_pose, make_policy
+
+FloatArray = npt.NDArray[np.float64]
+
+Z_95: float = 1.959963984540054
+AROUND: tuple[str, ...] = ("mean", "demo")
+
+
+def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (equation in the module docstring).
+
+    Raises:
+        EnvError: trials < 0 or successes outside [0, trials].
+    """
+    if trials < 0 or not 0 <= successes <= max(trials, 0):
+        raise EnvError(f"need 0 <= successes <= trials, got {successes} of {trials}")
+    if trials == 0:
+        return 0.0, 1.0
+    p = successes / trials
+    z2n = z * z / trials
+    centre = p + z2n / 2.0
+    half = z * math.sqrt(p * (1.0 - p) / trials + z2n / (4.0 * trials))
+    low, high = (centre - half) / (1.0 + z2n), (centre + half) / (1.0 + z2n)
+    return max(0.0, low), min(1.0, high)
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """What `evaluate` runs.
+
+    Attributes:
+        episodes: number of perturbed starts K.
+        seed: seed of the start poses.
+        mode: "closed-loop" (query the flow at the measured pose every step) or "open-loop" (generate
+            the trajectory once, track it in time).
+        pos_range_m: half-width of the position box around a demo start.
+        rot_range_deg: radius of the orientation ball around a demo start.
+        around: the centre of the perturbations, "mean" (mean demo start) or "demo" (a random demo start).
+        lookahead_s: closed loop: flow time between the measured and the commanded pose.
+        feedforward_gain: scale of the impedance velocity feed-forward (envs.skill); 0 turns it off.
+        speed: time scaling of the learned flow (the same path, speed times as fast), both modes.
+        time_limit_s: an episode without success ends (fails) after this much simulated time.
+        clearance_m: hole clearance of the scene (None: the demos').
+        shape: the scene's peg/hole shape (None: the demos'); must equal the demos' shape.
+        hole_at_goal: place the target hole at the skill's goal pose (demos from another setup).
+        workers: processes (1: in this process).
+    """
+
+    episodes: int = 100
+    seed: int = 0
+    mode: str = "closed-loop"
+    pos_range_m: float = 0.05
+    rot_range_deg: float = 15.0
+    around: str = "mean"
+    lookahead_s: float = DEFAULT_LOOKAHEAD_S
+    feedforward_gain: float = 1.0
+    speed: float = 1.0
+    time_limit_s: float = 20.0
+    clearance_m: float | None = None
+    shape: str | None = None
+    hole_at_goal: bool = False
+    workers: int = 1
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.episodes, int) or self.episodes < 1:
+            raise EnvError(f"episodes={self.episodes!r} must be an integer >= 1")
+        if self.mode not in MODES:
+            raise EnvError(f"mode={self.mode!r} must be one of {', '.join(MODES)}")
+        for name in ("pos_range_m", "rot_range_deg"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise EnvError(f"{name}={value!r} must be a finite number >= 0")
+        if self.around not in AROUND:
+            raise EnvError(f"around={self.around!r} must be one of {', '.join(AROUND)}")
+        if not self.rot_range_deg < 180.0:
+            raise EnvError(f"rot_range_deg={self.rot_range_deg} must be < 180")
+        for name in ("lookahead_s", "time_limit_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0.0):
+                raise EnvError(f"{name}={value!r} must be a positive number")
+        if not (np.isfinite(self.speed) and self.speed > 0.0):
+            raise EnvError(f"speed={self.speed!r} must be > 0")
+        if not (np.isfinite(self.feedforward_gain) and self.feedforward_gain >= 0.0):
+            raise EnvError(f"feedforward_gain={self.feedforward_gain!r} must be >= 0")
+        if self.clearance_m is not None and not (np.isfinite(self.clearance_m) and self.clearance_m > 0.0):
+            raise EnvError(f"clearance_m={self.clearance_m!r} must be > 0")
+        if not isinstance(self.workers, int) or self.workers < 1:
+            raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
+
+
+@dataclass(frozen=True)
+class StartPose:
+    """A perturbed start: episode index, the demo it was drawn around, and the pose."""
+
+    index: int
+    demo_index: int
+    pose: Pose
+
+
+@dataclass
+class EpisodeRecord:
+    """Outcome of one episode (JSON-ready through ``to_dict``; NaN where not applicable).
+
+    Attributes:
+        index: episode index.
+        demo_index: the demo whose start was perturbed (-1: the mean demo start).
+        start_pos, start_quat: start pose (m; w, x, y, z).
+        success: the physics check declared success.
+        reason: "success", "time_limit (...)", "instability: ...", "unreachable start: ...", "error: ...".
+        time_to_insert_s: simulated time until success (None on failure).
+        final_pos_error_mm: ||p_final - g_p|| against the scene's goal.
+        final_angle_error_deg: angle between the final and the goal orientation.
+        insertion_depth_mm: depth of the peg_tip below the target hole's opening (negative above).
+        lateral_error_mm, tilt_deg: peg_tip distance from the hole axis and peg tilt at the end.
+        max_contact_force_n: largest contact force magnitude on the peg over the episode.
+        final_pos, final_quat: measured peg_tip pose at the end.
+        steps: control steps run.
+        wall_s: wall-clock seconds.
+    """
+
+    index: int
+    demo_index: int
+    start_pos: list[float]
+    start_quat: list[float]
+    success: bool = False
+    reason: str = "not run"
+    time_to_insert_s: float | None = None
+    final_pos_error_mm: float = float("nan")
+    final_angle_error_deg: float = float("nan")
+    insertion_depth_mm: float = float("nan")
+    lateral_error_mm: float = float("nan")
+    tilt_deg: float = float("nan")
+    max_contact_force_n: float = float("nan")
+    final_pos: list[float] | None = None
+    final_quat: list[float] | None = None
+    steps: int = 0
+    wall_s: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (NaN becomes None)."""
+        return {k: _finite_or_none(v) for k, v in asdict(self).items()}
+
+
+def _finite_or_none(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+@dataclass
+class EpisodeTrace:
+    """The executed trajectory of one episode, one row per control step (t = 0 first), for figures.
+
+    Attributes:
+        times_s, pos, quat: measured peg_tip poses.
+        cmd_pos, cmd_quat: commanded poses (row 0 repeats the start).
+        force_n: contact force magnitude.
+    """
+
+    times_s: FloatArray
+    pos: FloatArray
+    quat: FloatArray
+    cmd_pos: FloatArray
+    cmd_quat: FloatArray
+    force_n: FloatArray
+
+
+# --------------------------------------------------------------------------------------------- set-up
+
+
+def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike, num: int, seed: int,
+                  pos_range_m: float, rot_range_deg: float, around: str = "mean") -> list[StartPose]:
+    """Perturbed start poses around the demos' starts (module docstring).
+
+    Args:
+        demo_start_pos: (N, 3) demo start positions.
+        demo_start_quat: (N, 4) demo start orientations.
+        num: number of starts.
+        seed: generator seed.
+        pos_range_m, rot_range_deg: perturbation box half-width and ball radius.
+        around: "mean" (the mean demo start; demo_index -1) or "demo" (a random demo's start).
+
+    Raises:
+        EnvError: malformed demo starts.
+    """
+    p = np.asarray(demo_start_pos, dtype=np.float64)
+    q = np.asarray(demo_start_quat, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or q.shape != (p.shape[0], 4) or p.shape[0] < 1:
+        raise EnvError(f"demo starts must be pos (N, 3) and quat (N, 4), got {p.shape} and {q.shape}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        raise EnvError("demo start poses contain NaN or inf")
+    if around not in AROUND:
+        raise EnvError(f"around={around!r} must be one of {', '.join(AROUND)}")
+    region = StartRegion(pos_half_width_m=(pos_range_m,) * 3, max_angle_deg=rot_range_deg)
+    rng = np.random.default_rng(seed)
+    mean = Pose(pos=p.mean(axis=0), quat=mean_quat(q))
+    starts = []
+    for k in range(num):
+        n = int(rng.integers(p.shape[0])) if around == "demo" else -1
+        centre = Pose(pos=p[n], quat=q[n] / np.linalg.norm(q[n])) if n >= 0 else mean
+        starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0]))
+    return starts
+
+
+def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: Pose) -> Any:
+    """The SceneConfig to evaluate a skill in: the demos' scene, shape and clearance unless overridden.
+
+    The demos' recorded scene (metadata["scene"], from the demo file's config) supplies goal_pos,
+    goal_yaw_deg, hole_depth_m and insertion_depth_m when present; ``hole_at_goal`` puts the target
+    hole at the skill's goal pose instead.
+
+    Raises:
+        EnvError: a scene shape different from the demos' shape, or an invalid scene.
+    """
+    from envs.scene import SceneConfig
+
+    demo_shape = metadata.get("shape")
+    shape = config.shape or demo_shape or "square"
+    if demo_shape is not None and shape != demo_shape:
+        raise EnvError(f"the skill was trained on {demo_shape!r} demos but the scene's peg is {shape!r}")
+    kwargs: dict[str, Any] = {"shape": shape}
+    recorded = metadata.get("scene") or {}
+    for key in ("goal_pos", "goal_yaw_deg", "hole_depth_m", "insertion_depth_m"):
+        if key in recorded and recorded[key] is not None:
+            kwargs[key] = tuple(recorded[key]) if isinstance(recorded[key], list) else recorded[key]
+    clearance = config.clearance_m if config.clearance_m is not None else metadata.get("clearance_m")
+    if clearance is not None:
+        kwargs["clearance_m"] = float(clearance)
+    if config.hole_at_goal:
+        kwargs["hole_at_goal"] = (tuple(goal.pos.tolist()), tuple(goal.quat.tolist()))
+    return SceneConfig(**kwargs)
+
+
+def check_goal_reachable(env: Any) -> None:
+    """Raise EnvError (one line) when mink IK cannot put the peg_tip at the scene's goal pose."""
+    from controllers.errors import ControllerError
+    from controllers.ik import solve_ik
+
+    try:
+        solve_ik(env.model, env.peg_tip_site, env.goal.pos, env.goal.quat, env.q_nominal, env.config.ik)
+    except ControllerError as err:
+        raise EnvError(f"the goal pose {format_pose(env.goal)} is out of the arm's reach ({err})") from None
+
+
+# --------------------------------------------------------------------------------------------- episode
+
+
+def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = False,
+                on_step: Callable[[Any], None] | None = None, feedforward_gain: float = 1.0) -> tuple[EpisodeRecord, EpisodeTrace | None]:
+    """Run one episode from ``start`` with ``policy`` and score it (never raises for a failed episode).
+
+    Args:
+        env: a PegInHoleEnv (stop_on_success=True).
+        policy: an envs.skill policy.
+        start: the start pose.
+        record_trace: also return the executed trajectory.
+        on_step: called with the env after reset and after every step (e.g. video capture).
+        feedforward_gain: scale of the velocity feed-forward (envs.skill.feedforward_pose); 0 disables it.
+
+    Returns:
+        (EpisodeRecord, EpisodeTrace or None).
+    """
+    wall = time.perf_counter()
+    rec = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist())
+    rows: list[tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, float]] = []
+    try:
+        try:
+            obs = env.reset(start_pose=start.pose)
+        except EnvError as err:
+            rec.reason = f"unreachable start: {err}"
+            return rec, None
+        period = env.control_period_s
+        policy.reset(obs.peg_tip, period)
+        max_force = float(np.linalg.norm(obs.wrench[:3]))
+        rows.append((obs.time_s, obs.peg_tip.pos, obs.peg_tip.quat, obs.peg_tip.pos, obs.peg_tip.quat, max_force))
+        if on_step is not None:
+            on_step(env)
+        step = 0
+        result = None
+        while not env.done:
+            command = policy.command(step, env.observation.peg_tip)
+            target = feedforward_pose(env, command, feedforward_gain)
+            result = env.step(target)
+            step += 1
+            force = float(np.linalg.norm(result.obs.wrench[:3]))
+            max_force = max(max_force, force)
+            if record_trace:
+                o = result.obs
+                rows.append((o.time_s, o.peg_tip.pos, o.peg_tip.quat, target.pos, target.quat, force))
+            if on_step is not None:
+                on_step(env)
+        obs = env.observation
+        rec.steps = step
+        rec.success = bool(obs.success)
+        ins = obs.insertion
+        if rec.success:
+            rec.reason = "success"
+            rec.time_to_insert_s = float(env.tracker.success_time_s)
+        else:
+            reason = env.reason or "not inserted"
+            rec.reason = (f"{reason} (depth {ins.depth_m * 1e3:.1f} mm, lateral {ins.lateral_m * 1e3:.2f} mm, "
+                          f"tilt {ins.tilt_deg:.1f} deg, yaw {ins.yaw_error_deg:.1f} deg, hole {obs.hole})")
+        rec.final_pos = obs.peg_tip.pos.tolist()
+        rec.final_quat = obs.peg_tip.quat.tolist()
+        rec.final_pos_error_mm = float(np.linalg.norm(obs.peg_tip.pos - env.goal.pos) * 1e3)
+        rec.final_angle_error_deg = float(np.rad2deg(quat_angle_rad(obs.peg_tip.quat, env.goal.quat)))
+        rec.insertion_depth_mm = float(ins.depth_m * 1e3)
+        rec.lateral_error_mm = float(ins.lateral_m * 1e3)
+        rec.tilt_deg = float(ins.tilt_deg)
+        rec.max_contact_force_n = max_force
+    except Exception as err:  # an episode must never abort the batch
+        last = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
+        where = f" at {Path(last.filename).name}:{last.lineno}" if last else ""
+        rec.success = False
+        rec.reason = f"error: {type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}{where}"
+    finally:
+        rec.wall_s = time.perf_counter() - wall
+    trace = None
+    if record_trace and rows:
+        t, p, q, cp, cq, f = zip(*rows)
+        trace = EpisodeTrace(np.array(t), np.array(p), np.array(q), np.array(cp), np.array(cq), np.array(f))
+    return rec, trace
+
+
+# --------------------------------------------------------------------------------------------- batch
+
+
+@dataclass
+class EvaluationResult:
+    """All episodes of an evaluation and their statistics."""
+
+    config: EvaluationConfig
+    records: list[EpisodeRecord]
+    wall_s: float
+    model_dir: str = ""
+    metadata: dict[str, Any] = field(default_factory=dict)
+    scene: dict[str, Any] = field(default_factory=dict)
+    goal_mismatch_mm: float = 0.0
+
+    @property
+    def num_success(self) -> int:
+        """Episodes that succeeded."""
+        return sum(r.success for r in self.records)
+
+    @property
+    def success_rate(self) -> float:
+        """Successes / episodes."""
+        return self.num_success / max(len(self.records), 1)
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        """95 % Wilson interval of the success rate."""
+        return wilson_interval(self.num_success, len(self.records))
+
+    def statistics(self) -> dict[str, Any]:
+        """Medians / maxima of the per-episode figures and failure counts by kind."""
+        ok = [r for r in self.records if r.success]
+        kinds: dict[str, int] = {}
+        for r in self.records:
+            if not r.success:
+                kind = r.reason.split(":")[0].split(" (")[0]
+                kinds[kind] = kinds.get(kind, 0) + 1
+
+        def med(values: Iterable[float | None]) -> float | None:
+            v = [x for x in values if x is not None and math.isfinite(x)]
+            return float(np.median(v)) if v else None
+
+        def top(values: Iterable[float | None]) -> float | None:
+            v = [x for x in values if x is not None and math.isfinite(x)]
+            return float(np.max(v)) if v else None
+
+        return {
+            "median_time_to_insert_s": med(r.time_to_insert_s for r in ok),
+            "max_time_to_insert_s": top(r.time_to_insert_s for r in ok),
+            "median_final_pos_error_mm": med(r.final_pos_error_mm for r in self.records),
+            "median_final_angle_error_deg": med(r.final_angle_error_deg for r in self.records),
+            "median_insertion_depth_mm": med(r.insertion_depth_mm for r in self.records),
+            "median_max_contact_force_n": med(r.max_contact_force_n for r in self.records),
+            "max_contact_force_n": top(r.max_contact_force_n for r in self.records),
+            "failures_by_kind": kinds,
+            "median_episode_wall_s": med(r.wall_s for r in self.records),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON record: config, success rate with its Wilson interval, statistics, episodes."""
+        low, high = self.interval
+        return {
+            "model": self.model_dir,
+            "config": asdict(self.config),
+            "scene": self.scene,
+            "skill": self.metadata,
+            "episodes": len(self.records),
+            "successes": self.num_success,
+            "success_rate": self.success_rate,
+            "success_rate_ci95": [low, high],
+            "goal_mismatch_mm": self.goal_mismatch_mm,
+            "statistics": self.statistics(),
+            "wall_s": self.wall_s,
+            "per_episode": [r.to_dict() for r in self.records],
+        }
+
+    def save_json(self, path: str | os.PathLike[str]) -> Path:
+        """Write ``to_dict`` atomically (temp file + rename)."""
+        out = Path(path)
+        if str(out.parent) and not out.parent.is_dir():
+            raise EnvError(f"cannot write {out}: folder {out.parent} does not exist")
+        tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+        try:
+            tmp.write_text(json.dumps(self.to_dict(), indent=2))
+            os.replace(tmp, out)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return out
+
+    def summary_table(self) -> str:
+        """A short plain-text table of the result."""
+        low, high = self.interval
+        s = self.statistics()
+
+        def fmt(v: float | None, unit: str, digits: int = 2) -> str:
+            return "-" if v is None else f"{v:.{digits}f} {unit}"
+
+        rows = [
+            ("mode", self.config.mode),
+            ("episodes", str(len(self.records))),
+            ("success rate", f"{100 * self.success_rate:.1f} % ({self.num_success}/{len(self.records)}), "
+                             f"95 % CI [{100 * low:.1f}, {100 * high:.1f}] %"),
+            ("time to insert (median/max)", f"{fmt(s['median_time_to_insert_s'], 's')} / {fmt(s['max_time_to_insert_s'], 's')}"),
+            ("final position error (median)", fmt(s["median_final_pos_error_mm"], "mm")),
+            ("final angle error (median)", fmt(s["median_final_angle_error_deg"], "deg")),
+            ("insertion depth (median)", fmt(s["median_insertion_depth_mm"], "mm", 1)),
+            ("max contact force (median/max)", f"{fmt(s['median_max_contact_force_n'], 'N', 1)} / {fmt(s['max_contact_force_n'], 'N', 1)}"),
+            ("failures", ", ".join(f"{k}: {v}" for k, v in s["failures_by_kind"].items()) or "none"),
+            ("wall time", f"{self.wall_s:.1f} s ({self.config.workers} worker(s))"),
+        ]
+        width = max(len(k) for k, _ in rows)
+        return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What a worker needs to rebuild the environment and policy (picklable)."""
+
+    model_dir: str
+    config: EvaluationConfig
+
+
+def build_setup(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> tuple[Any, Any, Any]:
+    """Load the skill, build the evaluation environment and the policy.
+
+    Returns:
+        (skill, env, policy).
+
+    Raises:
+        RFlowError: missing or corrupt checkpoint. EnvError: shape mismatch, invalid scene, unreachable goal.
+    """
+    from envs.env import EpisodeConfig, PegInHoleEnv
+    from rflow.skill_io import load_skill
+
+    skill = load_skill(model_dir)
+    goal = Pose(pos=skill.goal_pos, quat=skill.goal_quat)
+    scene_config = scene_config_for(skill.metadata, config, goal)
+    env = PegInHoleEnv(scene_config, episode_config=EpisodeConfig(time_limit_s=config.time_limit_s))
+    if config.hole_at_goal:
+        check_goal_reachable(env)
+    policy = make_policy(skill, config.mode, config.lookahead_s, config.time_limit_s, config.speed)
+    return skill, env, policy
+
+
+_WORKER: dict[str, Any] = {}
+"""Per-process state of a pool worker (env, policy), set once by `_init_worker` in that process only."""
+
+
+def _init_worker(setup: _Setup) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    _, env, policy = build_setup(setup.model_dir, setup.config)
+    _WORKER.update(env=env, policy=policy, gain=setup.config.feedforward_gain)
+
+
+def _run_in_worker(start: StartPose) -> EpisodeRecord:
+    return run_episode(_WORKER["env"], _WORKER["policy"], start, feedforward_gain=_WORKER["gain"])[0]
+
+
+def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = EvaluationConfig(),
+             progress: bool = True, starts: Sequence[StartPose] | None = None) -> EvaluationResult:
+    """Run ``config.episodes`` episodes of the skill in ``model_dir`` and collect the records.
+
+    Args:
+        model_dir: a `pih train` checkpoint directory.
+        config: the evaluation.
+        progress: tqdm bar.
+        starts: explicit start poses (default: `sample_starts` from the skill's demo starts).
+
+    Returns:
+        EvaluationResult (records sorted by episode index).
+
+    Raises:
+        RFlowError / EnvError: bad checkpoint, shape mismatch, unreachable goal with hole_at_goal.
+    """
+    from tqdm import tqdm
+
+    wall = time.perf_counter()
+    skill, env, policy = build_setup(model_dir, config)  # validates everything in this process first
+    goal_mismatch_mm = float(np.linalg.norm(skill.goal_pos - env.goal.pos) * 1e3)
+    env_scene = env.scene.config
+    if starts is None:
+        meta_starts = skill.metadata.get("demo_starts")
+        if not isinstance(meta_starts, dict) or "pos" not in meta_starts or "quat" not in meta_starts:
+            raise EnvError(f"checkpoint {model_dir} has no demo start poses (metadata 'demo_starts')")
+        starts = sample_starts(meta_starts["pos"], meta_starts["quat"], config.episodes, config.seed,
+                               config.pos_range_m, config.rot_range_deg, config.around)
+    bar = tqdm(total=len(starts), desc=f"evaluate ({config.mode})", unit="ep", disable=not progress, leave=False)
+    records: list[EpisodeRecord] = []
+    workers = min(config.workers, len(starts))
+    try:
+        if workers <= 1:
+            import torch
+
+            threads = torch.get_num_threads()
+            torch.set_num_threads(1)
+            try:
+                for start in starts:
+                    records.append(run_episode(env, policy, start, feedforward_gain=config.feedforward_gain)[0])
+                    bar.update(1)
+                    bar.set_postfix(success=f"{sum(r.success for r in records)}/{len(records)}")
+            finally:
+                torch.set_num_threads(threads)
+        else:
+            del env, policy
+            ctx = multiprocessing.get_context("spawn")
+            with ctx.Pool(workers, initializer=_init_worker, initargs=(_Setup(str(model_dir), config),)) as pool:
+                for rec in pool.imap_unordered(_run_in_worker, starts):
+                    records.append(rec)
+                    bar.update(1)
+                    bar.set_postfix(success=f"{sum(r.success for r in records)}/{len(records)}")
+    finally:
+        bar.close()
+    records.sort(key=lambda r: r.index)
+    return EvaluationResult(config, records, time.perf_counter() - wall, str(model_dir), skill.metadata,
+                            _jsonable(asdict(env_scene)), goal_mismatch_mm)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def replay_episodes(model_dir: str | os.PathLike[str], config: EvaluationConfig, starts: Sequence[StartPose],
+                    on_step: Callable[[Any], None] | None = None,
+                    on_episode: Callable[[StartPose, Any], None] | None = None) -> list[tuple[EpisodeRecord, EpisodeTrace | None]]:
+    """Re-run chosen episodes in this process with traces (for figures and video); physics is
+    deterministic, so a replay reproduces the batch episode.
+
+    Args:
+        model_dir, config: as for `evaluate`.
+        starts: the episodes to replay.
+        on_step: called with the env after reset and every step.
+        on_episode: called with (start, env) before each episode.
+    """
+    import torch
+
+    _, env, policy = build_setup(model_dir, config)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    out = []
+    try:
+        for start in starts:
+            if on_episode is not None:
+                on_episode(start, env)
+            out.append(run_episode(env, policy, start, record_trace=True, on_step=on_step,
+                                   feedforward_gain=config.feedforward_gain))
+    finally:
+        torch.set_num_threads(threads)
+    return out
+
+
+__all__ = [
+    "EpisodeRecord",
+    "EpisodeTrace",
+    "EvaluationConfig",
+    "EvaluationResult",
+    "StartPose",
+    "build_setup",
+    "check_goal_reachable",
+    "evaluate",
+    "replay_episodes",
+    "run_episode",
+    "sample_starts",
+    "scene_config_for",
+    "wilson_interval",
+]

@@ -1,0 +1,161 @@
+"""Figures of the peg-in-hole skill (matplotlib, Agg backend, written atomically as PNG).
+
+- `plot_loss`: training loss per epoch of each model (train and validation).
+- `plot_skill`: like the paper's peg-in-hole figure: (a) positions in 3-D, (b) orientation projected on
+  the tangent space at the goal, Log_g(q) (3 components) against time; demonstrations thin grey,
+  generated plans dashed black, executed (measured) trajectories thick red.
+- `plot_outcomes`: final position / angle errors of every episode, successes and failures apart.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import numpy.typing as npt  # noqa: E402
+
+from envs.errors import EnvError  # noqa: E402
+
+FloatArray = npt.NDArray[np.float64]
+
+DEMO_STYLE = {"color": "0.6", "lw": 1.0}
+PLAN_STYLE = {"color": "k", "lw": 1.2, "ls": "--"}
+EXEC_STYLE = {"color": "tab:red", "lw": 2.2}
+
+
+@dataclass(frozen=True)
+class PoseCurve:
+    """A pose trajectory for plotting: times (K,), positions (K, 3) m, orientation tangent (K, 3) rad."""
+
+    times_s: FloatArray
+    pos: FloatArray
+    rot_tangent: FloatArray
+
+    def __post_init__(self) -> None:
+        t, p, r = (np.asarray(a, dtype=float) for a in (self.times_s, self.pos, self.rot_tangent))
+        if t.ndim != 1 or p.shape != (t.size, 3) or r.shape != (t.size, 3):
+            raise EnvError(f"a pose curve needs times (K,), pos (K, 3), rot_tangent (K, 3); got {t.shape}, "
+                           f"{p.shape}, {r.shape}")
+
+
+def _save(fig: Any, path: str | os.PathLike[str]) -> Path:
+    out = Path(path)
+    if str(out.parent) and not out.parent.is_dir():
+        plt.close(fig)
+        raise EnvError(f"cannot write figure {out}: folder {out.parent} does not exist")
+    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}.png")
+    try:
+        fig.savefig(tmp, dpi=120)
+        os.replace(tmp, out)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
+    return out
+
+
+def plot_loss(histories: Mapping[str, Mapping[str, Sequence[float]]], path: str | os.PathLike[str]) -> Path:
+    """Loss curves (negative log-likelihood per transition and dimension) of each model.
+
+    Args:
+        histories: model name -> {"train_loss": [...], "val_loss": [...]}.
+        path: PNG to write.
+
+    Returns:
+        The written path.
+    """
+    fig, axes = plt.subplots(1, max(len(histories), 1), figsize=(4.5 * max(len(histories), 1), 3.4), squeeze=False)
+    for ax, (name, hist) in zip(axes[0], histories.items()):
+        train = list(hist.get("train_loss", []))
+        val = list(hist.get("val_loss", []))
+        ax.plot(np.arange(1, len(train) + 1), train, label="train")
+        if val:
+            ax.plot(np.arange(1, len(val) + 1), val, label="validation")
+        ax.set_title(f"{name} model")
+        ax.set_xlabel("epoch")
+        ax.set_ylabel("NLL per transition and dim (nats)")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_skill(demos: Sequence[PoseCurve], plans: Sequence[PoseCurve], executed: Sequence[PoseCurve],
+               goal_pos: npt.ArrayLike, path: str | os.PathLike[str], title: str = "") -> Path:
+    """The paper's peg-in-hole figure: (a) 3-D positions, (b) Log_g(q) components against time.
+
+    Args:
+        demos: demonstrations.
+        plans: generated trajectories (from the executed episodes' start poses).
+        executed: measured peg_tip trajectories.
+        goal_pos: (3,) goal position (marked).
+        path: PNG to write.
+        title: figure title.
+
+    Returns:
+        The written path.
+    """
+    fig = plt.figure(figsize=(15, 4.8))
+    grid = fig.add_gridspec(1, 4, width_ratios=[1.5, 1, 1, 1])
+    ax3 = fig.add_subplot(grid[0], projection="3d")
+    comp_axes = [fig.add_subplot(grid[k + 1]) for k in range(3)]
+    groups = (("demonstrations", demos, DEMO_STYLE), ("generated", plans, PLAN_STYLE), ("executed", executed, EXEC_STYLE))
+    for label, curves, style in groups:
+        for i, c in enumerate(curves):
+            lab = label if i == 0 else None
+            ax3.plot(c.pos[:, 0], c.pos[:, 1], c.pos[:, 2], label=lab, **style)
+            for k, ax in enumerate(comp_axes):
+                ax.plot(c.times_s, c.rot_tangent[:, k], label=lab, **style)
+    g = np.asarray(goal_pos, dtype=float)
+    ax3.scatter([g[0]], [g[1]], [g[2]], color="tab:blue", marker="*", s=80, label="goal")
+    for c in executed:
+        ax3.scatter([c.pos[0, 0]], [c.pos[0, 1]], [c.pos[0, 2]], color="tab:red", s=15)
+    ax3.set_xlabel("x (m)", labelpad=6)
+    ax3.set_ylabel("y (m)", labelpad=6)
+    ax3.set_zlabel("z (m)", labelpad=6)
+    ax3.tick_params(labelsize=7)
+    ax3.set_title("(a) position")
+    ax3.legend(fontsize=7, loc="upper left")
+    for k, ax in enumerate(comp_axes):
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel(f"Log_g(q)[{k}] (rad)")
+        ax.grid(alpha=0.3)
+    for k, ax in enumerate(comp_axes):
+        ax.set_title(f"(b{k + 1}) orientation: Log_g(q)[{k}]")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.subplots_adjust(wspace=0.5)
+    return _save(fig, path)
+
+
+def plot_outcomes(records: Sequence[Mapping[str, Any]], path: str | os.PathLike[str], title: str = "") -> Path:
+    """Scatter of final position error (mm) against final angle error (deg) of every episode.
+
+    Args:
+        records: per-episode dicts with "success", "final_pos_error_mm", "final_angle_error_deg".
+        path: PNG to write.
+    """
+    fig, ax = plt.subplots(figsize=(5, 4))
+    for ok, colour, label in ((True, "tab:green", "success"), (False, "tab:red", "failure")):
+        pts = [(r["final_pos_error_mm"], r["final_angle_error_deg"]) for r in records
+               if bool(r.get("success")) == ok and r.get("final_pos_error_mm") is not None
+               and r.get("final_angle_error_deg") is not None]
+        if pts:
+            x, y = zip(*pts)
+            ax.scatter(x, y, s=14, color=colour, label=f"{label} ({len(pts)})")
+    ax.set_xlabel("final position error (mm)")
+    ax.set_ylabel("final angle error (deg)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -1,0 +1,318 @@
+"""Policies that turn a trained pose skill (`rflow.skill_io.PoseSkill`) into commanded peg_tip poses.
+
+Closed loop (`ClosedLoopPolicy`, default of `pih evaluate`): every control step the MEASURED peg_tip pose
+x = [p, q] is mapped to the tangent space at the goal, pushed ``lookahead_s`` along the learned flow and
+mapped back; that pose is the impedance controller's target for the step:
+    x_cmd = Exp_g( denorm( b( Phi(lookahead) b^-1( norm( Log_g(x) ) ) ) ) ),   Phi(t) = expm(V t),
+one exact latent step of length ``lookahead_s`` (rflow.generate.next_point), separately for the position
+and orientation models (or once for a joint model). A lookahead longer than the control period makes up
+for the tracking lag of the compliant arm: the target leads the measured pose by ~lookahead of motion.
+
+Open loop (`OpenLoopPolicy`, the paper's robot experiment): the whole trajectory is generated once from
+the measured start pose (rflow.generate.rollout, one point per control period, holding the goal after
+convergence) and tracked in time.
+
+Velocity feed-forward. The impedance controller (controllers.impedance) pulls toward an equilibrium pose
+with F = K e - D v, so to move at the flow's twist xi_d in quasi-steady state (F ~ 0) the commanded pose
+must lead the intended pose by K^-1 D xi_d. Without it the compliant arm lags and, D being anisotropic
+(it follows the Cartesian inertia), it also drifts sideways (~6 % of the distance travelled here), which
+is larger than the hole's clearance. `feedforward_pose` adds
+    delta = K^-1 D(q) xi_d,    D = P diag(2 zeta sqrt(w)) P^T   (controllers.impedance.modal_factors)
+to the commanded pose (position + world rotation vector), with xi_d the flow's twist from finite
+differences over the step (v = dp/dt, omega = rotvec(q1 conj(q0))/dt).
+
+Measured quaternions are put on the goal's hemisphere first (q and -q are the same orientation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from envs.errors import EnvError
+from envs.poses import Pose, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
+from rflow.errors import RFlowError
+from rflow.generate import next_point, rollout
+from rflow.skill_io import PoseSkill
+
+FloatArray = npt.NDArray[np.float64]
+
+MODES: tuple[str, ...] = ("closed-loop", "open-loop")
+DEFAULT_LOOKAHEAD_S: float = 0.05
+"""Closed-loop lookahead along the learned flow (tuned on the default scene, see envs/evaluate.py)."""
+
+
+@dataclass(frozen=True)
+class Command:
+    """A commanded peg_tip pose and the twist the skill moves with there.
+
+    Attributes:
+        pose: the target pose without feed-forward.
+        twist: (6,) [v (m/s); omega (rad/s)] in the world frame, for velocity feed-forward.
+        anchor: the pose the feed-forward lead is added to (closed loop: the measured pose, so the arm
+            moves at the flow's twist from where it is; open loop: the plan's pose).
+        accel: (6,) [a (m/s^2); alpha (rad/s^2)] of the skill there, for inertia feed-forward.
+    """
+
+    pose: Pose
+    twist: FloatArray
+    anchor: Pose
+    accel: FloatArray = field(default_factory=lambda: np.zeros(6))
+
+
+def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.ArrayLike, dt: float) -> FloatArray:
+    """Finite-difference twist [(p1 - p0)/dt; rotvec(q1 conj(q0))/dt] (6,) or (..., 6), world frame."""
+    v = (np.asarray(p1, float) - np.asarray(p0, float)) / dt
+    w = quat_to_rotvec(quat_mul(q1, quat_conj(q0))) / dt
+    return np.concatenate([v, w], axis=-1)
+
+
+def on_goal_hemisphere(quat: npt.ArrayLike, goal_quat: npt.ArrayLike) -> FloatArray:
+    """Quaternion(s) (..., 4) sign-flipped where needed so that q . g >= 0."""
+    q = np.array(quat, dtype=np.float64)
+    sign = np.where(np.sum(q * np.asarray(goal_quat, dtype=np.float64), axis=-1) < 0.0, -1.0, 1.0)
+    return q * sign[..., None]
+
+
+def skill_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, horizon_s: float) -> tuple[FloatArray, FloatArray]:
+    """The pose ``horizon_s`` later along the learned flow from (pos, quat), batched or single.
+
+    Args:
+        skill: the trained skill.
+        pos: (3,) or (B, 3) peg_tip positions, m.
+        quat: (4,) or (B, 4) unit quaternions (either hemisphere).
+        horizon_s: flow time to advance (s), > 0.
+
+    Returns:
+        (pos, quat) of the same shapes.
+
+    Raises:
+        EnvError: NaN or malformed poses, horizon <= 0.
+    """
+    if not (np.isfinite(horizon_s) and horizon_s > 0.0):
+        raise EnvError(f"flow horizon {horizon_s} s must be > 0")
+    p = np.asarray(pos, dtype=np.float64)
+    q = on_goal_hemisphere(quat, skill.goal_quat)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    try:
+        if skill.layout == "joint":
+            x = next_point(skill.models["joint"], np.concatenate([p, q], axis=-1), horizon_s)
+            return x[..., :3], x[..., 3:]
+        return (next_point(skill.models["position"], p, horizon_s),
+                next_point(skill.models["orientation"], q, horizon_s))
+    except RFlowError as err:
+        raise EnvError(f"cannot query the skill at pos {p.tolist()}, quat {q.tolist()}: {err}") from None
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A generated pose trajectory sampled every ``period_s`` (first sample = the start).
+
+    Attributes:
+        period_s: sampling period (s).
+        pos: (K, 3) positions, m.
+        quat: (K, 4) unit quaternions on the goal's hemisphere.
+        tangent: (K, 6) [p - g_p, Log_g(q)].
+    """
+
+    period_s: float
+    pos: FloatArray
+    quat: FloatArray
+    tangent: FloatArray
+
+    @property
+    def times_s(self) -> FloatArray:
+        """(K,) sample times from 0."""
+        return self.period_s * np.arange(self.pos.shape[0])
+
+
+def generate_plan(skill: PoseSkill, start: Pose, duration_s: float, period_s: float,
+                  xi_pos_m: float = 1e-4, xi_rot_rad: float = 1e-4) -> Plan:
+    """Generate the skill's trajectory from ``start`` (Algorithm 1, exact latent steps of ``period_s``).
+
+    Each model stops at its own threshold (``xi_pos_m`` on ||p - g_p||, ``xi_rot_rad`` on ||Log_g(q)||;
+    the joint model stops on ||tangent|| < min of both) and then holds its goal.
+
+    Args:
+        skill: the trained skill.
+        start: start pose.
+        duration_s: length of the plan (s); K = round(duration / period) + 1 samples.
+        period_s: step (s), e.g. the control period.
+
+    Returns:
+        The Plan.
+
+    Raises:
+        EnvError: bad durations or a start the models reject.
+    """
+    if not (np.isfinite(duration_s) and duration_s > 0.0 and np.isfinite(period_s) and period_s > 0.0):
+        raise EnvError(f"plan duration {duration_s} s and period {period_s} s must be > 0")
+    steps = int(round(duration_s / period_s))
+    quat0 = on_goal_hemisphere(start.quat, skill.goal_quat)
+    try:
+        if skill.layout == "joint":
+            r = rollout(skill.models["joint"], np.concatenate([start.pos, quat0])[None], steps,
+                        min(xi_pos_m, xi_rot_rad), period_s)
+            pos, quat = r.points[0, :, :3], r.points[0, :, 3:]
+        else:
+            pos = rollout(skill.models["position"], start.pos[None], steps, xi_pos_m, period_s).points[0]
+            quat = rollout(skill.models["orientation"], quat0[None], steps, xi_rot_rad, period_s).points[0]
+    except RFlowError as err:
+        raise EnvError(f"cannot generate a plan from pos {start.pos.tolist()}: {err}") from None
+    quat = on_goal_hemisphere(quat, skill.goal_quat)
+    return Plan(period_s, pos, quat, skill.to_tangent(pos, quat))
+
+
+class ClosedLoopPolicy:
+    """Command the flow's pose ``lookahead_s`` ahead of the measured peg_tip pose (module docstring)."""
+
+    def __init__(self, skill: PoseSkill, lookahead_s: float = DEFAULT_LOOKAHEAD_S, speed: float = 1.0):
+        if not (np.isfinite(lookahead_s) and lookahead_s > 0.0):
+            raise EnvError(f"lookahead {lookahead_s} s must be > 0")
+        if not (np.isfinite(speed) and speed > 0.0):
+            raise EnvError(f"speed factor {speed} must be > 0")
+        self.skill = skill
+        self.lookahead_s = float(lookahead_s)
+        self.speed = float(speed)
+
+    def reset(self, start: Pose, period_s: float) -> None:
+        """Start an episode (nothing to precompute in closed loop)."""
+
+    def command(self, step: int, measured: Pose) -> Command:
+        """Target for control step ``step`` (from 0) given the measured peg_tip pose x: the flow's pose
+        x_1 = Phi(L) x, L = ``lookahead_s``; the twist and acceleration at x from the flow poses x, x_1 and
+        x_2 = Phi(2L) x (xi_1 = (x_1 - x)/L, xi_2 = (x_2 - x_1)/L, a = (xi_2 - xi_1)/L, xi = xi_1 - a L/2),
+        both time-scaled by ``speed`` (xi * s, a * s^2)."""
+        step_s = self.lookahead_s
+        p1, q1 = skill_step(self.skill, measured.pos, measured.quat, step_s)
+        p2, q2 = skill_step(self.skill, p1, q1, step_s)
+        q1 = q1 / np.linalg.norm(q1)
+        here = Pose(pos=np.asarray(measured.pos, dtype=np.float64), quat=on_goal_hemisphere(measured.quat, q1))
+        xi1 = pose_twist(here.pos, here.quat, p1, q1, step_s)
+        xi2 = pose_twist(p1, q1, p2, on_goal_hemisphere(q2, q1), step_s)
+        accel = (xi2 - xi1) / step_s
+        twist = xi1 - 0.5 * step_s * accel
+        return Command(Pose(pos=p1, quat=q1), self.speed * twist, here, self.speed**2 * accel)
+
+
+class OpenLoopPolicy:
+    """Generate the whole trajectory at reset and play it back one sample per control step.
+
+    With ``speed`` s the plan is generated with flow steps of s x the control period (the same path,
+    s times as fast); twists and accelerations are taken per real control period.
+    """
+
+    def __init__(self, skill: PoseSkill, duration_s: float = 20.0, speed: float = 1.0):
+        if not (np.isfinite(speed) and speed > 0.0):
+            raise EnvError(f"speed factor {speed} must be > 0")
+        self.skill = skill
+        self.duration_s = float(duration_s)
+        self.speed = float(speed)
+        self.period_s = 0.0
+        self.plan: Plan | None = None
+
+    def reset(self, start: Pose, period_s: float) -> None:
+        """Generate the plan from the measured start pose."""
+        self.period_s = float(period_s)
+        self.plan = generate_plan(self.skill, start, self.duration_s * self.speed, period_s * self.speed)
+
+    def command(self, step: int, measured: Pose) -> Command:
+        """The plan's sample ``step + 1`` (one period after the current time; the goal after the plan's
+        end) with the plan's twist there (backward difference)."""
+        plan = self.plan
+        if plan is None:
+            raise EnvError("OpenLoopPolicy.command before reset")
+        last = plan.pos.shape[0] - 1
+        k = min(step + 1, last)
+        pose = Pose(pos=plan.pos[k].copy(), quat=plan.quat[k].copy())
+        if k >= last:
+            return Command(pose, np.zeros(6), pose)
+        dt = self.period_s
+        back = pose_twist(plan.pos[k - 1], plan.quat[k - 1], plan.pos[k], plan.quat[k], dt)
+        ahead = pose_twist(plan.pos[k], plan.quat[k], plan.pos[k + 1], plan.quat[k + 1], dt)
+        return Command(pose, 0.5 * (back + ahead), pose, (ahead - back) / dt)
+
+
+def make_policy(skill: PoseSkill, mode: str, lookahead_s: float = DEFAULT_LOOKAHEAD_S,
+                duration_s: float = 20.0, speed: float = 1.0) -> ClosedLoopPolicy | OpenLoopPolicy:
+    """The policy of ``mode`` ("closed-loop" or "open-loop").
+
+    Raises:
+        EnvError: unknown mode.
+    """
+    if mode == "closed-loop":
+        return ClosedLoopPolicy(skill, lookahead_s, speed)
+    if mode == "open-loop":
+        return OpenLoopPolicy(skill, duration_s, speed)
+    raise EnvError(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
+
+
+def impedance_damping_lead(env: Any, twist: npt.ArrayLike, accel: npt.ArrayLike | None = None) -> FloatArray:
+    """delta = K^-1 (D(q) twist + Lambda(q) accel) (6,): the pose lead that makes the impedance controller
+    of ``env`` (Lambda x'' + D x' + K (x - x_cmd) = 0 in free space) follow ``twist`` and ``accel``
+    (module docstring). Reads the current state of ``env`` (not changed).
+
+    D is built as in controllers.impedance: Lambda^-1 = J M^-1 J^T (+1e-6 I), (P, w) = modal_factors,
+    D = P diag(2 zeta sqrt(w)) P^T, with the controller's default stiffness K and damping ratio zeta;
+    Lambda = P P^T.
+    """
+    import mujoco
+
+    from controllers.impedance import modal_factors
+
+    model, data = env.model, env.data
+    jac = np.zeros((6, model.nv))
+    mujoco.mj_jacSite(model, data, jac[:3], jac[3:], env.peg_tip_site)
+    jac_minv = np.zeros((6, model.nv))
+    mujoco.mj_solveM(model, data, jac_minv, jac)
+    lambda_inv = jac_minv @ jac.T + 1e-6 * np.eye(6)
+    stiffness = env.controller.default_stiffness
+    modes, w = modal_factors(lambda_inv, stiffness)
+    damping = modes @ np.diag(2.0 * env.controller.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) @ modes.T
+    force = damping @ np.asarray(twist, dtype=np.float64)
+    if accel is not None:
+        force += modes @ (modes.T @ np.asarray(accel, dtype=np.float64))
+    return np.linalg.solve(stiffness, force)
+
+
+MAX_SPEED_M_S: float = 0.5
+"""The feed-forward twist is scaled down to at most this linear speed (the demos peak near 0.15 m/s)."""
+MAX_ANGULAR_SPEED_RAD_S: float = 2.0
+"""... and at most this angular speed."""
+
+
+def limit_twist(twist: npt.ArrayLike, max_speed_m_s: float = MAX_SPEED_M_S,
+                max_angular_speed_rad_s: float = MAX_ANGULAR_SPEED_RAD_S) -> FloatArray:
+    """The twist scaled by one factor <= 1 so that |v| <= max_speed and |omega| <= max_angular_speed."""
+    xi = np.asarray(twist, dtype=np.float64)
+    speed, spin = float(np.linalg.norm(xi[:3])), float(np.linalg.norm(xi[3:]))
+    factor = min(1.0, max_speed_m_s / speed if speed > 0 else 1.0, max_angular_speed_rad_s / spin if spin > 0 else 1.0)
+    return xi * factor
+
+
+MAX_ACCEL_M_S2: float = 2.0
+"""The feed-forward acceleration is scaled down to at most this linear acceleration ..."""
+MAX_ANGULAR_ACCEL_RAD_S2: float = 10.0
+"""... and at most this angular acceleration."""
+
+
+def limit_accel(accel: npt.ArrayLike) -> FloatArray:
+    """The acceleration scaled by one factor <= 1 to |a| <= MAX_ACCEL_M_S2, |alpha| <= MAX_ANGULAR_ACCEL_RAD_S2."""
+    return limit_twist(accel, MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2)
+
+
+def feedforward_pose(env: Any, command: Command, gain: float = 1.0) -> Pose:
+    """The pose to send to ``env.step``: with gain > 0 the command's anchor led by gain * K^-1 D(q) twist
+    (position + world-frame rotation vector: q' = exp(delta_r) q), the twist limited by `limit_twist`;
+    with gain 0 the command's pose."""
+    if gain == 0.0:
+        return command.pose
+    twist = limit_twist(command.twist)
+    scale = float(np.linalg.norm(twist) / np.linalg.norm(command.twist)) if np.any(command.twist) else 1.0
+    accel = limit_accel(scale * command.accel)
+    lead = gain * impedance_damping_lead(env, twist, accel)
+    quat = quat_mul(quat_from_rotvec(lead[3:]), command.anchor.quat)
+    return Pose(pos=command.anchor.pos + lead[:3], quat=quat / np.linalg.norm(quat))

@@ -1,0 +1,199 @@
+"""`pih evaluate`: execute a trained skill from seeded perturbed starts in physics and score it.
+
+    pih evaluate --model runs/default/model --episodes 100 --seed 0 --json runs/eval.json \\
+        [--mode closed-loop|open-loop] [--workers 2] [--video runs/eval.mp4] [--figure runs/eval.png]
+
+Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range (box)
+and +-rot-range (ball) -- see envs/evaluate.py. Success is the physics check on the measured peg_tip pose. Prints a summary table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from envs.errors import EnvError  # noqa: E402
+from envs.evaluate import EvaluationConfig, EvaluationResult, StartPose, evaluate  # noqa: E402
+from envs.skill import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
+
+GOAL_MISMATCH_WARN_MM = 5.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `pih evaluate`."""
+    d = EvaluationConfig()
+    parser.add_argument("--model", required=True, type=Path, help="checkpoint directory from `pih train`")
+    parser.add_argument("--episodes", type=int, default=d.episodes, help=f"perturbed starts (default {d.episodes})")
+    parser.add_argument("--seed", type=int, default=d.seed, help=f"seed of the start poses (default {d.seed})")
+    parser.add_argument("--json", type=Path, help="write the full record (config, rate, CI, per episode) here")
+    parser.add_argument("--mode", choices=MODES, default=d.mode,
+                        help="closed-loop: query the flow at the measured pose every 10 ms (default); "
+                             "open-loop: generate the trajectory first and track it in time")
+    parser.add_argument("--workers", type=int, default=1, help="parallel processes (default 1)")
+    parser.add_argument("--pos-range", type=float, default=d.pos_range_m,
+                        help=f"start position perturbation half-width in m (default {d.pos_range_m:g})")
+    parser.add_argument("--rot-range", type=float, default=d.rot_range_deg,
+                        help=f"start orientation perturbation radius in deg (default {d.rot_range_deg:g})")
+    parser.add_argument("--around", choices=("mean", "demo"), default=d.around,
+                        help="centre of the start perturbations: the mean demo start (default) or a random demo's start")
+    parser.add_argument("--clearance", type=float, help="hole clearance in mm (default: the demos')")
+    parser.add_argument("--shape", help="the scene's peg/hole shape (default: the demos'; must match them)")
+    parser.add_argument("--hole-at-goal", action="store_true",
+                        help="place the target hole at the demos' goal pose (demos recorded elsewhere)")
+    parser.add_argument("--lookahead", type=float, default=DEFAULT_LOOKAHEAD_S,
+                        help=f"closed loop: flow time of the velocity query in s (default {DEFAULT_LOOKAHEAD_S:g})")
+    parser.add_argument("--feedforward", type=float, default=d.feedforward_gain,
+                        help=f"gain of the impedance velocity feed-forward, 0 = off (default {d.feedforward_gain:g})")
+    parser.add_argument("--speed", type=float, default=d.speed,
+                        help=f"time scaling of the learned flow, both modes (default {d.speed:g})")
+    parser.add_argument("--time-limit", type=float, default=d.time_limit_s,
+                        help=f"simulated seconds per episode (default {d.time_limit_s:g})")
+    parser.add_argument("--video", type=Path, help="render the chosen episodes (--video-episodes) to this MP4")
+    parser.add_argument("--video-episodes", default="auto",
+                        help="comma-separated episode indices for --video/--figure, or 'auto' "
+                             "(the first three successes and the first failure)")
+    parser.add_argument("--camera", default="front", help="camera of --video (front, side, top, closeup, wrist)")
+    parser.add_argument("--figure", type=Path,
+                        help="write the demos / generated / executed figure of the chosen episodes here (PNG)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
+    """EvaluationConfig of the parsed options (validated there)."""
+    return EvaluationConfig(
+        episodes=args.episodes, seed=args.seed, mode=args.mode, pos_range_m=args.pos_range,
+        rot_range_deg=args.rot_range, around=args.around, lookahead_s=args.lookahead, feedforward_gain=args.feedforward, speed=args.speed,
+        time_limit_s=args.time_limit, clearance_m=None if args.clearance is None else args.clearance * 1e-3,
+        shape=args.shape, hole_at_goal=args.hole_at_goal, workers=args.workers)
+
+
+def choose_episodes(result: EvaluationResult, spec: str, failures: int = 1) -> list[int]:
+    """Episode indices from "auto" (the first three successes and up to ``failures`` failures) or "i,j,k".
+
+    Raises:
+        EnvError: malformed list or an index outside the evaluation.
+    """
+    n = len(result.records)
+    if spec == "auto":
+        ok = [r.index for r in result.records if r.success][:3]
+        bad = [r.index for r in result.records if not r.success and not r.reason.startswith("unreachable")]
+        return sorted(ok + bad[:failures])
+    try:
+        chosen = [int(x) for x in spec.split(",") if x.strip()]
+    except ValueError:
+        raise EnvError(f"--video-episodes {spec!r} must be 'auto' or comma-separated integers") from None
+    bad_index = [i for i in chosen if not 0 <= i < n]
+    if bad_index:
+        raise EnvError(f"--video-episodes {bad_index} outside 0..{n - 1}")
+    return chosen
+
+
+def render_and_plot(model_dir: Path, config: EvaluationConfig, result: EvaluationResult, episodes: Sequence[int],
+                    video: Path | None, figure: Path | None, camera: str = "front") -> dict[str, Any]:
+    """Replay ``episodes`` once (deterministic physics) to render an MP4 and/or draw the skill figure.
+
+    Returns:
+        {"video": path or None, "figure": path or None, "replayed": [...]} for the summary.
+    """
+    from envs.evaluate import replay_episodes, sample_starts
+    from envs.skill import generate_plan
+    from envs.video import EpisodeVideo, VideoConfig
+    from rflow.skill_io import load_skill
+
+    out: dict[str, Any] = {"video": None, "figure": None, "replayed": list(episodes)}
+    if not episodes or (video is None and figure is None):
+        return out
+    skill = load_skill(model_dir)
+    meta = skill.metadata["demo_starts"]
+    starts_all = sample_starts(meta["pos"], meta["quat"], config.episodes, config.seed, config.pos_range_m,
+                               config.rot_range_deg, config.around)
+    starts = [starts_all[i] for i in episodes]
+    holder: dict[str, Any] = {}
+
+    def on_episode(start: StartPose, env: Any) -> None:
+        if video is None:
+            return
+        if "video" not in holder:
+            holder["video"] = EpisodeVideo(env.model, video, VideoConfig(camera=camera), goal=env.goal)
+        holder["video"].new_episode()
+        holder["video"].set_commanded_path(generate_plan(skill, start.pose, config.time_limit_s,
+                                                         env.control_period_s).pos)
+
+    def on_step(env: Any) -> None:
+        if "video" in holder:
+            holder["video"].capture(env.data, env.observation.time_s)
+
+    try:
+        replays = replay_episodes(model_dir, config, starts, on_step=on_step, on_episode=on_episode)
+    except BaseException:
+        if "video" in holder:
+            holder["video"].abort()
+        raise
+    if "video" in holder:
+        out["video"] = str(holder["video"].close())
+    if figure is not None:
+        out["figure"] = str(plot_episodes(model_dir, skill, replays, starts, figure, config))
+    return out
+
+
+def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: Sequence[StartPose], path: Path,
+                  config: EvaluationConfig) -> Path:
+    """The paper-style figure: demos (from the checkpoint's demos.npz), plans from the starts, executions."""
+    import numpy as np
+
+    from envs.figures import PoseCurve, plot_skill
+    from envs.skill import generate_plan, on_goal_hemisphere
+
+    demos = []
+    preview = model_dir / "demos.npz"
+    if preview.is_file():
+        with np.load(preview, allow_pickle=False) as data:
+            pos, quat, dt = data["pos"], data["quat"], float(data["dt"])
+        for n in range(pos.shape[0]):
+            q = on_goal_hemisphere(quat[n], skill.goal_quat)
+            demos.append(PoseCurve(dt * np.arange(pos.shape[1]), pos[n], skill.to_tangent(pos[n], q)[:, 3:]))
+    plans, executed = [], []
+    for (rec, trace), start in zip(replays, starts):
+        plan = generate_plan(skill, start.pose, config.time_limit_s, 0.01)
+        keep = plan.times_s <= (trace.times_s[-1] if trace is not None else config.time_limit_s) + 1e-9
+        plans.append(PoseCurve(plan.times_s[keep], plan.pos[keep], plan.tangent[keep, 3:]))
+        if trace is not None:
+            q = on_goal_hemisphere(trace.quat, skill.goal_quat)
+            executed.append(PoseCurve(trace.times_s, trace.pos, skill.to_tangent(trace.pos, q)[:, 3:]))
+    title = f"{config.mode}: episodes {[s.index for s in starts]}"
+    return plot_skill(demos, plans, executed, skill.goal_pos, path, title)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run `pih evaluate`; returns the exit status (0 even when episodes fail: the record says so)."""
+    config = config_from_args(args)
+    if args.json is not None and str(args.json.parent) and not args.json.parent.is_dir():
+        raise EnvError(f"--json {args.json}: folder {args.json.parent} does not exist")
+    wall = time.perf_counter()
+    result = evaluate(args.model, config, progress=not args.quiet)
+    if result.goal_mismatch_mm > GOAL_MISMATCH_WARN_MM:
+        print(f"pih evaluate: warning: the skill's goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
+              "for demos recorded elsewhere use --hole-at-goal", file=sys.stderr)
+    print(result.summary_table())
+    chosen = choose_episodes(result, args.video_episodes)
+    figure_episodes = choose_episodes(result, args.video_episodes, failures=0)
+    if chosen == figure_episodes:
+        extras = render_and_plot(args.model, config, result, chosen, args.video, args.figure, args.camera)
+    else:  # 'auto': the figure shows successes only, the video also the first failure
+        extras = render_and_plot(args.model, config, result, chosen, args.video, None, args.camera)
+        extras["figure"] = render_and_plot(args.model, config, result, figure_episodes, None, args.figure)["figure"]
+    if args.json is not None:
+        result.save_json(args.json)
+        print(f"wrote {args.json}")
+    for key, episodes in (("video", chosen), ("figure", figure_episodes)):
+        if extras[key]:
+            print(f"wrote {extras[key]} (episodes {episodes})")
+    if not args.quiet:
+        print(f"total {time.perf_counter() - wall:.1f} s")
+    return 0

@@ -1,0 +1,113 @@
+"""`pih run`: the main job on defaults -- demos -> train -> evaluate -> figures and video, in runs/<name>/.
+
+    pih run [--name default] [--episodes 50] [--workers 2]
+
+Writes runs/<name>/: demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png),
+eval.json (closed-loop evaluation, 50 perturbed starts), skill.png (demos / generated / executed, as the
+paper's peg-in-hole figure), outcomes.png (final errors), episodes.mp4 (three successes and the first
+failure, if any) and summary.json (timings and the success rate). Prints a summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from envs.errors import EnvError  # noqa: E402
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `pih run`."""
+    from scripts.train import DEFAULT_SUBSAMPLE
+
+    parser.add_argument("--name", default="default", help="run folder under --root (default 'default')")
+    parser.add_argument("--root", type=Path, default=Path("runs"), help="parent folder of runs (default runs/)")
+    parser.add_argument("--demos", type=int, default=7, help="scripted demos to record (default 7, as the paper)")
+    parser.add_argument("--demo-seed", type=int, default=0, help="seed of the demo starts (default 0)")
+    parser.add_argument("--epochs", type=int, default=None, help="training epochs (default: `pih train`'s)")
+    parser.add_argument("--subsample", type=int, default=DEFAULT_SUBSAMPLE,
+                        help=f"keep every k-th demo sample (default {DEFAULT_SUBSAMPLE})")
+    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes (default 50)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation starts (default 0)")
+    parser.add_argument("--workers", type=int, default=2, help="evaluation processes (default 2)")
+    parser.add_argument("--no-video", action="store_true", help="skip the MP4")
+
+
+def _step(name: str) -> None:
+    print(f"== {name}", flush=True)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run the whole job; returns the exit status."""
+    from tqdm import tqdm
+
+    from envs.demo_file import save_demos
+    from envs.demos import collect_demos
+    from envs.evaluate import EvaluationConfig, evaluate
+    from envs.figures import plot_outcomes
+    from scripts.evaluate import choose_episodes, render_and_plot
+    from scripts.train import skill_train_config, train_skill
+
+    if not args.name or "/" in args.name or args.name in (".", ".."):
+        raise EnvError(f"--name {args.name!r} must be a plain folder name")
+    out = args.root / args.name
+    out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    wall = time.perf_counter()
+
+    _step(f"1/4 recording {args.demos} scripted demonstrations (seed {args.demo_seed})")
+    t0 = time.perf_counter()
+    with tqdm(total=args.demos, desc="demos", unit="demo") as bar:
+        def on_attempt(_index: int, attempt: Any) -> None:
+            if attempt.ok:
+                bar.update(1)
+            else:
+                tqdm.write(f"  failed attempt: {attempt.reason}")
+
+        collection = collect_demos(args.demos, args.demo_seed, on_attempt=on_attempt)
+    demo_path = save_demos(out / "demos.npz", collection.demos)
+    timings["demos_s"] = time.perf_counter() - t0
+
+    _step("2/4 training the position and orientation models")
+    t0 = time.perf_counter()
+    overrides = {} if args.epochs is None else {"epochs": args.epochs}
+    model_dir = train_skill(demo_path, out / "model", skill_train_config(**overrides), subsample=args.subsample)
+    timings["train_s"] = time.perf_counter() - t0
+
+    _step(f"3/4 evaluating {args.episodes} perturbed starts (closed loop, {args.workers} workers)")
+    t0 = time.perf_counter()
+    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers)
+    result = evaluate(model_dir, config)
+    result.save_json(out / "eval.json")
+    timings["evaluate_s"] = time.perf_counter() - t0
+
+    _step("4/4 figures and video")
+    t0 = time.perf_counter()
+    extras = render_and_plot(model_dir, config, result, choose_episodes(result, "auto", failures=0), None,
+                             out / "skill.png")
+    if not args.no_video:
+        video = render_and_plot(model_dir, config, result, choose_episodes(result, "auto"), out / "episodes.mp4", None)
+        extras["video"] = video["video"]
+    plot_outcomes([r.to_dict() for r in result.records], out / "outcomes.png",
+                  f"{result.num_success}/{len(result.records)} inserted")
+    timings["figures_video_s"] = time.perf_counter() - t0
+    timings["total_s"] = time.perf_counter() - wall
+
+    low, high = result.interval
+    summary = {"name": args.name, "demos": str(demo_path), "model": str(model_dir),
+               "success_rate": result.success_rate, "success_rate_ci95": [low, high],
+               "episodes": len(result.records), "timings": timings, "video": extras["video"],
+               "figure": extras["figure"], "load_average_1min": os.getloadavg()[0]}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print()
+    print(result.summary_table())
+    print(f"{'files':<30}  {out}/ (demos.npz, model/, eval.json, skill.png, outcomes.png"
+          f"{', episodes.mp4' if extras['video'] else ''}, summary.json)")
+    print("timings (s)".ljust(30) + "  " + ", ".join(f"{k[:-2]} {v:.0f}" for k, v in timings.items()))
+    return 0

@@ -1,0 +1,140 @@
+"""envs.evaluate: Wilson interval, start sampling, episode records and the batch runner (tiny skills)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from envs.env import EpisodeConfig, PegInHoleEnv
+from envs.errors import EnvError
+from envs.evaluate import (
+    EpisodeRecord,
+    EvaluationConfig,
+    EvaluationResult,
+    StartPose,
+    evaluate,
+    run_episode,
+    sample_starts,
+    scene_config_for,
+    wilson_interval,
+)
+from envs.poses import Pose, quat_angle_rad
+from envs.skill import ClosedLoopPolicy
+from rflow.skill_io import save_skill
+from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
+
+
+@pytest.fixture(scope="module")
+def skill():
+    return tiny_skill()
+
+
+@pytest.fixture(scope="module")
+def env():
+    return PegInHoleEnv(episode_config=EpisodeConfig(time_limit_s=0.2))
+
+
+def test_wilson_interval_of_half():
+    low, high = wilson_interval(5, 10)
+    assert math.isclose(low, 0.2366, abs_tol=1e-4) and math.isclose(high, 0.7634, abs_tol=1e-4)
+
+
+def test_wilson_interval_of_all_successes_excludes_one_below():
+    low, high = wilson_interval(100, 100)
+    assert math.isclose(low, 0.9630, abs_tol=1e-4) and high == 1.0
+
+
+def test_wilson_interval_rejects_more_successes_than_trials():
+    with pytest.raises(EnvError):
+        wilson_interval(3, 2)
+
+
+def test_starts_depend_only_on_the_seed():
+    p, q = GOAL_POS[None] + [[0, 0, 0.2]], GOAL_QUAT[None]
+    a = sample_starts(p, q, 5, 7, 0.05, 15.0)
+    b = sample_starts(p, q, 5, 7, 0.05, 15.0)
+    assert all(np.array_equal(x.pose.pos, y.pose.pos) for x, y in zip(a, b))
+
+
+def test_starts_stay_in_the_perturbation_range():
+    p, q = GOAL_POS[None] + [[0, 0, 0.2]], GOAL_QUAT[None]
+    starts = sample_starts(p, q, 200, 0, 0.05, 15.0)
+    offsets = np.array([s.pose.pos for s in starts]) - p[0]
+    angles = np.rad2deg([quat_angle_rad(s.pose.quat, GOAL_QUAT) for s in starts])
+    assert np.abs(offsets).max() <= 0.05 and angles.max() <= 15.0 + 1e-9
+
+
+def test_starts_around_demos_use_every_demo():
+    p = GOAL_POS[None] + np.array([[0, 0, 0.2], [0.05, 0, 0.2], [0, 0.05, 0.2]])
+    starts = sample_starts(p, np.tile(GOAL_QUAT, (3, 1)), 60, 0, 0.0, 0.0, around="demo")
+    assert {s.demo_index for s in starts} == {0, 1, 2}
+
+
+def test_starts_around_the_mean_are_centred_on_it():
+    p = GOAL_POS[None] + np.array([[0, 0, 0.2], [0.06, 0, 0.2], [0, 0.06, 0.2]])
+    starts = sample_starts(p, np.tile(GOAL_QUAT, (3, 1)), 5, 0, 0.0, 0.0, around="mean")
+    assert all(np.allclose(s.pose.pos, p.mean(axis=0)) for s in starts)
+
+
+def test_config_rejects_an_unknown_mode():
+    with pytest.raises(EnvError):
+        EvaluationConfig(mode="teleport")
+
+
+def test_scene_of_another_shape_is_an_error():
+    with pytest.raises(EnvError, match="trained on 'triangle'"):
+        scene_config_for({"shape": "triangle"}, EvaluationConfig(shape="square"), Pose(GOAL_POS, GOAL_QUAT))
+
+
+def test_scene_takes_the_demos_clearance():
+    config = scene_config_for({"shape": "square", "clearance_m": 0.0005}, EvaluationConfig(), Pose(GOAL_POS, GOAL_QUAT))
+    assert config.clearance_m == 0.0005
+
+
+def test_unreachable_start_is_recorded_not_raised(skill, env):
+    far = StartPose(0, 0, Pose(np.array([2.0, 0.0, 0.5]), GOAL_QUAT))
+    record, _ = run_episode(env, ClosedLoopPolicy(skill), far)
+    assert not record.success and record.reason.startswith("unreachable start")
+
+
+class _Exploding:
+    def reset(self, start: Pose, period_s: float) -> None:
+        pass
+
+    def command(self, step: int, measured: Pose) -> None:
+        raise ValueError("boom")
+
+
+def test_exception_inside_an_episode_is_recorded(env):
+    start = StartPose(0, 0, Pose(GOAL_POS + np.array([-0.05, 0.0, 0.2]), GOAL_QUAT))
+    record, _ = run_episode(env, _Exploding(), start)
+    assert record.reason.startswith("error: ValueError: boom")
+
+
+def test_time_limit_failure_reports_the_final_pose(skill, env):
+    start = StartPose(0, 0, Pose(GOAL_POS + np.array([-0.05, 0.0, 0.2]), GOAL_QUAT))
+    record, trace = run_episode(env, ClosedLoopPolicy(skill), start, record_trace=True)
+    assert record.reason.startswith("time_limit") and record.final_pos_error_mm > 100.0
+    assert trace is not None and trace.pos.shape[0] == record.steps + 1
+
+
+def test_record_json_has_no_nan():
+    text = json.dumps(EpisodeRecord(0, 0, [0.0] * 3, [1.0, 0, 0, 0]).to_dict(), allow_nan=False)
+    assert '"final_pos_error_mm": null' in text
+
+
+def test_result_json_holds_rate_and_interval(tmp_path):
+    records = [EpisodeRecord(i, 0, [0.0] * 3, [1.0, 0, 0, 0], success=i < 3) for i in range(4)]
+    path = EvaluationResult(EvaluationConfig(episodes=4), records, 1.0).save_json(tmp_path / "e.json")
+    data = json.loads(path.read_text())
+    assert data["success_rate"] == 0.75 and data["success_rate_ci95"] == list(wilson_interval(3, 4))
+
+
+def test_batch_keeps_order_and_count_with_two_workers(skill, tmp_path):
+    save_skill(tmp_path / "ck", skill)
+    config = EvaluationConfig(episodes=3, time_limit_s=0.05, workers=2)
+    result = evaluate(tmp_path / "ck", config, progress=False)
+    assert [r.index for r in result.records] == [0, 1, 2]
