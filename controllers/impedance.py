@@ -249,6 +249,43 @@ class CartesianImpedanceController:
         """Copy of the last commanded torque in N m."""
         return self._last_tau.copy()
 
+    def pose_lead(
+        self,
+        data: mujoco.MjData,
+        twist: npt.ArrayLike,
+        accel: npt.ArrayLike | None = None,
+        stiffness: npt.ArrayLike | None = None,
+    ) -> npt.NDArray[np.float64]:
+        """Pose offset delta = K^-1 (D(q) xi + Lambda(q) xi_dot) that lets this controller follow a motion.
+
+        Commanding x_cmd = x_d + delta makes the free-space closed loop Lambda x'' + D x' + K (x - x_cmd) = 0
+        hold x = x_d along a path with twist xi and twist rate xi_dot, with the controller's own Lambda
+        (regularised as in the control law) and modal damping D = P diag(2 zeta sqrt(w)) P^T, Lambda = P P^T.
+
+        Args:
+            data: MuJoCo data with current kinematics and mass matrix (after mj_forward or mj_step1).
+            twist: desired site twist (v m/s, omega rad/s), world frame, (6,).
+            accel: optional desired twist rate (6,); no inertial lead when None.
+            stiffness: optional 6x6 SPD stiffness; the config's when None.
+
+        Returns:
+            delta (6,): position offset in m and rotation-vector offset in rad.
+
+        Raises:
+            ControllerError: bad twist, accel or stiffness.
+        """
+        xi = as_vector(twist, 6, "twist")
+        k = self.default_stiffness if stiffness is None else validate_stiffness(stiffness)
+        jac = np.zeros((6, self.model.nv))
+        mujoco.mj_jacSite(self.model, data, jac[:3], jac[3:], self.site_id)
+        jac_minv = np.zeros((6, self.model.nv))
+        mujoco.mj_solveM(self.model, data, jac_minv, jac)
+        p, w = modal_factors(jac_minv @ jac.T + self._reg, k)
+        force = p @ ((2.0 * self.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) * (p.T @ xi))
+        if accel is not None:
+            force += p @ (p.T @ as_vector(accel, 6, "accel"))
+        return np.linalg.solve(k, force)
+
     def compute_torque(
         self,
         data: mujoco.MjData,

@@ -253,29 +253,9 @@ def make_policy(skill: PoseSkill, mode: str, lookahead_s: float = DEFAULT_LOOKAH
 def impedance_damping_lead(env: Any, twist: npt.ArrayLike, accel: npt.ArrayLike | None = None) -> FloatArray:
     """delta = K^-1 (D(q) twist + Lambda(q) accel) (6,): the pose lead that makes the impedance controller
     of ``env`` (Lambda x'' + D x' + K (x - x_cmd) = 0 in free space) follow ``twist`` and ``accel``
-    (module docstring). Reads the current state of ``env`` (not changed).
-
-    D is built as in controllers.impedance: Lambda^-1 = J M^-1 J^T (+1e-6 I), (P, w) = modal_factors,
-    D = P diag(2 zeta sqrt(w)) P^T, with the controller's default stiffness K and damping ratio zeta;
-    Lambda = P P^T.
+    (module docstring), computed by the controller itself from the current state of ``env`` (not changed).
     """
-    import mujoco
-
-    from controllers.impedance import modal_factors
-
-    model, data = env.model, env.data
-    jac = np.zeros((6, model.nv))
-    mujoco.mj_jacSite(model, data, jac[:3], jac[3:], env.peg_tip_site)
-    jac_minv = np.zeros((6, model.nv))
-    mujoco.mj_solveM(model, data, jac_minv, jac)
-    lambda_inv = jac_minv @ jac.T + 1e-6 * np.eye(6)
-    stiffness = env.controller.default_stiffness
-    modes, w = modal_factors(lambda_inv, stiffness)
-    damping = modes @ np.diag(2.0 * env.controller.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) @ modes.T
-    force = damping @ np.asarray(twist, dtype=np.float64)
-    if accel is not None:
-        force += modes @ (modes.T @ np.asarray(accel, dtype=np.float64))
-    return np.linalg.solve(stiffness, force)
+    return env.controller.pose_lead(env.data, twist, accel)
 
 
 MAX_SPEED_M_S: float = 0.5

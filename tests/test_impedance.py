@@ -226,3 +226,30 @@ def test_holds_pose_beside_a_free_body(model_with_free_peg):
 def test_site_off_the_arm_raises_controller_error(model_with_free_peg):
     with pytest.raises(ControllerError, match="free_peg_site"):
         CartesianImpedanceController(model_with_free_peg, "free_peg_site")
+
+
+def _cartesian_inertia_inv(model, data, site_id):
+    jac = np.zeros((6, model.nv))
+    mujoco.mj_jacSite(model, data, jac[:3], jac[3:], site_id)
+    m_full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, m_full)
+    return jac @ np.linalg.solve(m_full, jac.T)
+
+
+def test_pose_lead_of_an_acceleration_is_k_inverse_lambda_accel(model):
+    data, controller, _, _ = _start(model)
+    accel = np.array([0.3, -0.2, 0.1, 0.5, 0.0, -0.4])
+    lam = np.linalg.inv(_cartesian_inertia_inv(model, data, controller.site_id))
+    expected = np.linalg.solve(controller.default_stiffness, lam @ accel)
+    lead = controller.pose_lead(data, np.zeros(6), accel)
+    np.testing.assert_allclose(lead, expected, rtol=1e-3, atol=1e-9)
+
+
+def test_pose_lead_damping_squares_to_four_zeta_squared_lambda_inv_k(model):
+    data, controller, _, _ = _start(model)
+    k = controller.default_stiffness
+    damping = np.column_stack([k @ controller.pose_lead(data, e) for e in np.eye(6)])
+    lam_inv = _cartesian_inertia_inv(model, data, controller.site_id)
+    zeta = controller.config.damping_ratio
+    np.testing.assert_allclose(np.linalg.matrix_power(lam_inv @ damping, 2), 4 * zeta**2 * lam_inv @ k,
+                               rtol=1e-3, atol=1e-6 * np.abs(lam_inv @ k).max())
