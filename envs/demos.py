@@ -40,6 +40,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controllers.impedance import ImpedanceConfig
+from envs.jsonable import to_jsonable
 from envs.contact import ContactConfig
 from envs.demo_file import DemoSet
 from envs.env import EpisodeConfig, PegInHoleEnv, StepResult
@@ -301,20 +302,6 @@ def demo_episode_config(config: ExpertConfig, base: EpisodeConfig = EpisodeConfi
                                start_region=config.start_region)
 
 
-def _jsonable(value: Any) -> Any:
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
 @dataclass(frozen=True)
 class Collection:
     """Result of :func:`collect_demos`: the demo set, every attempt, and timing."""
@@ -385,10 +372,10 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
             kept.append(finalize_demo(attempt, goal, expert))
     kept_attempts = [a for a in attempts if a.ok]
     config = {
-        "scene": _jsonable(env.scene.config),
-        "controller": _jsonable(env.controller.config),
-        "episode": _jsonable(env.config),
-        "expert": _jsonable(expert),
+        "scene": to_jsonable(env.scene.config),
+        "controller": to_jsonable(env.controller.config),
+        "episode": to_jsonable(env.config),
+        "expert": to_jsonable(expert),
         "seed": seed,
         "starts": [{"pos": a.start.pos.tolist(), "quat": a.start.quat.tolist()} for a in kept_attempts],
         "failures": [{"attempt": i, "reason": a.reason, "start": format_pose(a.start)}

@@ -33,6 +33,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from envs.jsonable import to_jsonable
 from envs.errors import EnvError
 from envs.poses import Pose, StartRegion, format_pose, mean_quat, quat_angle_rad, sample_start_poses
 from envs.skill import DEFAULT_LOOKAHEAD_S, MODES, feedforward_pose, make_policy
@@ -576,19 +577,7 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
         bar.close()
     records.sort(key=lambda r: r.index)
     return EvaluationResult(config, records, time.perf_counter() - wall, str(model_dir), skill.metadata,
-                            _jsonable(asdict(env_scene)), goal_mismatch_mm)
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
+                            to_jsonable(asdict(env_scene)), goal_mismatch_mm)
 
 
 def replay_episodes(model_dir: str | os.PathLike[str], config: EvaluationConfig, starts: Sequence[StartPose],
