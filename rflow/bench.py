@@ -5,6 +5,8 @@ One benchmark, "flow": a pose skill (position on R^3 + orientation on S^3, the p
 samples, then the medians of
   - train_epoch_s: one epoch per model (4000 transitions), and train_s: the whole default training of both
     models (``epochs`` epochs each; the paper: 61 min per shape on an RTX 2060, 100 epochs);
+  - flow_step_ms: one step of one model: state through the inverse flow, one exact latent step, back
+    through the flow (rflow.generate.next_point);
   - closed_loop_step_ms: the flow work of one closed-loop control step (envs.skill.ClosedLoopPolicy: two
     lookahead steps x -> x_1 -> x_2 of both models, for the twist and acceleration), done every 10 ms;
   - rollout_1000_ms: one 1000-step rollout of the position model; rollouts_100x1000_ms: 100 at once
@@ -85,6 +87,7 @@ def bench_flow(quick: bool) -> dict[str, Any]:
         "train_epoch_s": epoch_s,
         "train_s_default_epochs": epoch_s * 2 * default_epochs,
         "default_epochs": default_epochs,
+        "flow_step_ms": _median_ms(lambda: next_point(position, p0, 0.05), 10 * repeats),
         "closed_loop_step_ms": (step_ms := _median_ms(closed_loop_step, 10 * repeats)),
         "closed_loop_rate_hz": 1e3 / step_ms,
         "rollout_1000_ms": _median_ms(lambda: rollout(position, p0[None], 1000, 1e-12), repeats),
