@@ -9,7 +9,6 @@ Closed loop (`next_point`, `velocity`): the current point through b^-1, one late
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -175,32 +174,3 @@ def velocity(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = Non
     tangent, nxt, single = _step_tangent(model, point, dt)
     vel = (nxt - tangent) / (model.dt if dt is None else float(dt))
     return vel[0] if single else vel
-
-
-def benchmark_flow(model: RiemannianFlow, repeats: int = 50, seed: int = 0) -> dict[str, float]:
-    """Median timings (ms) of the generation paths, for `pih bench`.
-
-    Returns:
-        {"step_ms": one closed-loop `next_point`, "rollout_1000_ms": one 1000-step rollout,
-         "rollouts_100x1000_ms": 100 rollouts of 1000 steps batched, "repeats": repeats}.
-    """
-    rng = np.random.default_rng(seed)
-    tangent = model.denormalise(rng.standard_normal((100, model.dim)))
-    starts = model.from_tangent(tangent)
-    xi = 1e-12  # never stop early: time the full horizon
-
-    def median_ms(fn, n: int) -> float:
-        fn()
-        times = []
-        for _ in range(n):
-            t0 = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t0)
-        return 1e3 * float(np.median(times))
-
-    return {
-        "step_ms": median_ms(lambda: next_point(model, starts[0]), repeats * 10),
-        "rollout_1000_ms": median_ms(lambda: rollout(model, starts[:1], 1000, xi), repeats),
-        "rollouts_100x1000_ms": median_ms(lambda: rollout(model, starts, 1000, xi), max(3, repeats // 10)),
-        "repeats": float(repeats),
-    }

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rflow.errors import RFlowError
-from rflow.generate import benchmark_flow, next_point, rollout, velocity
+from rflow.generate import next_point, rollout, velocity
 from rflow.train import TrainConfig, fit
 
 GOAL = np.array([0.5, -0.1, 0.2])
@@ -79,10 +79,3 @@ def test_bad_inputs_raise(model_and_demos):
         next_point(model, np.array([np.nan, 0.0, 0.0]))
     with pytest.raises(RFlowError, match="dt"):
         next_point(model, GOAL, dt=-1.0)
-
-
-def test_benchmark_reports_timings(model_and_demos):
-    model, _ = model_and_demos
-    result = benchmark_flow(model, repeats=2)
-    assert {"step_ms", "rollout_1000_ms", "rollouts_100x1000_ms"} <= set(result)
-    assert all(v > 0 for v in result.values())
