@@ -4,6 +4,8 @@ Pipeline (PAPER.md, Method): demos on the manifold (N, M, *point_shape) -> hemis
 (quaternions) -> shared goal g -> tangent vectors Log_g -> per-dimension normalisation -> maximise
     sum over transitions (x_t, x_{t+h}) of  log N(b^-1(x_{t+h}); Phi_h b^-1(x_t), Sigma_h) + log|det db^-1/dx (x_{t+h})|
 for horizons h in 1..horizon (steps of dt), with Adam (or Adamax), gradient clipping and a cosine lr decay.
+Optionally (``prior_weight`` > 0; not in the paper) an off-data identity prior is added to the loss
+(`identity_prior`): it keeps b^-1 close to the goal-centred identity in the empty space around the demos.
 """
 
 from __future__ import annotations
@@ -46,6 +48,13 @@ class TrainConfig:
         grad_clip: max gradient norm.
         init_noise: initial latent diffusion F (normalised units per sqrt(s)).
         goal_tolerance: demo ends may differ from their mean by this fraction of the demos' extent.
+        prior_weight: lambda of the off-data identity prior (0: off, the paper's plain likelihood). The loss
+            becomes NLL + lambda * mean ||b^-1(z) - (z - z_g)||^2 / D over ``batch_size`` points z drawn
+            uniformly from the box [-r, r] per dimension, r = ``prior_radius`` x the largest |z| of the
+            normalised demos in that dimension: away from the demos the latent coordinates stay the
+            (goal-centred) tangent coordinates, so starts outside the demos converge like the latent
+            linear system instead of wherever an unconstrained ReLU flow extrapolates.
+        prior_radius: half-width of that box, in multiples of the demos' extent per dimension (> 0).
         seed: seeds torch and numpy generators (training is deterministic for a given seed and threads).
         threads: torch intra-op threads for training (None: leave torch's setting). One thread is as fast
             as two for these small layers and is not slowed down by other processes on a busy machine.
@@ -69,6 +78,8 @@ class TrainConfig:
     grad_clip: float = 10.0
     init_noise: float = 0.5
     goal_tolerance: float = 0.01
+    prior_weight: float = 0.0
+    prior_radius: float = 3.0
     seed: int = 0
     threads: int | None = 1
 
@@ -84,6 +95,9 @@ class TrainConfig:
             raise RFlowError(f"val_fraction {self.val_fraction} must be in [0, 1)")
         if not (self.grad_clip > 0 and self.init_noise > 0 and self.goal_tolerance >= 0):
             raise RFlowError("grad_clip and init_noise must be > 0, goal_tolerance >= 0")
+        if not (np.isfinite(self.prior_weight) and self.prior_weight >= 0 and np.isfinite(self.prior_radius)
+                and self.prior_radius > 0):
+            raise RFlowError(f"need prior_weight >= 0 and prior_radius > 0, got {self.prior_weight}, {self.prior_radius}")
         if self.threads is not None and self.threads < 1:
             raise RFlowError(f"threads {self.threads} must be >= 1")
 
@@ -197,6 +211,15 @@ def _sample(
     return start[keep], h[keep]
 
 
+def identity_prior(network: ImitationFlow, half_width: torch.Tensor, num: int) -> torch.Tensor:
+    """Off-data identity prior (TrainConfig.prior_weight): mean ||b^-1(z) - (z - z_g)||^2 / D over ``num``
+    points z uniform in the box [-half_width, half_width] (normalised tangent units; torch's generator).
+    The box is mostly empty space, where only this term shapes b; on the demos the likelihood dominates."""
+    z = (2.0 * torch.rand(num, half_width.numel()) - 1.0) * half_width
+    q, _ = network.latent(z)
+    return ((q - (z - network.goal)) ** 2).sum(dim=-1).mean() / half_width.numel()
+
+
 def fit(
     demos: npt.ArrayLike,
     manifold: str | Manifold,
@@ -253,6 +276,7 @@ def fit(
         opt, lambda k: final + (1 - final) * 0.5 * (1 + math.cos(math.pi * min(k, total) / total))
     )
     z_t = torch.as_tensor(z, dtype=torch.float32)
+    prior_box = torch.as_tensor(config.prior_radius * np.abs(z).max(axis=0), dtype=torch.float32)
     held_out = _split_starts(n, m, config.val_fraction, rng)
     val_s, val_h = _sample(held_out, n, m, 16, 128, config.horizon, config.horizon_groups, rng)
     has_val = held_out.any() and val_s.size > 0
@@ -267,7 +291,10 @@ def fit(
         for k in range(steps_per_epoch):
             sl = slice(k * config.batch_size, (k + 1) * config.batch_size)
             logp = network.transition_log_prob(z_t[s_t[sl]], z_t[e_t[sl]], tau_t[sl])
-            loss = -logp.mean() / dim
+            nll = -logp.mean() / dim
+            loss = nll
+            if config.prior_weight > 0:
+                loss = nll + config.prior_weight * identity_prior(network, prior_box, config.batch_size)
             grad_norm = torch.zeros(())
             if torch.isfinite(loss):
                 opt.zero_grad(set_to_none=True)
@@ -287,7 +314,7 @@ def fit(
                 raise err
             opt.step()
             sched.step()
-            epoch_loss += float(loss.detach())
+            epoch_loss += float(nll.detach())
         history.train_loss.append(epoch_loss / steps_per_epoch)
         if has_val:
             with torch.no_grad():

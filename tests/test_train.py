@@ -8,7 +8,7 @@ from rflow.errors import RFlowError
 from rflow.generate import rollout
 from rflow.manifolds import sphere
 from rflow.model import ImitationFlow
-from rflow.train import TrainConfig, TrainHistory, fit
+from rflow.train import TrainConfig, TrainHistory, fit, identity_prior
 
 GOAL = np.array([0.5, -0.1, 0.2])
 TINY = TrainConfig(epochs=10, transitions_per_epoch=1024, horizon=100, width=32, threads=1)
@@ -120,6 +120,43 @@ def test_history_round_trip(tmp_path, trained):
 def test_bad_config_raises():
     with pytest.raises(RFlowError, match="optimizer"):
         TrainConfig(optimizer="sgd")
+    with pytest.raises(RFlowError, match="prior_weight"):
+        TrainConfig(prior_weight=-1.0)
+    with pytest.raises(RFlowError, match="prior_radius"):
+        TrainConfig(prior_radius=0.0)
+
+
+def test_identity_prior_vanishes_for_a_fresh_flow():
+    """A fresh flow is the identity, so b^-1(z) = z - z_g exactly and the prior is 0."""
+    torch.manual_seed(0)
+    network = ImitationFlow(3, TINY.model_config(), np.array([0.3, -0.2, 0.1]))
+    with torch.no_grad():
+        assert identity_prior(network, torch.full((3,), 4.0), 256).item() < 1e-12
+
+
+def off_data_deviation(model, radius: float = 3.0, num: int = 2000) -> float:
+    """RMS of b^-1(z) - (z - z_g) over points uniform in [-r, r]^D x the demos' normalised extent."""
+    rng = np.random.default_rng(0)
+    demos = model.normalise(model.to_tangent(simple_demos()))
+    box = radius * np.abs(demos).max(axis=(0, 1))
+    z = torch.as_tensor(rng.uniform(-1, 1, (num, box.size)) * box, dtype=torch.float32)
+    network = model.network
+    with torch.no_grad():
+        q, _ = network.latent(z)
+        return float(((q - (z - network.goal)) ** 2).sum(-1).mean().sqrt())
+
+
+def test_identity_prior_keeps_the_flow_near_identity_off_the_demos(trained):
+    """With the prior the latent coordinates off the demos stay much closer to the tangent coordinates,
+    and the fit to the demos stays as good."""
+    from dataclasses import replace
+
+    demos, plain, _ = trained
+    with_prior, history = fit(demos, "euclidean", 0.01, replace(TINY, prior_weight=1.0), progress=False)
+    assert off_data_deviation(with_prior) < 0.5 * off_data_deviation(plain)
+    gen = rollout(with_prior, demos[:, 0], steps=demos.shape[1] - 1, xi=1e-6)
+    extent = np.linalg.norm(demos[:, 0] - GOAL, axis=-1)
+    assert np.all(np.linalg.norm(gen.points - demos, axis=-1).max(axis=1) < 0.15 * extent)
 
 
 def test_sampled_transitions_stay_inside_demos_and_split():
