@@ -60,6 +60,23 @@ def test_training_config_uses_the_paper_optimiser(trained):
     assert (config["optimizer"], config["lr"], config["batch_size"], config["activation"]) == ("adam", 1e-3, 128, "relu")
 
 
+def test_training_config_records_the_off_data_prior(trained, tmp_path):
+    from scripts.train import DEFAULT_PRIOR_WEIGHT
+
+    demos, ck = trained
+    config = json.loads((ck / "skill.json").read_text())["training"]["orientation"]["config"]
+    assert (config["prior_weight"], config["prior_radius"]) == (DEFAULT_PRIOR_WEIGHT, 3.0) and DEFAULT_PRIOR_WEIGHT > 0
+    assert main(["train", "--demos", str(demos), "--out", str(tmp_path / "plain"), "--prior-weight", "0", *TINY_ARGS]) == 0
+    plain = json.loads((tmp_path / "plain" / "skill.json").read_text())["training"]["orientation"]["config"]
+    assert plain["prior_weight"] == 0.0
+
+
+def test_negative_prior_weight_fails_cleanly(tmp_path, capsys):
+    demos = write_demo_file(tmp_path)
+    assert main(["train", "--demos", str(demos), "--out", str(tmp_path / "ck"), "--prior-weight", "-1", *TINY_ARGS]) == 2
+    assert "prior_weight" in _one_line_error(capsys) and not (tmp_path / "ck").exists()
+
+
 def test_joint_option_writes_one_joint_model(tmp_path):
     demos = write_demo_file(tmp_path)
     assert main(["train", "--demos", str(demos), "--out", str(tmp_path / "ck"), "--joint", *TINY_ARGS]) == 0
