@@ -35,7 +35,7 @@ class TrainConfig:
     """Hyperparameters of `fit`. Defaults follow the paper (11 layers, ReLU, Adam, lr 1e-3, batch 128).
 
     Attributes:
-        layers, width, hidden_layers, activation, log_scale_clamp, min_rate: architecture (`ModelConfig`).
+        model: the architecture (`rflow.model.ModelConfig`: layers, width, activation, log-scale bound, ...).
         optimizer: "adam" or "adamax".
         lr: initial learning rate (decays to lr * lr_final_fraction with a cosine schedule).
         lr_final_fraction: final lr as a fraction of lr.
@@ -60,12 +60,7 @@ class TrainConfig:
             as two for these small layers and is not slowed down by other processes on a busy machine.
     """
 
-    layers: int = 11
-    width: int = 64
-    hidden_layers: int = 1
-    activation: str = "relu"
-    log_scale_clamp: float = 2.0
-    min_rate: float = 0.05
+    model: ModelConfig = field(default_factory=ModelConfig)
     optimizer: str = "adam"
     lr: float = 1e-3
     lr_final_fraction: float = 0.05
@@ -84,7 +79,8 @@ class TrainConfig:
     threads: int | None = 1
 
     def __post_init__(self) -> None:
-        self.model_config()  # validates the architecture fields
+        if not isinstance(self.model, ModelConfig):
+            raise RFlowError(f"model must be a ModelConfig, got {type(self.model).__name__}")
         if self.optimizer not in OPTIMIZERS:
             raise RFlowError(f"unknown optimizer {self.optimizer!r}; expected one of {OPTIMIZERS}")
         if not (self.lr > 0 and 0 < self.lr_final_fraction <= 1):
@@ -100,17 +96,6 @@ class TrainConfig:
             raise RFlowError(f"need prior_weight >= 0 and prior_radius > 0, got {self.prior_weight}, {self.prior_radius}")
         if self.threads is not None and self.threads < 1:
             raise RFlowError(f"threads {self.threads} must be >= 1")
-
-    def model_config(self) -> ModelConfig:
-        """The architecture part of the config."""
-        return ModelConfig(
-            layers=self.layers,
-            width=self.width,
-            hidden_layers=self.hidden_layers,
-            activation=self.activation,
-            log_scale_clamp=self.log_scale_clamp,
-            min_rate=self.min_rate,
-        )
 
 
 @dataclass
@@ -263,7 +248,7 @@ def fit(
     rng = np.random.default_rng(config.seed)
     duration = dt * (m - 1)
     network = ImitationFlow(
-        dim, config.model_config(), norm.goal, init_rate=3.0 / duration, init_noise=config.init_noise
+        dim, config.model, norm.goal, init_rate=3.0 / duration, init_noise=config.init_noise
     )
     network.float().train()
     params = list(network.parameters())
@@ -308,7 +293,7 @@ def fit(
                     "this error's .model"
                 )
                 err.model = RiemannianFlow(  # type: ignore[attr-defined]
-                    man, goal, norm, dt, config.model_config(), network
+                    man, goal, norm, dt, config.model, network
                 )
                 err.history = history  # type: ignore[attr-defined]
                 raise err
@@ -325,4 +310,4 @@ def fit(
         good_state = copy.deepcopy(network.state_dict())
         bar.set_postfix(loss=f"{history.train_loss[-1]:.3f}")
     history.seconds = time.perf_counter() - t0
-    return RiemannianFlow(man, goal, norm, dt, config.model_config(), network), history
+    return RiemannianFlow(man, goal, norm, dt, config.model, network), history

@@ -36,6 +36,7 @@ from rflow.lasa import (
     evaluate_shape,
     riemannian_lasa,
 )
+from rflow.model import ModelConfig
 from rflow.train import TrainConfig
 
 MANIFOLD_LABELS = {"spd": "SPD", "uq": "UQ"}
@@ -61,7 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"points per demo, evenly subsampled (default {LASA_POINTS}: the benchmark)")
     defaults = TrainConfig()
     parser.add_argument("--epochs", type=int, default=defaults.epochs, help=f"training epochs (default {defaults.epochs})")
-    parser.add_argument("--layers", type=int, default=defaults.layers, help=f"coupling layers (default {defaults.layers})")
+    parser.add_argument("--layers", type=int, default=defaults.model.layers,
+                        help=f"coupling layers (default {defaults.model.layers})")
     parser.add_argument("--lr", type=float, default=defaults.lr, help=f"learning rate (default {defaults.lr:g})")
     parser.add_argument("--batch-size", type=int, default=defaults.batch_size,
                         help=f"transitions per step (default {defaults.batch_size})")
@@ -72,8 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _config(args: argparse.Namespace, threads: int | None = None) -> TrainConfig:
-    return TrainConfig(epochs=args.epochs, layers=args.layers, lr=args.lr, batch_size=args.batch_size, seed=args.seed,
-                       threads=threads)
+    return TrainConfig(model=ModelConfig(layers=args.layers), epochs=args.epochs, lr=args.lr,
+                       batch_size=args.batch_size, seed=args.seed, threads=threads)
 
 
 def _check_method(method: str) -> str:
@@ -238,7 +240,7 @@ def markdown_table(results: list[ShapeResult], config: TrainConfig) -> str:
         "generated from its first point, in the z-scored tangent space at the goal, mean of 4 demos. "
         "dist: mean manifold distance along the sequence (Log-Euclidean for SPD, ||2 Log(q conj(q_hat))|| "
         "in rad for UQ). train s / generate s: mean wall time per run of the shape. "
-        f"Training: {config.epochs} epochs, {config.layers} layers, lr {config.lr:g}, batch {config.batch_size}, "
+        f"Training: {config.epochs} epochs, {config.model.layers} layers, lr {config.lr:g}, batch {config.batch_size}, "
         f"seed {config.seed}.",
         "",
         *lines,

@@ -45,8 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs (default {d.epochs})")
     parser.add_argument("--subsample", type=int, default=DEFAULT_SUBSAMPLE,
                         help=f"keep every k-th demo sample, counted from the goal (default {DEFAULT_SUBSAMPLE})")
-    parser.add_argument("--layers", type=int, default=d.layers, help=f"coupling layers (default {d.layers})")
-    parser.add_argument("--width", type=int, default=d.width, help=f"hidden units per coupling MLP (default {d.width})")
+    parser.add_argument("--layers", type=int, default=d.model.layers, help=f"coupling layers (default {d.model.layers})")
+    parser.add_argument("--width", type=int, default=d.model.width,
+                        help=f"hidden units per coupling MLP (default {d.model.width})")
     parser.add_argument("--log-scale-clamp", type=float, default=DEFAULT_LOG_SCALE_CLAMP,
                         help=f"bound c of each coupling layer's log-scale (default {DEFAULT_LOG_SCALE_CLAMP:g})")
     parser.add_argument("--prior-weight", type=float, default=DEFAULT_PRIOR_WEIGHT,
@@ -68,23 +69,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def skill_train_config(**overrides: Any) -> Any:
     """rflow's TrainConfig (paper defaults: 11 layers, ReLU, Adam, lr 1e-3, batch 128) with this command's
-    log-scale bound, off-data prior and one thread, plus ``overrides``."""
+    log-scale bound, off-data prior and one thread, plus ``overrides`` (TrainConfig fields)."""
+    from rflow.model import ModelConfig
     from rflow.train import TrainConfig
 
-    values = {"log_scale_clamp": DEFAULT_LOG_SCALE_CLAMP, "prior_weight": DEFAULT_PRIOR_WEIGHT, "threads": 1}
+    values: dict[str, Any] = {"model": ModelConfig(log_scale_clamp=DEFAULT_LOG_SCALE_CLAMP),
+                              "prior_weight": DEFAULT_PRIOR_WEIGHT, "threads": 1}
     values.update(overrides)
     return TrainConfig(**values)
 
 
 def train_config_from_args(args: argparse.Namespace) -> Any:
     """The rflow TrainConfig of the parsed options."""
+    from rflow.model import ModelConfig
     from rflow.train import TrainConfig
 
-    return TrainConfig(epochs=args.epochs, layers=args.layers, width=args.width, lr=args.lr,
-                       log_scale_clamp=args.log_scale_clamp, prior_weight=args.prior_weight,
-                       prior_radius=args.prior_radius,
-                       batch_size=args.batch_size, transitions_per_epoch=args.transitions_per_epoch,
-                       horizon=args.horizon, seed=args.seed, threads=args.threads)
+    model = ModelConfig(layers=args.layers, width=args.width, log_scale_clamp=args.log_scale_clamp)
+    return TrainConfig(model=model, epochs=args.epochs, lr=args.lr, prior_weight=args.prior_weight,
+                       prior_radius=args.prior_radius, batch_size=args.batch_size,
+                       transitions_per_epoch=args.transitions_per_epoch, horizon=args.horizon, seed=args.seed,
+                       threads=args.threads)
 
 
 def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joint: bool = False,

@@ -9,12 +9,14 @@ import numpy as np
 from envs.demo_file import DemoSet, save_demos
 from envs.poses import quat_from_rotvec, quat_mul, slerp
 from rflow.skill_io import PoseSkill, fit_pose_skill
+from rflow.model import ModelConfig
 from rflow.train import TrainConfig
 
 GOAL_POS = np.array([0.675, -0.051, 0.203])
 GOAL_QUAT = np.array([0.0, 0.99213864, -0.12514362, 0.0]) / np.linalg.norm([0.0, 0.99213864, -0.12514362, 0.0])
 
-TINY = TrainConfig(layers=2, width=16, epochs=2, transitions_per_epoch=256, horizon=5, seed=0, threads=1)
+TINY = TrainConfig(model=ModelConfig(layers=2, width=16), epochs=2, transitions_per_epoch=256, horizon=5, seed=0,
+                   threads=1)
 
 
 def synthetic_demos(n: int = 3, m: int = 40, shape: str = "square", seed: int = 0) -> DemoSet:

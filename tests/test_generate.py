@@ -5,6 +5,7 @@ import pytest
 
 from rflow.errors import RFlowError
 from rflow.generate import next_point, rollout, velocity
+from rflow.model import ModelConfig
 from rflow.train import TrainConfig, fit
 
 GOAL = np.array([0.5, -0.1, 0.2])
@@ -16,7 +17,7 @@ def model_and_demos():
     s = np.linspace(0, 1, 200)[None, :, None]
     starts = np.array([[0.3, 0.2, 0.1], [0.35, 0.1, 0.15], [0.25, 0.25, 0.05]])[:, None, :]
     demos = (1 - s) ** 2 * starts + np.sin(np.pi * s) * (1 - s) * np.array([0.0, 0.0, 0.08]) + GOAL
-    config = TrainConfig(epochs=6, transitions_per_epoch=1024, horizon=100, width=32, threads=1)
+    config = TrainConfig(model=ModelConfig(width=32), epochs=6, transitions_per_epoch=1024, horizon=100, threads=1)
     model, _ = fit(demos, "euclidean", 0.01, config, progress=False)
     return model, demos
 

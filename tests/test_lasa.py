@@ -22,6 +22,7 @@ from rflow.lasa import (
     subsample_indices,
 )
 from rflow.metrics import dtw
+from rflow.model import ModelConfig
 from rflow.train import TrainConfig, fit
 
 
@@ -96,7 +97,7 @@ def test_unknown_shape_or_manifold_raises(shape: str, manifold: str) -> None:
 
 
 # ---- protocol ------------------------------------------------------------------------------------------
-TINY = TrainConfig(epochs=1, transitions_per_epoch=128, layers=2, width=8, horizon=3)
+TINY = TrainConfig(model=ModelConfig(layers=2, width=8), epochs=1, transitions_per_epoch=128, horizon=3)
 
 
 def _delayed(demos: np.ndarray, lag: int) -> np.ndarray:

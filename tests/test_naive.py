@@ -6,6 +6,7 @@ import pytest
 from rflow.errors import RFlowError
 from rflow.lasa import riemannian_lasa
 from rflow.naive import fit_naive, to_features, to_points
+from rflow.model import ModelConfig
 from rflow.train import TrainConfig
 
 
@@ -45,7 +46,7 @@ def test_non_unit_quaternion_features_raise() -> None:
         to_features(np.array([2.0, 0.0, 0.0, 0.0]), "sphere")
 
 
-TINY = TrainConfig(epochs=1, transitions_per_epoch=128, layers=2, width=8, horizon=3)
+TINY = TrainConfig(model=ModelConfig(layers=2, width=8), epochs=1, transitions_per_epoch=128, horizon=3)
 
 
 @pytest.mark.parametrize("manifold", ["sphere", "spd"])

@@ -7,11 +7,11 @@ import torch
 from rflow.errors import RFlowError
 from rflow.generate import rollout
 from rflow.manifolds import sphere
-from rflow.model import ImitationFlow
+from rflow.model import ImitationFlow, ModelConfig
 from rflow.train import TrainConfig, TrainHistory, fit, identity_prior
 
 GOAL = np.array([0.5, -0.1, 0.2])
-TINY = TrainConfig(epochs=10, transitions_per_epoch=1024, horizon=100, width=32, threads=1)
+TINY = TrainConfig(model=ModelConfig(width=32), epochs=10, transitions_per_epoch=1024, horizon=100, threads=1)
 
 
 def simple_demos(m: int = 200) -> np.ndarray:
@@ -30,7 +30,7 @@ def trained():
 
 def test_config_defaults_follow_the_paper():
     c = TrainConfig()
-    assert (c.layers, c.activation, c.optimizer, c.lr, c.batch_size) == (11, "relu", "adam", 1e-3, 128)
+    assert (c.model.layers, c.model.activation, c.optimizer, c.lr, c.batch_size) == (11, "relu", "adam", 1e-3, 128)
 
 
 def test_loss_decreases(trained):
@@ -74,7 +74,7 @@ def test_nan_demos_raise():
 
 
 def test_training_is_deterministic():
-    config = TrainConfig(epochs=1, transitions_per_epoch=256, width=8, layers=3, threads=1)
+    config = TrainConfig(model=ModelConfig(layers=3, width=8), epochs=1, transitions_per_epoch=256, threads=1)
     a, _ = fit(simple_demos(50), "euclidean", 0.01, config, progress=False)
     b, _ = fit(simple_demos(50), "euclidean", 0.01, config, progress=False)
     for (name, pa), pb in zip(a.network.state_dict().items(), b.network.state_dict().values()):
@@ -91,7 +91,8 @@ def test_nan_loss_stops_and_keeps_the_last_good_weights(monkeypatch):
         return out * float("nan") if calls["n"] > 2 else out
 
     monkeypatch.setattr(ImitationFlow, "transition_log_prob", poisoned)
-    config = TrainConfig(epochs=5, transitions_per_epoch=128, batch_size=128, val_fraction=0.0, width=8, layers=3)
+    config = TrainConfig(model=ModelConfig(layers=3, width=8), epochs=5, transitions_per_epoch=128, batch_size=128,
+                         val_fraction=0.0)
     with pytest.raises(RFlowError, match="non-finite loss at epoch 3") as info:
         fit(simple_demos(50), "euclidean", 0.01, config, progress=False)
     assert len(info.value.history.train_loss) == 2
@@ -105,7 +106,7 @@ def test_quaternion_demos_with_sign_flips_train():
     q = sphere.exp_map(tangent, g)
     q[1, ::2] *= -1  # sign flips inside one demo
     q[2] *= -1  # a whole demo on the other hemisphere
-    config = TrainConfig(epochs=1, transitions_per_epoch=128, width=8, layers=3)
+    config = TrainConfig(model=ModelConfig(layers=3, width=8), epochs=1, transitions_per_epoch=128)
     model, _ = fit(q, "sphere", 0.01, config, progress=False)
     assert np.allclose(model.goal, g)
     assert np.allclose(model.to_tangent(q[0]), tangent[0], atol=1e-9)
@@ -129,7 +130,7 @@ def test_bad_config_raises():
 def test_identity_prior_vanishes_for_a_fresh_flow():
     """A fresh flow is the identity, so b^-1(z) = z - z_g exactly and the prior is 0."""
     torch.manual_seed(0)
-    network = ImitationFlow(3, TINY.model_config(), np.array([0.3, -0.2, 0.1]))
+    network = ImitationFlow(3, TINY.model, np.array([0.3, -0.2, 0.1]))
     with torch.no_grad():
         assert identity_prior(network, torch.full((3,), 4.0), 256).item() < 1e-12
 

@@ -57,7 +57,7 @@ def test_weights_are_plain_tensors(trained):
 def test_training_config_uses_the_paper_optimiser(trained):
     _, ck = trained
     config = json.loads((ck / "skill.json").read_text())["training"]["position"]["config"]
-    assert (config["optimizer"], config["lr"], config["batch_size"], config["activation"]) == ("adam", 1e-3, 128, "relu")
+    assert (config["optimizer"], config["lr"], config["batch_size"], config["model"]["activation"]) == ("adam", 1e-3, 128, "relu")
 
 
 def test_training_config_records_the_off_data_prior(trained, tmp_path):
