@@ -4,7 +4,7 @@
         [--mode closed-loop|open-loop] [--workers 2] [--video runs/eval.mp4] [--figure runs/eval.png]
 
 Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range (box)
-and +-rot-range (ball) -- see envs/evaluate.py. Success is the physics check on the measured peg_tip pose. Prints a summary table.
+and +-rot-range (ball) -- see envs/execution/evaluate.py. Success is the physics check on the measured peg_tip pose. Prints a summary table.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from typing import Any, Sequence
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from envs.errors import EnvError  # noqa: E402
-from envs.evaluate import EvaluationConfig, EvaluationResult, StartPose, evaluate  # noqa: E402
-from envs.skill import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
+from envs.execution.evaluate import EvaluationConfig, EvaluationResult, StartPose, evaluate  # noqa: E402
+from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
 
 GOAL_MISMATCH_WARN_MM = 5.0
 
@@ -101,8 +101,8 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     Returns:
         {"video": path or None, "figure": path or None, "replayed": [...]} for the summary.
     """
-    from envs.evaluate import replay_episodes, sample_starts
-    from envs.skill import generate_plan
+    from envs.execution.evaluate import replay_episodes, sample_starts
+    from envs.execution.policy import generate_plan
     from envs.video import EpisodeVideo, VideoConfig
     from rflow.skill_io import load_skill
 
@@ -147,8 +147,8 @@ def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: S
     """The paper-style figure: demos (from the checkpoint's demos.npz), plans from the starts, executions."""
     import numpy as np
 
-    from envs.figures import PoseCurve, plot_skill
-    from envs.skill import generate_plan, on_goal_hemisphere
+    from envs.execution.figures import PoseCurve, plot_skill
+    from envs.execution.policy import generate_plan, on_goal_hemisphere
 
     demos = []
     preview = model_dir / "demos.npz"

@@ -49,8 +49,8 @@ def main(args: argparse.Namespace) -> int:
 
     from envs.demo_file import save_demos
     from envs.demos import collect_demos
-    from envs.evaluate import EvaluationConfig, evaluate
-    from envs.figures import plot_outcomes
+    from envs.execution.evaluate import EvaluationConfig, evaluate
+    from envs.execution.figures import plot_outcomes
     from scripts.evaluate import choose_episodes, render_and_plot
     from scripts.train import skill_train_config, train_skill
 

@@ -102,7 +102,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
         EnvError: unreadable or invalid demo file. RFlowError: training failures, bad subsampling.
     """
     from envs.demo_file import load_demos
-    from envs.figures import plot_loss
+    from envs.execution.figures import plot_loss
     from rflow.skill_io import file_sha256, fit_pose_skill, save_skill, subsample as take_every
     cfg = skill_train_config() if config is None else config
     demos = load_demos(demos_path)

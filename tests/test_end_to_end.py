@@ -13,7 +13,7 @@ import pytest
 
 from envs.demo_file import save_demos
 from envs.demos import ExpertConfig, collect_demos
-from envs.evaluate import EvaluationConfig, evaluate
+from envs.execution.evaluate import EvaluationConfig, evaluate
 from rflow.skill_io import load_skill, save_skill
 from scripts.train import skill_train_config, train_skill
 

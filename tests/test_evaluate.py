@@ -1,4 +1,4 @@
-"""envs.evaluate: Wilson interval, start sampling, episode records and the batch runner (tiny skills)."""
+"""envs.execution.evaluate: Wilson interval, start sampling, episode records and the batch runner (tiny skills)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from envs.env import EpisodeConfig, PegInHoleEnv
 from envs.errors import EnvError
-from envs.evaluate import (
+from envs.execution.evaluate import (
     EpisodeRecord,
     EvaluationConfig,
     EvaluationResult,
@@ -22,7 +22,7 @@ from envs.evaluate import (
     wilson_interval,
 )
 from envs.poses import Pose, quat_angle_rad
-from envs.skill import ClosedLoopPolicy
+from envs.execution.policy import ClosedLoopPolicy
 from rflow.skill_io import save_skill
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 

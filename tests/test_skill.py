@@ -1,4 +1,4 @@
-"""envs.skill: policies that turn a pose skill into commanded peg_tip poses, and the velocity feed-forward."""
+"""envs.execution.policy: policies that turn a pose skill into commanded peg_tip poses, and the velocity feed-forward."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from envs.env import PegInHoleEnv
 from envs.errors import EnvError
 from envs.poses import Pose
-from envs.skill import (
+from envs.execution.policy import (
     ClosedLoopPolicy,
     Command,
     OpenLoopPolicy,

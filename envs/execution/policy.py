@@ -42,7 +42,7 @@ FloatArray = npt.NDArray[np.float64]
 
 MODES: tuple[str, ...] = ("closed-loop", "open-loop")
 DEFAULT_LOOKAHEAD_S: float = 0.05
-"""Closed-loop lookahead along the learned flow (tuned on the default scene, see envs/evaluate.py)."""
+"""Closed-loop lookahead along the learned flow (tuned on the default scene, see envs/execution/evaluate.py)."""
 
 
 @dataclass(frozen=True)
