@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up pih-rflow on a fresh Debian machine: system packages for headless rendering (Mesa EGL/OSMesa),
-# a virtual environment in .venv with the CPU build of torch, and the project with its test extras.
+# a virtual environment in .venv with the CPU build of torch, and the project with its test and cluster (Ray) extras.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -21,5 +21,5 @@ PYTHON="${PYTHON:-python3}"
 .venv/bin/python -m pip install -q --upgrade pip
 # The CPU build first, pinned, so no resolver ever pulls CUDA wheels.
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[test]"
+.venv/bin/python -m pip install -q -e ".[test,cluster]"
 echo "setup.sh: ready -- activate with: source .venv/bin/activate"

@@ -31,8 +31,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 import numpy.typing as npt
-from scipy.linalg import blas, lapack
-
+from controllers import impedance_kernel as kernel
 from controllers.errors import ControllerError
 from controllers.validation import as_unit_quaternion, as_vector, site_id
 
@@ -133,8 +132,8 @@ def modal_factors(
 
     With Lambda^-1 = C C^T (Cholesky) and C^T K C = U diag(w) U^T (symmetric eigendecomposition), P = C^-T U
     satisfies Lambda = P P^T and K = P diag(w) P^T, so D = P diag(2 zeta sqrt(w)) P^T damps every mode of
-    Lambda x'' + D x' + K x = 0 with ratio zeta. LAPACK/BLAS are called directly: for 6x6 matrices the
-    numpy.linalg wrappers cost more than the arithmetic.
+    Lambda x'' + D x' + K x = 0 with ratio zeta. Computed by the compiled kernel the control law uses
+    (controllers.impedance_kernel.modal_factors_into: Cholesky and cyclic Jacobi on 6x6 matrices).
 
     Args:
         lambda_inv: J M^-1 J^T (6x6, symmetric positive definite).
@@ -144,23 +143,33 @@ def modal_factors(
         (P, w): the 6x6 modal matrix and the 6 modal stiffnesses (eigenvalues of Lambda^-1 K).
 
     Raises:
-        ControllerError: lambda_inv not positive definite, or a failed eigendecomposition.
+        ControllerError: lambda_inv not positive definite.
     """
-    chol, info = lapack.dpotrf(lambda_inv, lower=1, clean=1)
-    if info != 0:
-        raise ControllerError(f"J M^-1 J^T is not positive definite (dpotrf info {info})")
-    w, u, info = lapack.dsyevd(chol.T @ stiffness @ chol, compute_v=1, lower=1)
-    if info != 0:
-        raise ControllerError(f"eigendecomposition of C^T K C failed (dsyevd info {info})")
-    return blas.dtrsm(1.0, chol, u, lower=1, trans_a=1), w  # dtrsm solves C^T P = U
+    p, w = np.zeros((6, 6)), np.zeros(6)
+    work, _ = kernel.work_buffers(6)
+    ok = kernel.modal_factors_into(np.ascontiguousarray(lambda_inv, dtype=np.float64),
+                                   np.ascontiguousarray(stiffness, dtype=np.float64), p, w, work)
+    if not ok:
+        raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed)")
+    return p, w
+
+
+def _is_descendant(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    """True when ``body`` is ``ancestor`` or lies below it in the kinematic tree."""
+    while body > 0:
+        if body == ancestor:
+            return True
+        body = int(model.body_parentid[body])
+    return False
 
 
 class CartesianImpedanceController:
     """Cartesian impedance controller of one site of a torque-actuated arm (see the module docstring).
 
     The arm is what the model's actuators drive: motor i (gear 1) on the i-th of a contiguous block of hinge or
-    slide joints (`dof_slice`, `qpos_slice`). Other dofs (e.g. a free peg in a physics test) are allowed when
-    they lie on other kinematic trees, so the mass matrix is block diagonal and the arm's block is exact.
+    slide joints (`dof_slice`, `qpos_slice`). Other dofs are allowed on other kinematic trees (e.g. a free
+    peg), where the mass matrix is block diagonal, or below the arm's last joint (e.g. gripper fingers), whose
+    coupling to the arm enters exactly through M^-1 in Lambda^-1 = J M^-1 J^T.
     """
 
     def __init__(
@@ -200,8 +209,12 @@ class CartesianImpedanceController:
         arm_trees = set(model.dof_treeid[self.dof_slice].tolist())
         other = np.ones(model.nv, dtype=bool)
         other[self.dof_slice] = False
-        if arm_trees & set(model.dof_treeid[other].tolist()):
-            raise ControllerError("dofs outside the actuated arm must lie on other kinematic trees")
+        last_arm_body = int(model.dof_bodyid[self.dof_slice.stop - 1])
+        for dof in np.flatnonzero(other):  # unactuated dofs on the arm's tree must hang below its last joint
+            if int(model.dof_treeid[dof]) in arm_trees and not _is_descendant(model, int(model.dof_bodyid[dof]),
+                                                                                last_arm_body):
+                raise ControllerError("dofs outside the actuated arm must lie on other kinematic trees or below "
+                                      "its last joint (e.g. gripper fingers)")
         self.model = model
         self.site_id = site_id(model, site)
         if int(model.body_treeid[model.site_bodyid[self.site_id]]) not in arm_trees:
@@ -209,24 +222,19 @@ class CartesianImpedanceController:
         self.config = config
         self.default_stiffness = config.stiffness_matrix()
         self._tau_max = np.asarray(config.torque_limits, dtype=np.float64)
-        self._tau_min = -self._tau_max
         self._tau_step = config.torque_rate_limit * model.opt.timestep
-        self._four_zeta_sq = 4.0 * config.damping_ratio**2
-        self._reg = _INERTIA_REGULARISATION * np.eye(6)
-        # Preallocated buffers (full nv for J and J M^-1, arm-sized otherwise); the hot loop allocates only
-        # inside numpy.linalg.
+        # Kernel parameters [regularisation, 4 zeta^2, K_n, D_n, rate dt, dof start, tau_max...] and preallocated
+        # buffers: a physics step allocates nothing (controllers.impedance_kernel).
+        self._params = np.concatenate([
+            [_INERTIA_REGULARISATION, 4.0 * config.damping_ratio**2, config.nullspace_stiffness,
+             config.nullspace_damping, self._tau_step, float(self.dof_slice.start)], self._tau_max])
         self._jac = np.zeros((6, model.nv))
-        self._jac_arm = self._jac[:, self.dof_slice]
+        self._jac_pos, self._jac_rot = self._jac[:3], self._jac[3:]
         self._jac_minv = np.zeros((6, model.nv))
-        self._jac_minv_arm = self._jac_minv[:, self.dof_slice]
-        self._lambda_inv = np.zeros((6, 6))
-        self._error = np.zeros(6)
-        self._quat = np.zeros(4)
-        self._rot_local = np.zeros(3)
-        self._twists = np.zeros((2, 6))
-        self._tau0 = np.zeros(n)
-        self._tau = np.zeros(n)
+        self._target = np.zeros(7 + n + 1)  # [p_d, q_d, q_ref, use_q_ref]
+        self._work, self._vec = kernel.work_buffers(n)
         self._last_tau = np.zeros(n)
+        self._views: tuple = ()  # (data, its arrays the kernel reads), refreshed when another MjData comes
 
     def reset(self, tau0: npt.ArrayLike | None = None) -> None:
         """Set the last commanded torque, the reference of the torque-rate limit.
@@ -276,15 +284,21 @@ class CartesianImpedanceController:
         """
         xi = as_vector(twist, 6, "twist")
         k = self.default_stiffness if stiffness is None else validate_stiffness(stiffness)
-        jac = np.zeros((6, self.model.nv))
-        mujoco.mj_jacSite(self.model, data, jac[:3], jac[3:], self.site_id)
-        jac_minv = np.zeros((6, self.model.nv))
-        mujoco.mj_solveM(self.model, data, jac_minv, jac)
-        p, w = modal_factors(jac_minv @ jac.T + self._reg, k)
+        p, w = self._modal(data, k)
         force = p @ ((2.0 * self.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) * (p.T @ xi))
         if accel is not None:
             force += p @ (p.T @ as_vector(accel, 6, "accel"))
         return np.linalg.solve(k, force)
+
+    def _modal(self, data: mujoco.MjData, stiffness: npt.NDArray[np.float64]) -> tuple[npt.NDArray, npt.NDArray]:
+        """(P, w) of the double diagonalisation of this state's regularised Lambda and `stiffness` (copies)."""
+        mujoco.mj_jacSite(self.model, data, self._jac_pos, self._jac_rot, self.site_id)
+        mujoco.mj_solveM(self.model, data, self._jac_minv, self._jac)
+        lambda_inv, p, w = np.zeros((6, 6)), np.zeros((6, 6)), np.zeros(6)
+        kernel.inertia_inverse_into(self._jac, self._jac_minv, _INERTIA_REGULARISATION, lambda_inv)
+        if not kernel.modal_factors_into(lambda_inv, stiffness, p, w, self._work):
+            raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed)")
+        return p, w
 
     def compute_torque(
         self,
@@ -311,8 +325,10 @@ class CartesianImpedanceController:
         Raises:
             ControllerError: bad target, stiffness or joint reference.
         """
-        pos, quat, k, q_ref = self._validate(target_pos, target_quat, stiffness, q_nullspace)
-        return self._torque(data, pos, quat, k, q_ref).copy()
+        k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
+        tau = np.zeros(self.model.nu)
+        self._torque(data, k, self._data_views(data)[:-1] + (tau,))  # data.ctrl stays untouched
+        return tau
 
     def step(
         self,
@@ -325,7 +341,7 @@ class CartesianImpedanceController:
     ) -> None:
         """Advance the simulation n_substeps physics steps under impedance control toward a fixed target.
 
-        Each substep: mj_step1 (positions, velocities, mass matrix, bias), torque, data.ctrl, mj_step2.
+        Each substep: mj_step1 (positions, velocities, mass matrix, bias), torque into data.ctrl, mj_step2.
         Inputs are validated once per call, not per substep.
 
         Args:
@@ -334,17 +350,18 @@ class CartesianImpedanceController:
             n_substeps: number of physics steps (e.g. 10 for a 100 Hz command at 1 kHz physics).
 
         Raises:
-            ControllerError: bad inputs or n_substeps < 1.
+            ControllerError: bad inputs, n_substeps < 1, or a singular Cartesian inertia (the state is then
+                left after mj_step1 of the failing substep).
         """
         if int(n_substeps) < 1:
             raise ControllerError(f"n_substeps={n_substeps!r} must be >= 1")
-        pos, quat, k, q_ref = self._validate(target_pos, target_quat, stiffness, q_nullspace)
-        model = self.model
-        ctrl = data.ctrl
+        k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
+        views = self._data_views(data)
+        model, step1, step2, torque = self.model, mujoco.mj_step1, mujoco.mj_step2, self._torque
         for _ in range(int(n_substeps)):
-            mujoco.mj_step1(model, data)
-            ctrl[:] = self._torque(data, pos, quat, k, q_ref)
-            mujoco.mj_step2(model, data)
+            step1(model, data)
+            torque(data, k, views)
+            step2(model, data)
 
     def _validate(
         self,
@@ -352,69 +369,35 @@ class CartesianImpedanceController:
         target_quat: npt.ArrayLike,
         stiffness: npt.ArrayLike | None,
         q_nullspace: npt.ArrayLike | None,
-    ) -> tuple[npt.NDArray, npt.NDArray, npt.NDArray, npt.NDArray | None]:
-        pos = as_vector(target_pos, 3, "target_pos")
-        quat = as_unit_quaternion(target_quat, "target_quat")
-        k = self.default_stiffness if stiffness is None else validate_stiffness(stiffness)
-        q_ref = None if q_nullspace is None else as_vector(q_nullspace, self.model.nu, "q_nullspace")
-        return pos, quat, k, q_ref
-
-    def _torque(
-        self,
-        data: mujoco.MjData,
-        pos: npt.NDArray[np.float64],
-        quat: npt.NDArray[np.float64],
-        stiffness: npt.NDArray[np.float64],
-        q_ref: npt.NDArray[np.float64] | None,
     ) -> npt.NDArray[np.float64]:
-        """The control law of the module docstring on validated inputs; returns the internal torque buffer."""
-        model, jac, jac_minv, lambda_inv = self.model, self._jac, self._jac_minv, self._lambda_inv
-        error, twists, tau0, tau, last = self._error, self._twists, self._tau0, self._tau, self._last_tau
-        site, dofs = self.site_id, self.dof_slice
-        qvel = data.qvel
+        """Check the command, store it in the kernel's target buffer and return the stiffness to use."""
+        n = self.model.nu
+        target = self._target
+        target[:3] = as_vector(target_pos, 3, "target_pos")
+        target[3:7] = as_unit_quaternion(target_quat, "target_quat")
+        if q_nullspace is None:
+            target[7 + n] = 0.0
+        else:
+            target[7:7 + n] = as_vector(q_nullspace, n, "q_nullspace")
+            target[7 + n] = 1.0
+        return self.default_stiffness if stiffness is None else validate_stiffness(stiffness)
 
-        # Kinematics and Cartesian inertia: J, J M^-1, Lambda^-1 = J M^-1 J^T (+ regularisation).
-        mujoco.mj_jacSite(model, data, jac[:3], jac[3:], site)
-        mujoco.mj_solveM(model, data, jac_minv, jac)
-        np.matmul(jac_minv, jac.T, out=lambda_inv)
-        lambda_inv += self._reg
+    def _data_views(self, data: mujoco.MjData) -> tuple:
+        """The arrays of `data` the kernel reads and writes (views, built once per MjData)."""
+        if not self._views or self._views[0] is not data:
+            site = self.site_id
+            self._views = (data, data.qpos[self.qpos_slice], data.qvel, data.qfrc_bias[self.dof_slice],
+                           data.site_xpos[site], data.site_xmat[site], data.ctrl)
+        return self._views
 
-        p, w = modal_factors(lambda_inv, stiffness)
-        np.multiply(w, self._four_zeta_sq, out=w)
-        np.sqrt(w, out=w)  # modal damping 2 zeta sqrt(w_i)
-
-        # Pose error e = [p_d - p; R Log(conj(q) q_d)] in the world frame.
-        np.subtract(pos, data.site_xpos[site], out=error[:3])
-        mujoco.mju_mat2Quat(self._quat, data.site_xmat[site])
-        mujoco.mju_subQuat(self._rot_local, quat, self._quat)
-        mujoco.mju_rotVecQuat(error[3:], self._rot_local, self._quat)
-
-        # Posture torque tau_0 = K_n (q_ref - q) - D_n qdot on the arm joints.
-        np.multiply(qvel[dofs], -self.config.nullspace_damping, out=tau0)
-        if q_ref is not None:
-            tau0 += self.config.nullspace_stiffness * (q_ref - data.qpos[self.qpos_slice])
-
-        # Rows: twist v = J qdot and x = J M^-1 tau_0; then D v = P S P^T v and Lambda x = P P^T x.
-        np.matmul(jac, qvel, out=twists[0])
-        np.matmul(self._jac_minv_arm, tau0, out=twists[1])
-        modal = twists @ p
-        modal[0] *= w
-        damping_and_null = modal @ p.T
-        wrench = stiffness @ error
-        wrench -= damping_and_null[0]
-        wrench -= damping_and_null[1]
-
-        # tau = J^T (F - Lambda J M^-1 tau_0) + tau_0 + c.
-        np.matmul(wrench, self._jac_arm, out=tau)
-        tau += tau0
-        tau += data.qfrc_bias[dofs]
-
-        # Torque-rate limit relative to the last command, then the joint torque limits.
-        tau -= last
-        np.minimum(tau, self._tau_step, out=tau)
-        np.maximum(tau, -self._tau_step, out=tau)
-        tau += last
-        np.minimum(tau, self._tau_max, out=tau)
-        np.maximum(tau, self._tau_min, out=tau)
-        last[:] = tau
-        return tau
+    def _torque(self, data: mujoco.MjData, stiffness: npt.NDArray[np.float64], views: tuple) -> None:
+        """The control law of the module docstring (controllers.impedance_kernel) at the state of `data` after
+        mj_step1 or mj_forward; writes the limited torque into data.ctrl and the last command."""
+        mujoco.mj_jacSite(self.model, data, self._jac_pos, self._jac_rot, self.site_id)
+        mujoco.mj_solveM(self.model, data, self._jac_minv, self._jac)
+        _, qpos, qvel, bias, site_pos, site_mat, ctrl = views
+        status = kernel.impedance_torque(self._jac, self._jac_minv, qpos, qvel, bias, site_pos, site_mat,
+                                         self._target, stiffness, self._params, self._last_tau, ctrl,
+                                         self._work, self._vec)
+        if status != kernel.STATUS_OK:
+            raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed); the arm is singular")

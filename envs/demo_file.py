@@ -12,6 +12,10 @@ Schema (all arrays, float64 unless noted):
 Optional:
     residual_pos_m   (N,)   |measured settled position - goal| before snapping to the goal, metres
     residual_rot_deg (N,)   angle between measured settled orientation and goal, degrees
+    stiffness    (N, M, 3, 3) translational stiffness the demonstration used, N/m, world frame: symmetric
+                            (to 1e-9 relative), positive definite and finite at every sample, and
+                            stiffness[n, -1] == goal_stiffness for every n (to 1e-9 relative)
+    goal_stiffness (3, 3)   the shared goal stiffness; present exactly when ``stiffness`` is
 
 Files are written atomically (temp file + os.replace) and read with ``allow_pickle=False``.
 """
@@ -36,13 +40,15 @@ FloatArray = npt.NDArray[np.float64]
 
 REQUIRED_KEYS: tuple[str, ...] = ("pos", "quat", "dt", "goal_pos", "goal_quat", "shape", "clearance_m",
                                   "config_json")
-OPTIONAL_KEYS: tuple[str, ...] = ("residual_pos_m", "residual_rot_deg")
+OPTIONAL_KEYS: tuple[str, ...] = ("residual_pos_m", "residual_rot_deg", "stiffness", "goal_stiffness")
 
 #: A demo "ends at the goal" when its last sample is this close to the stored goal.
 GOAL_TOL_M: float = 1e-6
 GOAL_TOL_RAD: float = 1e-6
 #: Largest |norm - 1| of a stored quaternion.
 UNIT_TOL: float = 1e-6
+#: Largest |K - K^T| and |K_end - K_goal| of a stored stiffness, relative to max |K|.
+STIFFNESS_REL_TOL: float = 1e-9
 
 
 @dataclass(frozen=True)
@@ -59,6 +65,8 @@ class DemoSet:
     config: dict[str, Any] = field(default_factory=dict)
     residual_pos_m: FloatArray | None = None
     residual_rot_deg: FloatArray | None = None
+    stiffness: FloatArray | None = None
+    goal_stiffness: FloatArray | None = None
 
     @property
     def num_demos(self) -> int:
@@ -120,6 +128,49 @@ def validate_demos(demos: DemoSet, source: str = "demos") -> None:
     for name, arr in (("residual_pos_m", demos.residual_pos_m), ("residual_rot_deg", demos.residual_rot_deg)):
         if arr is not None and np.asarray(arr).shape != (pos.shape[0],):
             raise EnvError(f"{source}: '{name}' must have shape ({pos.shape[0]},), got {np.asarray(arr).shape}")
+    validate_stiffness(demos, source)
+
+
+def validate_stiffness(demos: DemoSet, source: str = "demos") -> None:
+    """Check the optional stiffness of a DemoSet (module docstring); nothing to check when absent.
+
+    Raises:
+        EnvError: one line naming ``source`` and the first problem found: only one of the two arrays,
+            wrong shapes, NaN, an asymmetric or not positive definite matrix, a demo not ending at the goal.
+    """
+    if demos.stiffness is None and demos.goal_stiffness is None:
+        return
+    if demos.stiffness is None or demos.goal_stiffness is None:
+        missing = "stiffness" if demos.stiffness is None else "goal_stiffness"
+        raise EnvError(f"{source}: has {'goal_stiffness' if missing == 'stiffness' else 'stiffness'} but no "
+                       f"'{missing}' (they come together)")
+    k, goal = np.asarray(demos.stiffness), np.asarray(demos.goal_stiffness)
+    want = np.asarray(demos.pos).shape[:2] + (3, 3)
+    if k.shape != want:
+        raise EnvError(f"{source}: 'stiffness' must have shape {want} to match 'pos', got {k.shape}")
+    if goal.shape != (3, 3):
+        raise EnvError(f"{source}: 'goal_stiffness' must have shape (3, 3), got {goal.shape}")
+    for name, arr in (("stiffness", k), ("goal_stiffness", goal)):
+        if not np.all(np.isfinite(arr)):
+            bad = np.argwhere(~np.isfinite(arr))[0].tolist()
+            raise EnvError(f"{source}: '{name}' contains NaN or inf (first at index {bad})")
+        scale = np.maximum(np.abs(arr).max(axis=(-2, -1)), 1e-300)
+        asym = np.abs(arr - np.swapaxes(arr, -1, -2)).max(axis=(-2, -1)) / scale
+        if np.any(asym > STIFFNESS_REL_TOL):
+            where = np.unravel_index(np.argmax(asym), asym.shape)
+            at = f" at demo {where[0]}, sample {where[1]}" if asym.ndim else ""
+            raise EnvError(f"{source}: '{name}' is not symmetric{at} (max |K - K^T| / max |K| = {asym.max():.3g})")
+        low = np.linalg.eigvalsh(0.5 * (arr + np.swapaxes(arr, -1, -2)))[..., 0]
+        if np.any(low <= 0.0):
+            where = np.unravel_index(np.argmin(low), low.shape)
+            at = f" at demo {where[0]}, sample {where[1]}" if low.ndim else ""
+            raise EnvError(f"{source}: '{name}' is not positive definite{at} (smallest eigenvalue "
+                           f"{low.min():.3g} N/m)")
+    end_err = np.abs(k[:, -1] - goal).max(axis=(-2, -1)) / np.abs(goal).max()
+    worst = int(np.argmax(end_err))
+    if end_err[worst] > STIFFNESS_REL_TOL:
+        raise EnvError(f"{source}: demo {worst} does not end at the goal stiffness (final sample off by "
+                       f"{end_err[worst]:.3g} relative to max |K_goal|)")
 
 
 def save_demos(path: str | os.PathLike[str], demos: DemoSet) -> Path:
@@ -147,11 +198,17 @@ def save_demos(path: str | os.PathLike[str], demos: DemoSet) -> Path:
         arrays["residual_pos_m"] = np.asarray(demos.residual_pos_m, dtype=np.float64)
     if demos.residual_rot_deg is not None:
         arrays["residual_rot_deg"] = np.asarray(demos.residual_rot_deg, dtype=np.float64)
+    if demos.stiffness is not None:
+        arrays["stiffness"] = np.asarray(demos.stiffness, dtype=np.float64)
+        arrays["goal_stiffness"] = np.asarray(demos.goal_stiffness, dtype=np.float64)
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise EnvError(f"cannot write demos to {out}: folder {folder} does not exist")
     fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=folder)
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes 0600; the file's mode follows the umask (0644 by default)
         with os.fdopen(fd, "wb") as handle:
             np.savez(handle, **arrays)
         os.replace(tmp_name, out)
@@ -216,6 +273,8 @@ def load_demos(path: str | os.PathLike[str]) -> DemoSet:
         config=config,
         residual_pos_m=optional.get("residual_pos_m"),
         residual_rot_deg=optional.get("residual_rot_deg"),
+        stiffness=optional.get("stiffness"),
+        goal_stiffness=optional.get("goal_stiffness"),
     )
     validate_demos(demos, source=src)
     return demos

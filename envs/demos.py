@@ -1,4 +1,8 @@
-"""Scripted peg-in-hole demonstrations executed in physics and recorded as measured peg_tip poses.
+"""Scripted peg-in-hole demonstrations executed in physics and recorded as measured tcp poses.
+
+The recorded frame is the ``tcp`` (the nominal peg_tip on the hand, measured through the arm's kinematics, as a
+real robot records a demonstration); with the grasped peg it differs from the peg's own peg_tip only by slip
+and tilt in the grasp. The expert knows the real hole.
 
 The scripted expert plans one smooth peg_tip pose path in the hole frame (axis a out of the hole, opening
 o; the start offset s - o splits into the height h0 = (s - o) . a and the lateral part l0):
@@ -16,7 +20,7 @@ inertia, so a fast vertical motion drags the peg sideways by ~0.013 mm per mm/s 
 minimum-jerk peak speed of a plain descent that exceeds the 0.5 mm half clearance.
 Every demo lasts the same T = T_approach + T_entry + T_insert + T_hold (7 s by default), so all demos
 share one sampling time dt = T / (M - 1).
-The impedance controller executes the path; the MEASURED peg_tip pose is recorded every control step
+The impedance controller executes the path; the MEASURED tcp pose is recorded every control step
 and resampled to M samples on a uniform grid (positions linearly, quaternions by slerp).
 
 A demo is kept only if the success tracker declared success and the settled pose (mean over the last
@@ -250,15 +254,15 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
         obs = env.reset(start_pose=start)
     except EnvError as err:
         return failed(f"{UNREACHABLE_PREFIX}: {err}")
-    times, pos, quat = [0.0], [obs.peg_tip.pos], [obs.peg_tip.quat]
+    times, pos, quat = [0.0], [obs.tcp.pos], [obs.tcp.quat]
     result: StepResult | None = None
     for k in range(num_steps):
         result = env.step((cmd_pos[k], cmd_quat[k]))
         if on_step is not None:
             on_step(result)
         times.append(result.obs.time_s)
-        pos.append(result.obs.peg_tip.pos)
-        quat.append(result.obs.peg_tip.quat)
+        pos.append(result.obs.tcp.pos)
+        quat.append(result.obs.tcp.quat)
         if result.done:
             break
     t_arr, p_arr, q_arr = np.asarray(times), np.asarray(pos), make_continuous(np.asarray(quat))

@@ -1,19 +1,33 @@
 """The peg-in-hole episode: the one place that owns the simulator state (MjData) of an episode.
 
-Each ``step`` holds one commanded peg_tip pose for one control period (default 10 ms = 10 physics steps at
-1 kHz, i.e. commands at 100 Hz) while the Cartesian impedance controller runs at the physics rate:
+Each ``step`` holds one commanded pose of the ``tcp`` (the nominal peg_tip on the hand, see envs.scene) for one
+control period (default 10 ms = 10 physics steps at 1 kHz, i.e. commands at 100 Hz) while the Cartesian
+impedance controller runs at the physics rate:
 
     tau = J^T (K e - D v) + nullspace(q_ref) + c(q, qdot)      (controllers.impedance)
 
-with q_ref from a mink NullspaceReference that follows the commanded pose. After the period the state is
-checked (NaN, MuJoCo's bad-qpos/qvel/qacc warnings, joint speeds) and the insertion is scored from the
-MEASURED peg_tip pose (envs.success). An episode ends on success, at the time limit, or on an instability;
-physics failures are recorded as the end reason, never raised.
+with q_ref from a mink NullspaceReference that follows the commanded pose. A grasped peg is squeezed by both
+fingers with the grasp force (a generalised force on each finger joint) and held by friction only. Its
+weight, which the arm's model does not contain (the peg is a separate body), is compensated as a known tool
+load, as the Franka controller does with its end-effector load setting: tau_load = -J_c^T m g, with J_c the
+translational Jacobian of the peg's nominal centre of mass (on the hand, half a peg below peg_mount).
+
+Every physics step the wrist F/T sensor and the peg's contacts are read (envs.sensing): their peaks over the
+episode are kept, and a wrist force above ``force_limit_n`` sustained for ``force_limit_window_s`` ends the
+episode with reason "force_limit". After each period the state is checked (NaN, MuJoCo's bad-qpos/qvel/qacc
+warnings, joint speeds) and the insertion is scored from the peg's MEASURED pose and speed (envs.success:
+seated, inside the walls, at rest, held for hold_s). An episode ends on success, at the time limit, at the force
+limit or on an instability; physics failures are recorded as the end reason, never raised.
+
+``reset`` applies a per-episode perturbation (envs.perturbation): the sorter is moved by a hole-pose error
+(mocap) and the peg is placed in the grasp with an offset along its axis, then the grasp settles for
+``grasp_settle_s`` with the arm holding the start pose before the episode clock starts.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import mujoco
@@ -24,6 +38,7 @@ from controllers.errors import ControllerError
 from controllers.ik import IKConfig, NullspaceReference, solve_ik
 from controllers.impedance import CartesianImpedanceController, ImpedanceConfig, validate_stiffness
 from envs.errors import EnvError
+from envs.perturbation import Perturbation, PerturbationRanges, perturbed_frame, sample_perturbation
 from envs.poses import (
     Pose,
     StartRegion,
@@ -34,7 +49,9 @@ from envs.poses import (
     sample_start_poses,
     validate_pose,
 )
-from envs.scene import Scene, SceneConfig, build_scene
+from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
+from envs.sensing import PegContacts, ToolLoad, WristSensor
+from envs.shapes import PEG_LENGTH_M, peg_cross_section
 from envs.success import (
     MIN_ENTRY_DEPTH_M,
     Assessment,
@@ -49,6 +66,7 @@ FloatArray = npt.NDArray[np.float64]
 
 REASON_SUCCESS = "success"
 REASON_TIME_LIMIT = "time_limit"
+REASON_FORCE_LIMIT = "force_limit"
 REASON_INSTABILITY = "instability"
 """End reasons; an instability reason reads 'instability: <what was detected>'."""
 
@@ -72,6 +90,12 @@ class EpisodeConfig:
         success: insertion criteria (envs.success).
         stop_on_success: end the episode when the success tracker declares success; False keeps it
             running (the scripted expert holds the peg in the hole to let it settle).
+        force_limit_n: a wrist force above this (N), sustained for ``force_limit_window_s``, ends the episode
+            as a failure "force_limit"; ``math.inf`` disables it.
+        force_limit_window_s: how long the force must stay above the limit (one contact spike does not end it).
+        perturbations: ranges of the per-episode hole-pose error and grasp offset.
+        grasp_settle_s: physics time the grasp settles at the start pose before the episode clock starts
+            (grasped peg only).
         max_joint_speed_rad_s: a joint faster than this is an instability (the Panda's limit is 2.6 rad/s).
         start_penetration_m: a start pose whose contacts penetrate deeper than this is rejected.
         nullspace_iterations: mink iterations per command of the nullspace joint reference.
@@ -83,6 +107,10 @@ class EpisodeConfig:
     time_limit_s: float = 20.0
     success: SuccessConfig = field(default_factory=SuccessConfig)
     stop_on_success: bool = True
+    force_limit_n: float = 40.0
+    force_limit_window_s: float = 0.005
+    perturbations: PerturbationRanges = field(default_factory=PerturbationRanges)
+    grasp_settle_s: float = 0.1
     max_joint_speed_rad_s: float = 10.0
     start_penetration_m: float = 1e-3
     nullspace_iterations: int = 3
@@ -92,8 +120,17 @@ class EpisodeConfig:
     def __post_init__(self) -> None:
         for name in ("control_period_s", "time_limit_s", "max_joint_speed_rad_s", "start_penetration_m"):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0.0):
                 raise EnvError(f"EpisodeConfig.{name}={value!r} must be a positive finite number")
+        if not (isinstance(self.force_limit_n, (int, float)) and not math.isnan(self.force_limit_n)
+                and self.force_limit_n > 0.0):
+            raise EnvError(f"EpisodeConfig.force_limit_n={self.force_limit_n!r} must be > 0 (inf: no limit)")
+        for name in ("force_limit_window_s", "grasp_settle_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0.0):
+                raise EnvError(f"EpisodeConfig.{name}={value!r} must be a finite number >= 0")
+        if not isinstance(self.perturbations, PerturbationRanges):
+            raise EnvError(f"EpisodeConfig.perturbations={self.perturbations!r} must be a PerturbationRanges")
         if self.nullspace_iterations < 1:
             raise EnvError(f"EpisodeConfig.nullspace_iterations={self.nullspace_iterations} must be >= 1")
 
@@ -105,10 +142,16 @@ class Observation:
     Attributes:
         time_s: simulated time since the reset.
         qpos, qvel: arm joint positions (rad) and velocities (rad/s), (7,).
-        flange, peg_tip: measured poses (pos m, quat w, x, y, z).
-        wrench: (6,) [force N; torque N m] the environment exerts on the peg: the sum over the peg's
-            contacts of mj_contactForce rotated to the world frame, torque about the peg_tip.
-        insertion: the peg_tip relative to the target hole (depth, lateral, tilt, yaw error, in_hole).
+        gripper_width_m: opening between the finger pads (0 when the peg is welded).
+        flange: measured flange pose (pos m, quat w, x, y, z).
+        tcp: the nominal peg_tip measured through the arm's kinematics (what the robot knows; the skill's frame).
+        peg_tip: the peg's own peg_tip pose (simulator truth: it differs from ``tcp`` by the grasp offset and
+            any slip or tilt in the grasp).
+        wrist_wrench: (6,) [force N; torque N m] the environment exerts on the tool, from the wrist F/T sensor
+            zeroed for the tool load, in the sensor frame (envs.sensing).
+        contact_force_n: sum of the environment's contact normal-force magnitudes on the peg, now.
+        insertion: the peg_tip relative to the target hole (depth, lateral, tilt, yaw, in_hole, wall
+            penetration, speed).
         hole: the hole the peg_tip is in (None: none; another shape: wrong hole).
         inserted: the success criteria hold at this instant.
         success: the success tracker has declared success (criteria held for hold_s).
@@ -117,13 +160,51 @@ class Observation:
     time_s: float
     qpos: FloatArray
     qvel: FloatArray
+    gripper_width_m: float
     flange: Pose
+    tcp: Pose
     peg_tip: Pose
-    wrench: FloatArray
+    wrist_wrench: FloatArray
+    contact_force_n: float
     insertion: InsertionState
     hole: str | None
     inserted: bool
     success: bool
+
+
+@dataclass
+class ContactStats:
+    """Peaks over an episode at the physics rate, and control-rate samples for medians.
+
+    Attributes:
+        peak_contact_force_n: largest sum of the environment's normal-force magnitudes on the peg.
+        peak_single_contact_n: largest single normal force on the peg.
+        peak_wrist_force_n, peak_wrist_torque_nm: largest |F_ext| and |tau_ext| of the wrist sensor.
+        wrist_force_samples, wrist_torque_samples: |F_ext|, |tau_ext| at the end of every control period.
+        force_limit_time_s: physics time the force first stayed above the limit for the window (None: never).
+    """
+
+    peak_contact_force_n: float = 0.0
+    peak_single_contact_n: float = 0.0
+    peak_wrist_force_n: float = 0.0
+    peak_wrist_torque_nm: float = 0.0
+    wrist_force_samples: list[float] = field(default_factory=list)
+    wrist_torque_samples: list[float] = field(default_factory=list)
+    force_limit_time_s: float | None = None
+
+    def summary(self) -> dict[str, float | None]:
+        """Peaks and medians, JSON-ready."""
+        def median(values: list[float]) -> float | None:
+            return float(np.median(values)) if values else None
+
+        return {
+            "peak_contact_force_n": self.peak_contact_force_n,
+            "peak_single_contact_n": self.peak_single_contact_n,
+            "peak_wrist_force_n": self.peak_wrist_force_n,
+            "median_wrist_force_n": median(self.wrist_force_samples),
+            "peak_wrist_torque_nm": self.peak_wrist_torque_nm,
+            "median_wrist_torque_nm": median(self.wrist_torque_samples),
+        }
 
 
 @dataclass(frozen=True)
@@ -147,12 +228,12 @@ def _site_pose(data: mujoco.MjData, site_id: int) -> Pose:
 
 
 class PegInHoleEnv:
-    """A Panda holding a peg above the shape sorter; commands are peg_tip poses (see the module docstring).
+    """A Panda holding a peg above the shape sorter; commands are tcp poses (see the module docstring).
 
     Usage::
 
         env = PegInHoleEnv()
-        obs = env.reset(seed=0)                 # or reset(start_pose=Pose(pos, quat))
+        obs = env.reset(seed=0)                 # or reset(start_pose=Pose(pos, quat), perturbation=...)
         result = env.step(env.goal)             # hold the goal pose for one control period
     """
 
@@ -162,15 +243,15 @@ class PegInHoleEnv:
         """Args:
             scene_config: what to build (ignored when ``scene`` is given).
             controller_config: impedance gains and torque limits.
-            episode_config: control period, time limit, success and instability checks.
-            scene: an already built scene to reuse (its config must have peg_mode "held").
+            episode_config: control period, time limit, success, force limit, perturbations.
+            scene: an already built scene to reuse (its peg must be grasped or welded).
 
         Raises:
             EnvError: a free-peg scene, or a control period that is not a multiple of the timestep.
         """
         self.scene = scene if scene is not None else build_scene(scene_config)
-        if self.scene.config.peg_mode != "held":
-            raise EnvError(f"PegInHoleEnv needs peg_mode='held', got {self.scene.config.peg_mode!r}")
+        if self.scene.config.peg_mode not in ("grasped", "welded"):
+            raise EnvError(f"PegInHoleEnv needs a grasped or welded peg, got peg_mode={self.scene.config.peg_mode!r}")
         self.config = episode_config
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
@@ -181,28 +262,43 @@ class PegInHoleEnv:
                            f"physics timestep {timestep} s")
         self.n_substeps = int(round(ratio))
         ids = self.scene.ids
+        self.tcp_site = ids.tcp_site
         self.peg_tip_site = ids.peg_tip_site
         self.flange_site = ids.flange_site
-        self._peg_geoms = frozenset(ids.peg_geoms)
-        self.q_nominal = (self.model.key_qpos[ids.home_key].copy() if ids.home_key is not None
-                          else self.model.qpos0.copy())
+        self.grasped = self.scene.config.peg_mode == "grasped"
+        self._arm_qpos = np.asarray(ids.arm_qpos_adr)
+        self._arm_dof = np.asarray(ids.arm_dof_adr)
+        self._finger_qpos = np.asarray(ids.finger_qpos_adr, dtype=int)
+        self._finger_dof = np.asarray(ids.finger_dof_adr, dtype=int)
+        self._peg_section = peg_cross_section(self.shape)
+        key_qpos = self.model.key_qpos[ids.home_key] if ids.home_key is not None else self.model.qpos0
+        self.q_home = key_qpos.copy()
+        self.q_nominal = key_qpos[self._arm_qpos].copy()
+        self.arm_model = self.scene.arm_model
+        self._grip_opening = key_qpos[self._finger_qpos].copy() if self.grasped else np.zeros(0)
         try:
-            self.controller = CartesianImpedanceController(self.model, self.peg_tip_site, controller_config)
-            self.nullspace = NullspaceReference(self.model, self.peg_tip_site, self.q_nominal,
+            self.controller = CartesianImpedanceController(self.model, self.tcp_site, controller_config)
+            self.nullspace = NullspaceReference(self.arm_model, "tcp", self.q_nominal,
                                                 iterations=episode_config.nullspace_iterations,
                                                 config=episode_config.ik)
         except ControllerError as err:
-            raise EnvError(f"cannot control the scene's peg_tip: {err}") from None
+            raise EnvError(f"cannot control the scene's tcp: {err}") from None
+        load = ids.hand_subtree + ((ids.peg_body,) if self.grasped else ())
+        self.wrist = WristSensor(self.model, ids.ft_site, ids.wrist_force_adr, ids.wrist_torque_adr, ToolLoad(load))
+        self.contacts = PegContacts(self.model, ids.peg_geoms, ids.finger_geoms)
+        self._velocity = np.zeros(6)
+        self._jac_load = np.zeros((3, self.model.nv))
+        self._load_weight = self.model.body_mass[ids.peg_body] * np.asarray(self.model.opt.gravity)  # m g
+        nominal_hole_pos, nominal_hole_quat = self.scene.hole_pose(self.shape)
+        self.nominal_hole = Pose(pos=nominal_hole_pos, quat=nominal_hole_quat)
         goal_pos, goal_quat = self.scene.goal_pose()
-        self.goal = Pose(pos=goal_pos, quat=goal_quat)
-        hole_pos, hole_quat = self.scene.hole_pose(self.scene.config.shape)
-        self.hole = Pose(pos=hole_pos, quat=hole_quat)
-        self.hole_axis = rotate(hole_quat, [0.0, 0.0, 1.0])  # out of the hole
-        self._holes = self.scene.hole_specs()
-        self._hole_pos = np.array([spec.pos for spec in self._holes.values()])
-        self._hole_axes = np.array([rotate(spec.quat, [0.0, 0.0, 1.0]) for spec in self._holes.values()])
+        self.nominal_goal = Pose(pos=goal_pos, quat=goal_quat)
+        self._set_hole_error(Perturbation())
         self.tracker = SuccessTracker(episode_config.success)
+        self.stats = ContactStats()
+        self.perturbation = Perturbation()
         self._warning_counts = np.zeros(len(_BAD_STATE_WARNINGS), dtype=int)
+        self._above_limit_s = 0.0
         self._steps = 0
         self._done = True
         self._reason: str | None = "not reset"
@@ -243,8 +339,9 @@ class PegInHoleEnv:
         return self._obs
 
     def nominal_start(self) -> Pose:
-        """The centre of the start region: above the hole opening along its axis, goal orientation."""
-        return nominal_start(self.hole.pos, self.hole_axis, self.goal.quat, self.config.start_region)
+        """The centre of the start region: above the nominal hole opening along its axis, goal orientation."""
+        axis = rotate(self.nominal_hole.quat, [0.0, 0.0, 1.0])
+        return nominal_start(self.nominal_hole.pos, axis, self.nominal_goal.quat, self.config.start_region)
 
     def sample_start(self, rng: np.random.Generator) -> Pose:
         """One start pose from ``config.start_region`` (see envs.poses.StartRegion)."""
@@ -252,45 +349,80 @@ class PegInHoleEnv:
 
     # ------------------------------------------------------------------------------------------- episode
 
-    def reset(self, seed: int | None = None, start_pose: Pose | Sequence[npt.ArrayLike] | None = None) -> Observation:
-        """Start an episode with the peg_tip at ``start_pose`` at rest.
+    def reset(self, seed: int | None = None, start_pose: Pose | Sequence[npt.ArrayLike] | None = None,
+              perturbation: Perturbation | None = None) -> Observation:
+        """Start an episode with the tcp at ``start_pose`` at rest.
 
-        Without ``start_pose``, starts are drawn from ``config.start_region`` with ``seed`` until one is
-        reachable and collision-free (at most MAX_START_DRAWS draws). The joints come from mink IK from the
-        nominal posture (keyframe "home"); velocities are zero and the controller's torque state is set to
-        the gravity torque.
+        The perturbation (hole-pose error, grasp offset) is ``perturbation`` or, when None, drawn first from
+        the generator seeded with ``seed`` within ``config.perturbations``. Without ``start_pose``, starts are
+        then drawn from ``config.start_region`` with the same generator until one is reachable and
+        collision-free (at most MAX_START_DRAWS draws). The joints come from mink IK from the nominal posture
+        (keyframe "home"); velocities are zero and the controller's torque state is set to the gravity torque.
 
         Raises:
             EnvError: a malformed start pose, an unreachable one (naming the pose), or one in collision.
         """
-        if start_pose is not None:
-            return self._reset_at(self._as_pose(start_pose, "start pose"))
         rng = np.random.default_rng(seed)
+        if perturbation is None:
+            perturbation = sample_perturbation(self.config.perturbations, rng)
+        if start_pose is not None:
+            return self._reset_at(self._as_pose(start_pose, "start pose"), perturbation)
         errors = []
         for _ in range(MAX_START_DRAWS):
             try:
-                return self._reset_at(self.sample_start(rng))
+                return self._reset_at(self.sample_start(rng), perturbation)
             except EnvError as err:
                 errors.append(str(err))
         raise EnvError(f"no reachable start in {MAX_START_DRAWS} draws from the start region (last: {errors[-1]})")
 
-    def _reset_at(self, start: Pose) -> Observation:
+    def _set_hole_error(self, perturbation: Perturbation) -> None:
+        """Move the sorter (mocap) by the hole-pose error and update the holes the scorer uses."""
+        scene = self.scene
+        hole_pos, hole_quat = self.nominal_hole.pos, self.nominal_hole.quat
+        sorter_pos, sorter_quat = perturbed_frame(scene.sorter_pos, scene.sorter_quat, hole_pos, hole_quat,
+                                                  perturbation)
+        self.data.mocap_pos[scene.ids.sorter_mocap] = sorter_pos
+        self.data.mocap_quat[scene.ids.sorter_mocap] = sorter_quat
+        holes = {}
+        for shape, spec in scene.hole_specs().items():
+            pos, quat = perturbed_frame(spec.pos, spec.quat, hole_pos, hole_quat, perturbation)
+            holes[shape] = replace(spec, pos=tuple(float(v) for v in pos), quat=tuple(float(v) for v in quat))
+        self._holes = holes
+        self._hole_pos = np.array([spec.pos for spec in holes.values()])
+        self._hole_axes = np.array([rotate(spec.quat, [0.0, 0.0, 1.0]) for spec in holes.values()])
+        target = holes[self.shape]
+        self.hole = Pose(pos=np.asarray(target.pos), quat=np.asarray(target.quat))
+        self.hole_axis = rotate(target.quat, [0.0, 0.0, 1.0])  # out of the hole
+        goal_pos, goal_quat = goal_from_hole(target.pos, target.quat, scene.config.insertion_depth_m)
+        self.goal = Pose(pos=goal_pos, quat=goal_quat)
+
+    def _reset_at(self, start: Pose, perturbation: Perturbation) -> Observation:
         try:
-            q = solve_ik(self.model, self.peg_tip_site, start.pos, start.quat, self.q_nominal, self.config.ik)
+            q = solve_ik(self.arm_model, "tcp", start.pos, start.quat, self.q_nominal, self.config.ik)
         except ControllerError as err:
             raise EnvError(f"start pose {format_pose(start)} is unreachable ({err})") from None
-        data = self.data
-        mujoco.mj_resetData(self.model, data)
-        data.qpos[:] = q
+        model, data = self.model, self.data
+        mujoco.mj_resetData(model, data)
+        data.qpos[:] = self.q_home
+        data.qpos[self._arm_qpos] = q
         data.qvel[:] = 0.0
-        mujoco.mj_forward(self.model, data)
+        self._set_hole_error(perturbation)
+        if self.grasped:
+            self._place_peg_in_grasp(perturbation.grasp_offset_m)
+        mujoco.mj_forward(model, data)
         depth = self._deepest_penetration()
         if depth > self.config.start_penetration_m:
             raise EnvError(f"start pose {format_pose(start)} is in collision ({depth * 1e3:.1f} mm penetration)")
         self.controller.reset(data.qfrc_bias[self.controller.dof_slice])
-        self.nullspace.reset(q)
-        self.tracker.reset()
+        q_ref = q.copy()
+        self.nullspace.reset(q_ref)
         self._warning_counts = self._bad_warning_counts()
+        if self.grasped:
+            self._settle_grasp(start, q_ref)
+        self.perturbation = perturbation
+        self.tracker.reset()
+        self.stats = ContactStats()
+        self._above_limit_s = 0.0
         self._steps = 0
         self._done = False
         self._reason = None
@@ -298,15 +430,44 @@ class PegInHoleEnv:
         self._obs = self._observe()
         return self._obs
 
+    def _place_peg_in_grasp(self, offset_m: float) -> None:
+        """Peg frame = tcp frame shifted by L back and ``offset_m`` out along the peg axis; fingers on its sides."""
+        data = self.data
+        mujoco.mj_kinematics(self.model, data)
+        rot = data.site_xmat[self.tcp_site].reshape(3, 3)
+        adr = self.scene.ids.peg_qpos_adr
+        data.qpos[adr:adr + 3] = data.site_xpos[self.tcp_site] + rot[:, 2] * (offset_m - PEG_LENGTH_M)
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, data.site_xmat[self.tcp_site])
+        data.qpos[adr + 3:adr + 7] = quat
+        data.qpos[self._finger_qpos] = self._grip_opening
+        data.qfrc_applied[self._finger_dof] = -self.scene.config.grasp_force_n
+
+    def _settle_grasp(self, start: Pose, q_ref: FloatArray) -> None:
+        """Hold the start pose while the grasp forces build up (``grasp_settle_s``)."""
+        steps = int(round(self.config.grasp_settle_s / float(self.model.opt.timestep)))
+        for _ in range(steps):
+            self._compensate_tool_load()
+            self.controller.step(self.data, start.pos, start.quat, None, q_ref, 1)
+
+    def _compensate_tool_load(self) -> None:
+        """qfrc_applied on the arm = -J_c^T m g for the grasped peg's nominal centre of mass (module docstring)."""
+        if not self.grasped:
+            return
+        data = self.data
+        point = data.site_xpos[self.tcp_site] - data.site_xmat[self.tcp_site].reshape(3, 3)[:, 2] * (PEG_LENGTH_M / 2)
+        mujoco.mj_jac(self.model, data, self._jac_load, None, point, self.scene.ids.hand_body)
+        data.qfrc_applied[self._arm_dof] = -(self._load_weight @ self._jac_load[:, self._arm_dof])
+
     def step(self, target: Pose | Sequence[npt.ArrayLike], stiffness: npt.ArrayLike | None = None) -> StepResult:
-        """Hold the commanded peg_tip pose for one control period under impedance control.
+        """Hold the commanded tcp pose for one control period under impedance control.
 
         Args:
-            target: commanded peg_tip pose, a Pose or (pos (3,), quat (4,) w, x, y, z).
+            target: commanded tcp pose, a Pose or (pos (3,), quat (4,) w, x, y, z).
             stiffness: optional 6x6 SPD Cartesian stiffness (world frame); the controller's default if None.
 
         Returns:
-            StepResult; ``done`` with ``reason`` "success", "time_limit" or "instability: ...".
+            StepResult; ``done`` with ``reason`` "success", "time_limit", "force_limit" or "instability: ...".
 
         Raises:
             EnvError: a malformed target or stiffness, or stepping an episode that has ended.
@@ -324,18 +485,27 @@ class PegInHoleEnv:
         except ControllerError as err:
             raise EnvError(f"nullspace reference failed for target {format_pose(pose)}: {err}") from None
         problem: str | None = None
+        force_limited = False
+        q_arm = q_ref
         try:
             with np.errstate(all="ignore"):
-                self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_ref, self.n_substeps)
+                for _ in range(self.n_substeps):
+                    self._compensate_tool_load()
+                    self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_arm, 1)
+                    if self._sense():
+                        force_limited = True
+                        break
         except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
             problem = f"controller failed ({type(err).__name__}: {err})"
         self._steps += 1
         problem = problem or self._instability()
-        obs = self._observe(track=problem is None)
+        obs = self._observe(track=problem is None and not force_limited)
         self._obs = obs
         reason: str | None = None
         if problem is not None:
             reason = f"{REASON_INSTABILITY}: {problem}"
+        elif force_limited:
+            reason = REASON_FORCE_LIMIT
         elif obs.success and self.config.stop_on_success:
             reason = REASON_SUCCESS
         elif obs.time_s >= self.config.time_limit_s - 1e-9:
@@ -344,6 +514,24 @@ class PegInHoleEnv:
             self._done, self._reason = True, reason
         return StepResult(obs=obs, done=reason is not None, reason=reason,
                           info={"target": pose, "q_ref": q_ref, "step": self._steps})
+
+    def _sense(self) -> bool:
+        """Update the episode's contact and wrist peaks after a physics step; True when the force limit hits."""
+        stats = self.stats
+        total, single = self.contacts.normal_forces(self.data)
+        stats.peak_contact_force_n = max(stats.peak_contact_force_n, total)
+        stats.peak_single_contact_n = max(stats.peak_single_contact_n, single)
+        wrench = self.wrist.wrench(self.data)
+        force = math.sqrt(wrench[0] ** 2 + wrench[1] ** 2 + wrench[2] ** 2)
+        torque = math.sqrt(wrench[3] ** 2 + wrench[4] ** 2 + wrench[5] ** 2)
+        stats.peak_wrist_force_n = max(stats.peak_wrist_force_n, force)
+        stats.peak_wrist_torque_nm = max(stats.peak_wrist_torque_nm, torque)
+        dt = float(self.model.opt.timestep)
+        self._above_limit_s = self._above_limit_s + dt if force > self.config.force_limit_n else 0.0
+        if self._above_limit_s >= self.config.force_limit_window_s - 1e-12 and self._above_limit_s > 0.0:
+            stats.force_limit_time_s = stats.force_limit_time_s or self._steps * self.control_period_s
+            return True
+        return False
 
     # ------------------------------------------------------------------------------------------- helpers
 
@@ -372,7 +560,7 @@ class PegInHoleEnv:
         if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))
                 and np.all(np.isfinite(data.qacc))):
             return f"non-finite state at {now}"
-        speed = float(np.max(np.abs(data.qvel)))
+        speed = float(np.max(np.abs(data.qvel[self._arm_dof])))
         if speed > self.config.max_joint_speed_rad_s:
             return f"joint speed {speed:.1f} rad/s exceeds {self.config.max_joint_speed_rad_s} rad/s at {now}"
         return None
@@ -383,50 +571,33 @@ class PegInHoleEnv:
             return 0.0
         return float(max(0.0, -np.min(data.contact.dist[: data.ncon])))
 
-    def contact_wrench(self) -> FloatArray:
-        """[force; torque about peg_tip] (6,) that contacts exert on the peg, world frame.
+    def peg_speed_m_s(self) -> float:
+        """Linear speed of the peg's peg_tip (m/s), from the simulated state."""
+        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self.peg_tip_site,
+                                 self._velocity, 0)
+        return float(np.linalg.norm(self._velocity[3:]))
 
-        For contact i with frame rows (normal, tangent1, tangent2) F_i (3x3) and mj_contactForce f_i (6,) in
-        that frame (the force of geom1 on geom2): f_world = +-F_i^T f_i[:3] (+ when the peg is geom2),
-        torque = sum (p_i - p_tip) x f_world + F_i^T f_i[3:].
-        """
-        data, model = self.data, self.model
-        wrench = np.zeros(6)
-        local = np.zeros(6)
-        tip = data.site_xpos[self.peg_tip_site]
-        for i in range(data.ncon):
-            contact = data.contact[i]
-            on_geom1 = contact.geom1 in self._peg_geoms
-            on_geom2 = contact.geom2 in self._peg_geoms
-            if on_geom1 == on_geom2 or contact.efc_address < 0:
-                continue
-            mujoco.mj_contactForce(model, data, i, local)
-            frame = contact.frame.reshape(3, 3)
-            sign = 1.0 if on_geom2 else -1.0
-            force = sign * frame.T @ local[:3]
-            wrench[:3] += force
-            wrench[3:] += np.cross(contact.pos - tip, force) + sign * frame.T @ local[3:]
-        return wrench
-
-    def assess(self, peg_tip: Pose | None = None) -> Assessment:
-        """Score a peg_tip pose (default: the measured one) against the holes (envs.success).
+    def assess(self, peg_tip: Pose | None = None, speed_m_s: float | None = None) -> Assessment:
+        """Score a peg_tip pose and speed (default: the simulated peg's) against the real holes (envs.success).
 
         Shortcut, exact: a peg_tip is in a hole only deeper than MIN_ENTRY_DEPTH_M below its opening, so
         while it is above every opening (depth_h = -(p - p_h) . z_h <= MIN_ENTRY_DEPTH_M for all holes h)
         only the target hole's state is computed.
         """
         tip = _site_pose(self.data, self.peg_tip_site) if peg_tip is None else peg_tip
+        speed = self.peg_speed_m_s() if speed_m_s is None else speed_m_s
         depths = -np.einsum("hi,hi->h", tip.pos - self._hole_pos, self._hole_axes)
         if np.all(depths <= MIN_ENTRY_DEPTH_M):
-            state = insertion_state(tip.pos, tip.quat, self._holes[self.shape])
+            state = insertion_state(tip.pos, tip.quat, self._holes[self.shape], speed_m_s=speed)
             return Assessment(None, state, False)
         return assess_insertion(tip.pos, tip.quat, self._holes, self.shape, self.scene.config.insertion_depth_m,
-                                self.config.success)
+                                self.config.success, self._peg_section, speed)
 
     def _observe(self, track: bool = True) -> Observation:
         data = self.data
         time_s = self._steps * self.control_period_s
         flange = _site_pose(data, self.flange_site)
+        tcp = _site_pose(data, self.tcp_site)
         peg_tip = _site_pose(data, self.peg_tip_site)
         finite = np.all(np.isfinite(peg_tip.pos)) and np.all(np.isfinite(peg_tip.quat))
         if finite and np.linalg.norm(peg_tip.quat) > 0.5:
@@ -435,13 +606,21 @@ class PegInHoleEnv:
             nan_state = InsertionState(np.nan, np.nan, np.nan, np.nan, False)
             assessment = Assessment(None, nan_state, False)
         success = self.tracker.update(time_s, assessment.inserted and track)
+        wrench = self.wrist.wrench(data)
+        if self._steps > 0:
+            self.stats.wrist_force_samples.append(float(np.linalg.norm(wrench[:3])))
+            self.stats.wrist_torque_samples.append(float(np.linalg.norm(wrench[3:])))
+        width = float(np.sum(data.qpos[self._finger_qpos])) if self.grasped else 0.0
         return Observation(
             time_s=time_s,
-            qpos=data.qpos.copy(),
-            qvel=data.qvel.copy(),
+            qpos=data.qpos[self._arm_qpos].copy(),
+            qvel=data.qvel[self._arm_dof].copy(),
+            gripper_width_m=width,
             flange=flange,
+            tcp=tcp,
             peg_tip=peg_tip,
-            wrench=self.contact_wrench(),
+            wrist_wrench=wrench,
+            contact_force_n=self.contacts.normal_forces(data)[0],
             insertion=assessment.state,
             hole=assessment.hole,
             inserted=assessment.inserted,
@@ -452,7 +631,7 @@ class PegInHoleEnv:
 def track_trajectory(env: PegInHoleEnv, pos: npt.ArrayLike, quat: npt.ArrayLike,
                      on_step: Callable[[StepResult], None] | None = None,
                      stiffness: npt.ArrayLike | None = None) -> StepResult | None:
-    """Command a pose trajectory sampled at the control period, one pose per step, until it ends or the
+    """Command a tcp pose trajectory sampled at the control period, one pose per step, until it ends or the
     episode ends (a reset episode is required).
 
     Args:

@@ -1,9 +1,19 @@
 """Scene composition: the Panda, a floor, a table, the shape sorter and a peg, as one MuJoCo model.
 
 The root is the Panda MJCF (world origin = robot base); the sorter ("sorter/...") and the peg ("peg/...")
-are separate MJCF models attached to it. By default the peg is held rigidly: it is attached at the hand's
-``peg_mount`` site, without a joint, and the jointless finger bodies are moved onto its sides, so nq = 7.
-With ``peg_mode="free"`` it floats on a free joint above its hole instead (for physics tests).
+are separate MJCF models attached to it. Peg modes:
+  - "grasped" (default): the peg is a free body held between the two prismatic fingers by friction; the
+    fingers are coupled (they move symmetrically, as the Franka hand's) and each finger joint is pushed closed
+    with the grasp force (a force-controlled gripper, applied as a generalised
+    force by the episode), so the peg may slip or tilt in the grasp under contact. nq = 7 + 2 + 7.
+  - "welded": the peg is attached rigidly at the hand's ``peg_mount`` site and the finger joints are removed
+    (the fingers are moved onto its sides), so nq = 7: the paper's toy setting.
+  - "free": the peg floats on a free joint above its hole (for physics tests).
+The hand carries the site ``tcp``: the nominal peg_tip, where the peg_tip is when the peg sits in the hand as
+grasped nominally (``nominal_flange_to_peg_tip``). Controllers and skills command and read ``tcp`` (what the
+robot knows from its joints); success reads the peg's own ``peg/peg_tip``. The wrist force/torque sensor sits
+between flange and hand (site ``ft_sensor`` at the hand's origin, sensors ``wrist_force``/``wrist_torque``).
+The sorter is a mocap body, so an episode can move it (a hole-pose error) without recompiling.
 
 Goal: the peg_tip pose with the peg inserted ``insertion_depth_m`` into the hole of ``config.shape``:
     p_goal = p_hole - insertion_depth * z_hole,  R_goal = R_hole Rx(pi)   (peg_tip z points down the hole).
@@ -42,7 +52,15 @@ from envs.geometry import (
 )
 from envs.peg import build_peg
 from envs.shapes import PEG_LENGTH_M, SHAPES, check_shape, grip_half_width_m, hole_inradius_m
-from envs.sorter import SorterLayout, build_sorter, check_clearance, check_hole_depth, sorter_layout, symmetry_order
+from envs.sorter import (
+    SorterLayout,
+    build_sorter,
+    check_chamfer,
+    check_clearance,
+    check_hole_depth,
+    sorter_layout,
+    symmetry_order,
+)
 from envs.success import HoleSpec
 
 PAPER_GOAL_POS_M: tuple[float, float, float] = (0.675, -0.051, 0.203)
@@ -52,7 +70,10 @@ PAPER_GOAL_QUAT: tuple[float, float, float, float] = (0.022, 0.991, -0.125, 0.03
 PAPER_GOAL_YAW_DEG: float = z_down_yaw_deg(PAPER_GOAL_QUAT)
 """Heading of the z-down orientation nearest to g_q (about -14.4 deg)."""
 
-PEG_MODES: tuple[str, ...] = ("held", "free")
+PEG_MODES: tuple[str, ...] = ("grasped", "welded", "free")
+FINGER_JOINTS: tuple[str, ...] = ("finger_joint1", "finger_joint2")
+FRANKA_GRASP_FORCE_N: float = 70.0
+"""Continuous grasp force of the Franka hand."""
 MAX_GOAL_TILT_DEG: float = 5.0
 TABLE_MARGIN_M: float = 0.05
 MIN_TABLE_HEIGHT_M: float = 0.02
@@ -77,6 +98,35 @@ def goal_pose_from_paper(
     return as_vector(pos, 3, "goal pos"), mat_to_quat(z_down_rotation(yaw_deg))
 
 
+def nominal_flange_to_peg_tip(shape: str) -> tuple[FloatArray, FloatArray]:
+    """The nominal grasp: pose of the peg_tip frame in the flange frame, T_F^P = T_F^H T_H^M Tz(L).
+
+    T_F^H is the hand on the flange and T_H^M the ``peg_mount`` site in the hand (both from panda.xml), L the
+    peg length: the peg's top face sits at peg_mount with its axis along the hand z axis. The skill commands
+    the hand through this transform and never reads the true grasp (which a grasp offset perturbs).
+
+    Returns:
+        (position m (3,), quaternion w, x, y, z (4,)).
+
+    Raises:
+        EnvError: for an unknown shape, or a panda.xml without the flange / peg_mount sites.
+    """
+    check_shape(shape)
+    try:
+        model = mujoco.MjModel.from_xml_path(str(assets.PANDA_XML))
+    except ValueError as error:
+        raise EnvError(f"cannot read the Panda MJCF {assets.PANDA_XML}: {error}") from error
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name) for name in ("flange", "peg_mount")]
+    if min(ids) < 0:
+        raise EnvError(f"{assets.PANDA_XML} lacks the flange or peg_mount site")
+    rot_flange, rot_mount = (data.site_xmat[i].reshape(3, 3) for i in ids)
+    rot = rot_flange.T @ rot_mount
+    pos = rot_flange.T @ (data.site_xpos[ids[1]] - data.site_xpos[ids[0]]) + rot[:, 2] * PEG_LENGTH_M
+    return pos, mat_to_quat(rot)
+
+
 def goal_from_hole(
     hole_pos: npt.ArrayLike, hole_quat: npt.ArrayLike, insertion_depth_m: float
 ) -> tuple[FloatArray, FloatArray]:
@@ -97,16 +147,19 @@ def hole_from_goal(
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """What to build (defaults: the paper's goal, square peg held by the hand, 1 mm clearance).
+    """What to build (defaults: the paper's goal, square peg grasped by the hand, 1 mm clearance, no chamfer).
 
     Attributes:
         shape: the peg's shape and the target hole (the others are on the sorter too).
         clearance_m: total hole-minus-peg clearance, in [0.1 mm, 5 mm].
+        chamfer_m: width of the 45 deg chamfer at every hole mouth, in [0, 3 mm] (0: sharp edges).
         hole_depth_m: depth of the blind holes, in [30, 200] mm.
         insertion_depth_m: how deep the goal peg_tip is below the hole opening, in (0, hole_depth_m].
         goal_pos: goal peg_tip position (m, robot base frame); the sorter is placed to match it.
         goal_yaw_deg: heading of the goal peg_tip x axis; the peg axis is vertical, z down.
-        peg_mode: "held" (rigidly in the hand, nq = 7) or "free" (free joint above its hole).
+        peg_mode: "grasped" (a free body held by the fingers), "welded" (rigidly in the hand, nq = 7) or
+            "free" (free joint above its hole).
+        grasp_force_n: force closing each finger on a grasped peg (N), in (0, 140].
         hole_at_goal: optional (pos, quat) goal peg_tip pose that overrides goal_pos/goal_yaw_deg; its z
             axis must point down within 5 deg, and the sorter is tilted to match it exactly.
         free_peg_height_m: free mode: height of the peg_tip above its hole's opening at qpos0.
@@ -118,11 +171,13 @@ class SceneConfig:
 
     shape: str = "square"
     clearance_m: float = 0.001
+    chamfer_m: float = 0.0
     hole_depth_m: float = 0.04
     insertion_depth_m: float = 0.03
     goal_pos: tuple[float, float, float] = PAPER_GOAL_POS_M
     goal_yaw_deg: float = PAPER_GOAL_YAW_DEG
-    peg_mode: str = "held"
+    peg_mode: str = "grasped"
+    grasp_force_n: float = FRANKA_GRASP_FORCE_N
     hole_at_goal: tuple[Sequence[float], Sequence[float]] | None = None
     free_peg_height_m: float = 0.05
     contact: ContactConfig = field(default_factory=ContactConfig)
@@ -130,7 +185,10 @@ class SceneConfig:
     def __post_init__(self) -> None:
         check_shape(self.shape)
         check_clearance(self.clearance_m)
+        check_chamfer(self.chamfer_m)
         check_hole_depth(self.hole_depth_m)
+        if not (np.isfinite(self.grasp_force_n) and 0.0 < self.grasp_force_n <= 2.0 * FRANKA_GRASP_FORCE_N):
+            raise EnvError(f"grasp_force_n={self.grasp_force_n} must lie in (0, {2.0 * FRANKA_GRASP_FORCE_N:g}] N")
         if not (np.isfinite(self.insertion_depth_m) and 0.0 < self.insertion_depth_m <= self.hole_depth_m):
             raise EnvError(
                 f"insertion_depth_m={self.insertion_depth_m} must lie in (0, hole_depth_m={self.hole_depth_m}]"
@@ -183,13 +241,24 @@ class SceneIds:
     """MuJoCo ids and addresses of what the controllers, episodes and tests use.
 
     ``sorter_geoms`` are the sorter's colliding geoms (its visual-only skin is left out); ``peg_qpos_adr``
-    and ``peg_dof_adr`` address the free joint (None when the peg is held); ``home_key`` is the Panda's
-    "home" keyframe (None if panda.xml has none).
+    and ``peg_dof_adr`` address the peg's free joint (None when welded); ``finger_*_adr`` the finger joints
+    (empty when welded); ``wrist_*_adr`` the F/T sensor's entries in sensordata; ``hand_subtree`` the bodies
+    the F/T sensor carries (hand and fingers); ``sorter_mocap`` the sorter's mocap index; ``home_key`` the
+    Panda's "home" keyframe (None if panda.xml has none).
     """
 
     flange_site: int
     peg_mount_site: int
+    tcp_site: int
     peg_tip_site: int
+    ft_site: int
+    wrist_force_adr: int
+    wrist_torque_adr: int
+    hand_subtree: tuple[int, ...]
+    finger_geoms: tuple[int, ...]
+    finger_qpos_adr: tuple[int, ...]
+    finger_dof_adr: tuple[int, ...]
+    sorter_mocap: int
     hole_sites: Mapping[str, int]
     hand_body: int
     peg_body: int
@@ -216,6 +285,8 @@ class Scene:
         layout: the sorter geometry in the sorter frame.
         sorter_pos, sorter_quat: pose of the sorter frame (bottom-face centre) in the world.
         build_time_s: wall-clock time build_scene took.
+        arm_model: the arm alone (7 joints, finger joints removed, the same ``tcp`` site), for inverse
+            kinematics: its qpos are the scene's arm joints.
     """
 
     model: mujoco.MjModel
@@ -226,6 +297,7 @@ class Scene:
     sorter_quat: FloatArray
     build_time_s: float
     mjcf_xml: str = field(repr=False)
+    arm_model: mujoco.MjModel = field(repr=False, default=None)  # type: ignore[assignment]
 
     def hole_pose(self, shape: str) -> tuple[FloatArray, FloatArray]:
         """World pose (position m, quaternion w, x, y, z) of site ``hole_<shape>``.
@@ -252,6 +324,8 @@ class Scene:
             inradius_m=hole_inradius_m(shape, self.config.clearance_m),
             depth_m=self.config.hole_depth_m,
             clearance_m=self.config.clearance_m,
+            polygon=tuple((float(x), float(y)) for x, y in self.layout.hole_polygons[shape]),
+            chamfer_m=self.config.chamfer_m,
         )
 
     def hole_specs(self) -> Mapping[str, HoleSpec]:
@@ -338,26 +412,54 @@ def _find(root: mjcf.RootElement, kind: str, name: str) -> mjcf.Element:
 def _attach_peg(
     root: mjcf.RootElement, config: SceneConfig, hole_pos: FloatArray, goal_rot: FloatArray
 ) -> mjcf.Element:
-    """Attach the peg at peg_mount with the fingers on its sides (held), or on a free joint above its hole.
+    """Attach the peg: between the fingers as a free body (grasped), rigidly at peg_mount (welded), or on a
+    free joint above its hole (free). Adds the hand's ``tcp`` site and the wrist F/T sensor.
 
     Returns:
         The attachment frame (the peg's body).
     """
     peg = build_peg(config.shape, config.contact)
-    if config.peg_mode == "held":
-        frame = _find(root, "site", "peg_mount").attach(peg)
-        for name, sign in (("left_finger", 1.0), ("right_finger", -1.0)):
-            finger = _find(root, "body", name)
-            pad = _find(root, "geom", f"{name}_pad")
+    mount = _find(root, "site", "peg_mount")
+    hand = _find(root, "body", "hand")
+    hand.add("site", name="tcp", pos=np.asarray(mount.pos, dtype=np.float64) + [0.0, 0.0, PEG_LENGTH_M],
+             size=[0.003], rgba=[0, 1, 1, 1], group=4)
+    hand.add("site", name="ft_sensor", pos=[0.0, 0.0, 0.0], size=[0.004], rgba=[1, 0.5, 0, 1], group=4)
+    root.sensor.add("force", name="wrist_force", site="ft_sensor")
+    root.sensor.add("torque", name="wrist_torque", site="ft_sensor")
+    fingers = [(_find(root, "body", name), _find(root, "geom", f"{name}_pad"), sign)
+               for name, sign in (("left_finger", 1.0), ("right_finger", -1.0))]
+    if config.peg_mode == "welded":
+        frame = mount.attach(peg)
+        for finger, pad, sign in fingers:
+            for joint in finger.find_all("joint", exclude_attachments=True):
+                joint.remove()
             finger.pos = [finger.pos[0], sign * grip_half_width_m(config.shape, float(pad.size[0])), finger.pos[2]]
             root.contact.add("exclude", body1=finger, body2=frame)
         return frame
-    tip = hole_pos + config.free_peg_height_m * (-goal_rot[:, 2])
     frame = root.worldbody.attach(peg)
+    frame.add("freejoint")
+    for _, pad, _ in fingers:  # rubber pads with the scene's stiff contact (soft defaults let a 70 N grasp sink)
+        pad.solref, pad.solimp = list(config.contact.solref), list(config.contact.solimp)
+    # The Franka hand's fingers are mechanically coupled: they open and close symmetrically about the hand axis.
+    root.equality.add("joint", name="finger_coupling", joint1="finger_joint1", joint2="finger_joint2",
+                      solref=[0.005, 1.0])
+    if config.peg_mode == "grasped":  # placed at the nominal grasp of the home keyframe after compiling
+        return frame
+    tip = hole_pos + config.free_peg_height_m * (-goal_rot[:, 2])
     frame.pos = tip - PEG_LENGTH_M * goal_rot[:, 2]
     frame.quat = mat_to_quat(goal_rot)
-    frame.add("freejoint")
     return frame
+
+
+def _keyframe_qpos(root: mjcf.RootElement, config: SceneConfig, arm_qpos: npt.ArrayLike,
+                   peg_qpos: FloatArray) -> FloatArray:
+    """Keyframe qpos of the composed scene: arm, fingers (grasped/free; at the peg's sides or open), peg."""
+    arm = np.asarray(arm_qpos, dtype=np.float64)[: len(ARM_JOINTS)]
+    if config.peg_mode == "welded":
+        return arm
+    pad = float(_find(root, "geom", "left_finger_pad").size[0])
+    opening = grip_half_width_m(config.shape, pad) if config.peg_mode == "grasped" else 0.04
+    return np.concatenate([arm, [opening, opening], peg_qpos])
 
 
 def _scene_ids(model: mujoco.MjModel, peg_mode: str) -> SceneIds:
@@ -370,15 +472,28 @@ def _scene_ids(model: mujoco.MjModel, peg_mode: str) -> SceneIds:
     body = mujoco.mjtObj.mjOBJ_BODY
     peg_body = named(body, "peg/")
     sorter_body = named(body, "sorter/")
+    hand_body = named(body, "hand")
     joints = tuple(named(mujoco.mjtObj.mjOBJ_JOINT, name) for name in ARM_JOINTS)
-    free = int(model.body_jntadr[peg_body]) if peg_mode == "free" else -1
+    fingers = () if peg_mode == "welded" else tuple(named(mujoco.mjtObj.mjOBJ_JOINT, n) for n in FINGER_JOINTS)
+    free = int(model.body_jntadr[peg_body]) if peg_mode != "welded" else -1
     key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    finger_bodies = (named(body, "left_finger"), named(body, "right_finger"))
+    sensor = mujoco.mjtObj.mjOBJ_SENSOR
     return SceneIds(
         flange_site=named(mujoco.mjtObj.mjOBJ_SITE, "flange"),
         peg_mount_site=named(mujoco.mjtObj.mjOBJ_SITE, "peg_mount"),
+        tcp_site=named(mujoco.mjtObj.mjOBJ_SITE, "tcp"),
         peg_tip_site=named(mujoco.mjtObj.mjOBJ_SITE, "peg/peg_tip"),
+        ft_site=named(mujoco.mjtObj.mjOBJ_SITE, "ft_sensor"),
+        wrist_force_adr=int(model.sensor_adr[named(sensor, "wrist_force")]),
+        wrist_torque_adr=int(model.sensor_adr[named(sensor, "wrist_torque")]),
+        hand_subtree=(hand_body, *finger_bodies),
+        finger_geoms=tuple(int(g) for g in np.flatnonzero(np.isin(model.geom_bodyid, finger_bodies))),
+        finger_qpos_adr=tuple(int(model.jnt_qposadr[j]) for j in fingers),
+        finger_dof_adr=tuple(int(model.jnt_dofadr[j]) for j in fingers),
+        sorter_mocap=int(model.body_mocapid[sorter_body]),
         hole_sites=MappingProxyType({s: named(mujoco.mjtObj.mjOBJ_SITE, f"sorter/hole_{s}") for s in SHAPES}),
-        hand_body=named(body, "hand"),
+        hand_body=hand_body,
         peg_body=peg_body,
         peg_geoms=tuple(int(g) for g in np.flatnonzero(model.geom_bodyid == peg_body)),
         sorter_body=sorter_body,
@@ -397,6 +512,42 @@ def _scene_ids(model: mujoco.MjModel, peg_mode: str) -> SceneIds:
     )
 
 
+def _place_grasped_peg(model: mujoco.MjModel, ids: SceneIds) -> None:
+    """Put the grasped peg at the nominal grasp of every keyframe and of qpos0: its peg_tip on ``tcp``."""
+    data = mujoco.MjData(model)
+    tip_in_peg = model.site_pos[ids.peg_tip_site]  # peg frame axes = tcp axes; the tip is at (0, 0, L)
+    adr = ids.peg_qpos_adr
+    for key in range(model.nkey):
+        data.qpos[:] = model.key_qpos[key]
+        mujoco.mj_kinematics(model, data)
+        rot = data.site_xmat[ids.tcp_site].reshape(3, 3)
+        model.key_qpos[key, adr:adr + 3] = data.site_xpos[ids.tcp_site] - rot @ tip_in_peg
+        model.key_qpos[key, adr + 3:adr + 7] = mat_to_quat(rot)
+    if ids.home_key is not None:  # only the free joint: hinge and slide joints measure from their qpos0
+        model.qpos0[adr:adr + 7] = model.key_qpos[ids.home_key, adr:adr + 7]
+
+
+def build_arm_model() -> mujoco.MjModel:
+    """The Panda alone with the ``tcp`` site (as in every scene) and jointless fingers: nq = 7, for IK.
+
+    Raises:
+        EnvError: if panda.xml cannot be read or lacks the hand or peg_mount.
+    """
+    try:
+        root = mjcf.from_path(str(assets.PANDA_XML))
+    except (OSError, ValueError) as error:
+        raise EnvError(f"cannot read the Panda MJCF {assets.PANDA_XML}: {error}") from error
+    mount = _find(root, "site", "peg_mount")
+    _find(root, "body", "hand").add("site", name="tcp", size=[0.003],
+                                    pos=np.asarray(mount.pos, dtype=np.float64) + [0.0, 0.0, PEG_LENGTH_M])
+    for name in ("left_finger", "right_finger"):
+        for joint in _find(root, "body", name).find_all("joint", exclude_attachments=True):
+            joint.remove()
+    for key in root.keyframe.key:
+        key.qpos = np.asarray(key.qpos, dtype=np.float64)[: len(ARM_JOINTS)]
+    return mujoco.MjModel.from_xml_string(root.to_xml_string(), root.get_assets())
+
+
 def build_scene(config: SceneConfig = SceneConfig()) -> Scene:
     """Compose and compile the scene described by ``config`` (well under a second).
 
@@ -405,7 +556,7 @@ def build_scene(config: SceneConfig = SceneConfig()) -> Scene:
             floor or onto the robot base, or MuJoCo rejects the composed model.
     """
     start = time.perf_counter()
-    layout = sorter_layout(config.clearance_m, config.hole_depth_m)
+    layout = sorter_layout(config.clearance_m, config.hole_depth_m, config.chamfer_m)
     sorter_pos, sorter_quat = _sorter_placement(config, layout)
     try:
         root = mjcf.from_path(str(assets.PANDA_XML))
@@ -415,21 +566,25 @@ def build_scene(config: SceneConfig = SceneConfig()) -> Scene:
     _add_environment(root, layout, sorter_pos, sorter_quat, config.contact)
     frame = root.worldbody.attach(build_sorter(layout, config.contact))
     frame.pos, frame.quat = sorter_pos, sorter_quat
+    frame.mocap = True
     goal_rot = config.goal_rotation()
     hole_pos = sorter_pos + quat_to_mat(sorter_quat) @ layout.hole_position(config.shape)
     peg_frame = _attach_peg(root, config, hole_pos, goal_rot)
     _add_cameras(root, config.goal_position())
-    if config.peg_mode == "free":
-        for key in root.keyframe.key:  # append the free peg's initial pose to every keyframe
-            key.qpos = np.concatenate([np.asarray(key.qpos, dtype=np.float64), peg_frame.pos, peg_frame.quat])
+    peg_qpos = np.concatenate([np.asarray(peg_frame.pos if peg_frame.pos is not None else np.zeros(3), dtype=float),
+                               np.asarray(peg_frame.quat if peg_frame.quat is not None else [1, 0, 0, 0], dtype=float)])
+    for key in root.keyframe.key:
+        key.qpos = _keyframe_qpos(root, config, key.qpos, peg_qpos)
     xml = root.to_xml_string()
     try:
         model = mujoco.MjModel.from_xml_string(xml, root.get_assets())
     except ValueError as error:
         raise EnvError(f"MuJoCo rejected the composed scene: {error}") from error
     ids = _scene_ids(model, config.peg_mode)
-    if config.peg_mode == "held" and model.nq != len(ARM_JOINTS):
-        raise EnvError(f"the held-peg scene has nq={model.nq}, expected {len(ARM_JOINTS)} (arm joints only)")
+    if config.peg_mode == "welded" and model.nq != len(ARM_JOINTS):
+        raise EnvError(f"the welded-peg scene has nq={model.nq}, expected {len(ARM_JOINTS)} (arm joints only)")
+    if config.peg_mode == "grasped":
+        _place_grasped_peg(model, ids)
     return Scene(
         model=model,
         config=config,
@@ -439,4 +594,5 @@ def build_scene(config: SceneConfig = SceneConfig()) -> Scene:
         sorter_quat=sorter_quat,
         build_time_s=time.perf_counter() - start,
         mjcf_xml=xml,
+        arm_model=build_arm_model(),
     )

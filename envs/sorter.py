@@ -14,6 +14,16 @@ the hole (it lies on the outer side of its own edge). Boxes may stick out of the
 but never out of their cell. Contacts with boxes are computed exactly by MuJoCo's box colliders. The
 overlapping wall boxes are not drawn; a non-colliding skin of convex prisms over the pieces W_i is.
 
+Chamfer. With ``chamfer_m`` = c > 0 every hole mouth is bevelled at 45 deg: the top c of each wall piece W_i
+(edge line n_i . p = d_i) becomes the convex solid
+    C_i = {(p, z) : p in W_i, z_top - c <= z <= z_top, z - (z_top - c) <= n_i . p - d_i},
+the piece minus the wedge above the plane rising at 45 deg from the edge line at depth c, so the opening at
+the top face is the hole offset outwards by c. C_i is the convex hull of the piece's vertices at z_top - c,
+each vertex v raised to z_top - c + min(c, n_i . v - d_i), and the top polygon W_i clipped to n_i . p >= d_i + c;
+MuJoCo collides it as a convex mesh. The wall boxes then stop at z_top - c. For regular holes the rays between
+pieces bisect the corners, so neighbouring bevels meet exactly; at the rectangle's corners (rays not bisecting)
+the two bevels meet with a step of up to c (1 - tan 26.6 deg) ~ c/2 on the corner ray.
+
 Site ``hole_<shape>``: centre of the hole's top opening, z up out of the hole, x the hole's reference
 heading (the goal peg_tip x axis).
 """
@@ -52,6 +62,8 @@ MIN_CLEARANCE_M: float = 1e-4
 MAX_CLEARANCE_M: float = 5e-3
 MIN_HOLE_DEPTH_M: float = 0.03
 MAX_HOLE_DEPTH_M: float = 0.2
+MAX_CHAMFER_M: float = 0.003
+"""Widest chamfer: it must stay inside every hole's square opening (OPENING_MARGIN_M around the hole)."""
 
 
 @dataclass(frozen=True)
@@ -89,17 +101,21 @@ class SorterLayout:
         wall_boxes: the wall boxes per shape, in the sorter frame (they may overlap).
         wall_pieces: per shape, the convex polygons the wall boxes were made for; with the plate boxes
             they tile the plate exactly (no overlap), which the visual skin uses.
+        wall_edges: per shape and piece, the hole edge line (outward normal n (2,), offset d) it lies on.
+        chamfer_m: width c of the 45 deg bevel at every hole mouth (0: sharp edges).
         plate_boxes: the boxes tiling the plate around the openings.
     """
 
     clearance_m: float
     hole_depth_m: float
+    chamfer_m: float
     opening_half_m: Mapping[str, float]
     cell_half_xy: tuple[float, float]
     hole_xy: Mapping[str, tuple[float, float]]
     hole_polygons: Mapping[str, FloatArray]
     wall_boxes: Mapping[str, tuple[WallBox, ...]]
     wall_pieces: Mapping[str, tuple[FloatArray, ...]]
+    wall_edges: Mapping[str, tuple[tuple[FloatArray, float], ...]]
     plate_boxes: tuple[WallBox, ...]
 
     @property
@@ -152,7 +168,9 @@ def edge_box(piece: FloatArray, normal: FloatArray, offset: float) -> WallBox:
     )
 
 
-def hole_walls(polygon: FloatArray, opening_half_m: float) -> tuple[tuple[WallBox, ...], tuple[FloatArray, ...]]:
+def hole_walls(
+    polygon: FloatArray, opening_half_m: float
+) -> tuple[tuple[WallBox, ...], tuple[FloatArray, ...], tuple[tuple[FloatArray, float], ...]]:
     """Wall boxes with inner faces on the hole edges filling the square opening [-a, a]^2 around a convex hole.
 
     Edge i (vertices v_i, v_{i+1}) is split into k equal parts, each owning the ``edge_box`` of its
@@ -165,12 +183,14 @@ def hole_walls(polygon: FloatArray, opening_half_m: float) -> tuple[tuple[WallBo
         opening_half_m: half-size a of the square opening; the hole must fit inside it.
 
     Returns:
-        (boxes, pieces): box j holds piece j (convex polygons (m, 2)); boxes may overlap, pieces do not.
+        (boxes, pieces, edges): box j holds piece j (convex polygons (m, 2)), which lies on the outer side of
+        edge line j (n, d); boxes may overlap, pieces do not.
     """
     normals, offsets = edge_lines(polygon)
     opening = rectangle(-opening_half_m, opening_half_m, -opening_half_m, opening_half_m)
     boxes: list[WallBox] = []
     pieces: list[FloatArray] = []
+    edges: list[tuple[FloatArray, float]] = []
     for i, (normal, offset) in enumerate(zip(normals, offsets)):
         v0, v1 = polygon[i], polygon[(i + 1) % len(polygon)]
         for parts in range(1, MAX_PARTS_PER_EDGE + 1):
@@ -183,7 +203,27 @@ def hole_walls(polygon: FloatArray, opening_half_m: float) -> tuple[tuple[WallBo
                 break
         boxes.extend(edge_boxes)
         pieces.extend(edge_pieces)
-    return tuple(boxes), tuple(pieces)
+        edges.extend((normal.copy(), float(offset)) for _ in edge_pieces)
+    return tuple(boxes), tuple(pieces), tuple(edges)
+
+
+def chamfer_vertices(piece: FloatArray, normal: FloatArray, offset: float, chamfer_m: float, z_top: float) -> FloatArray:
+    """Vertices (k, 3) whose convex hull is the bevel solid C of one wall piece (module docstring).
+
+    Raises:
+        EnvError: if the bevel would cut the piece down to its outer boundary (chamfer too wide).
+    """
+    z0 = z_top - chamfer_m
+    rise = np.minimum(piece @ normal - offset, chamfer_m)
+    top = clip_polygon(piece, -normal, -(offset + chamfer_m))
+    if len(top) < 3 or polygon_area(top) < MIN_PIECE_AREA_M2:
+        raise EnvError(f"chamfer_m={chamfer_m} is too wide for the hole's opening (a wall piece is cut away)")
+    points = np.vstack([
+        np.column_stack([piece, np.full(len(piece), z0)]),
+        np.column_stack([piece, z0 + rise]),
+        np.column_stack([top, np.full(len(top), z_top)]),
+    ])
+    return np.unique(np.round(points, 12), axis=0)
 
 
 def cell_plate_boxes(
@@ -234,7 +274,18 @@ def check_hole_depth(hole_depth_m: float) -> float:
     return float(hole_depth_m)
 
 
-def sorter_layout(clearance_m: float, hole_depth_m: float) -> SorterLayout:
+def check_chamfer(chamfer_m: float) -> float:
+    """Return ``chamfer_m`` if it lies in [0, MAX_CHAMFER_M].
+
+    Raises:
+        EnvError: otherwise.
+    """
+    if not (np.isfinite(chamfer_m) and 0.0 <= chamfer_m <= MAX_CHAMFER_M):
+        raise EnvError(f"chamfer_m={chamfer_m} is outside [0, {MAX_CHAMFER_M * 1e3:g} mm]")
+    return float(chamfer_m)
+
+
+def sorter_layout(clearance_m: float, hole_depth_m: float, chamfer_m: float = 0.0) -> SorterLayout:
     """Lay the holes of every shape out in a row and tile the plate (a pure function of its inputs).
 
     Each hole's opening half-size is a = its circumradius + OPENING_MARGIN_M; the cell half-size is the
@@ -246,10 +297,13 @@ def sorter_layout(clearance_m: float, hole_depth_m: float) -> SorterLayout:
     """
     check_clearance(clearance_m)
     check_hole_depth(hole_depth_m)
+    check_chamfer(chamfer_m)
+    if chamfer_m >= hole_depth_m:
+        raise EnvError(f"chamfer_m={chamfer_m} must be smaller than hole_depth_m={hole_depth_m}")
     polygons = {shape: hole_polygon(shape, clearance_m) for shape in SHAPES}
     opening_half = {s: float(np.max(np.linalg.norm(p, axis=1))) + OPENING_MARGIN_M for s, p in polygons.items()}
     walls = {shape: hole_walls(polygons[shape], opening_half[shape]) for shape in SHAPES}
-    corners = np.vstack([box.corners() for boxes, _ in walls.values() for box in boxes])
+    corners = np.vstack([box.corners() for boxes, _, _ in walls.values() for box in boxes])
     cell_half = (
         max(max(opening_half.values()), float(np.max(np.abs(corners[:, 0])))) + RIM_M,
         max(max(opening_half.values()), float(np.max(np.abs(corners[:, 1])))) + RIM_M,
@@ -264,18 +318,23 @@ def sorter_layout(clearance_m: float, hole_depth_m: float) -> SorterLayout:
         for shape in LAYOUT_ORDER
     }
     wall_pieces = {shape: tuple(p + np.asarray(hole_xy[shape]) for p in walls[shape][1]) for shape in LAYOUT_ORDER}
+    wall_edges = {  # edge lines moved with their hole: d' = d + n . c_hole
+        shape: tuple((n, d + float(n @ np.asarray(hole_xy[shape]))) for n, d in walls[shape][2]) for shape in LAYOUT_ORDER
+    }
     plate = tuple(
         box for shape in LAYOUT_ORDER for box in cell_plate_boxes(hole_xy[shape], opening_half[shape], cell_half)
     )
     return SorterLayout(
         clearance_m=float(clearance_m),
         hole_depth_m=float(hole_depth_m),
+        chamfer_m=float(chamfer_m),
         opening_half_m=MappingProxyType({s: opening_half[s] for s in LAYOUT_ORDER}),
         cell_half_xy=cell_half,
         hole_xy=MappingProxyType(hole_xy),
         hole_polygons=MappingProxyType({s: polygons[s] for s in LAYOUT_ORDER}),
         wall_boxes=MappingProxyType(wall_boxes),
         wall_pieces=MappingProxyType(wall_pieces),
+        wall_edges=MappingProxyType(wall_edges),
         plate_boxes=plate,
     )
 
@@ -283,7 +342,8 @@ def sorter_layout(clearance_m: float, hole_depth_m: float) -> SorterLayout:
 def build_sorter(layout: SorterLayout, contact: ContactConfig) -> mjcf.RootElement:
     """MJCF model "sorter" of ``layout``: base slab, plate and wall boxes, and one ``hole_<shape>`` site each.
 
-    Collision geoms (all boxes, with ``contact``'s settings): ``base``, ``plate_<k>`` and ``wall_<shape>_<i>``.
+    Collision geoms (with ``contact``'s settings): boxes ``base``, ``plate_<k>`` and ``wall_<shape>_<i>``, and
+    with a chamfer the convex meshes ``chamfer_<shape>_<i>`` on top of the walls (drawn).
     The wall boxes overlap one another and the plate (coplanar top faces, which render with shadow acne),
     so they sit in geom group 3 (hidden by default) and the visible top around each hole is a skin of
     non-colliding convex prisms ``skin_<shape>_<i>``, one per wall piece, which with the plate boxes tile
@@ -296,25 +356,31 @@ def build_sorter(layout: SorterLayout, contact: ContactConfig) -> mjcf.RootEleme
         "geom", name="base", type="box", size=[size_x / 2.0, size_y / 2.0, BASE_HEIGHT_M / 2.0],
         pos=[0.0, 0.0, BASE_HEIGHT_M / 2.0], **attributes,
     )
-    half_depth = layout.hole_depth_m / 2.0
-    z_centre = BASE_HEIGHT_M + half_depth
+    chamfer = layout.chamfer_m
 
-    def add_box(name: str, box: WallBox, group: int) -> None:
+    def add_box(name: str, box: WallBox, group: int, top: float) -> None:
+        half_height = (top - BASE_HEIGHT_M) / 2.0
         sorter.worldbody.add(
-            "geom", name=name, type="box", size=[box.half_size_xy[0], box.half_size_xy[1], half_depth],
-            pos=[box.centre_xy[0], box.centre_xy[1], z_centre],
+            "geom", name=name, type="box", size=[box.half_size_xy[0], box.half_size_xy[1], half_height],
+            pos=[box.centre_xy[0], box.centre_xy[1], BASE_HEIGHT_M + half_height],
             quat=[np.cos(box.yaw_rad / 2.0), 0.0, 0.0, np.sin(box.yaw_rad / 2.0)], group=group, **attributes,
         )
 
     for k, box in enumerate(layout.plate_boxes):
-        add_box(f"plate_{k}", box, group=0)
+        add_box(f"plate_{k}", box, group=0, top=layout.height_m)
     for shape in LAYOUT_ORDER:
         for i, box in enumerate(layout.wall_boxes[shape]):
-            add_box(f"wall_{shape}_{i}", box, group=COLLISION_ONLY_GROUP)
+            add_box(f"wall_{shape}_{i}", box, group=COLLISION_ONLY_GROUP, top=layout.height_m - chamfer)
+        if chamfer > 0.0:
+            for i, (piece, (normal, offset)) in enumerate(zip(layout.wall_pieces[shape], layout.wall_edges[shape])):
+                vertices = chamfer_vertices(piece, normal, offset, chamfer, layout.height_m)
+                sorter.asset.add("mesh", name=f"chamfer_{shape}_{i}", vertex=vertices.reshape(-1))
+                sorter.worldbody.add("geom", name=f"chamfer_{shape}_{i}", type="mesh", mesh=f"chamfer_{shape}_{i}",
+                                     group=0, **attributes)
         for i, piece in enumerate(layout.wall_pieces[shape]):
             vertices = np.vstack([
                 np.column_stack([piece, np.full(len(piece), BASE_HEIGHT_M)]),
-                np.column_stack([piece, np.full(len(piece), layout.height_m)]),
+                np.column_stack([piece, np.full(len(piece), layout.height_m - chamfer)]),
             ])
             sorter.asset.add("mesh", name=f"skin_{shape}_{i}", vertex=vertices.reshape(-1))
             sorter.worldbody.add(

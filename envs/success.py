@@ -1,4 +1,4 @@
-"""Success scoring of an insertion from the peg's actual pose in the hole frame.
+"""Success scoring of an insertion from the peg's actual pose and speed in the hole frame.
 
 Hole frame H (site ``hole_<shape>``): origin at the centre of the top opening, z up out of the hole.
 At the goal the peg_tip frame P is H turned by pi about x and lowered by the insertion depth, so with
@@ -6,6 +6,18 @@ R_rel = R_H^T R_P Rx(pi) (identity at the goal) and r = R_H^T (p_P - p_H):
     depth = -r_z,  lateral = sqrt(r_x^2 + r_y^2),  tilt = arccos(R_rel[2, 2]),
     yaw = atan2(R_rel[1,0] - R_rel[0,1], R_rel[0,0] + R_rel[1,1]) wrapped into (-180/k, 180/k] deg
 for a hole with k-fold symmetry (yaw is 0 for a round hole).
+
+Seated and inside the walls. The peg is a prism over its cross-section; the part of it inside the straight
+hole (below the chamfer, z_H <= -c) is the convex hull of its tip-face vertices w_k = p_P + R_P [v_k; 0] and of
+the points where its lateral edges w_k - t z_P cross the plane z_H = -c. By convexity it lies inside the hole
+prism {n_i . x <= d_i} exactly when all those points do, so the wall penetration is
+    pen = max_k,i (n_i . x_k - d_i)      (<= 0: the walls allow the state; > 0: only by penetrating them)
+and for the round peg pen = max(|c_xy|) + r / cos(tilt) - r_hole over the axis points at the tip and at z_H = -c.
+An insertion counts (``criteria_hold``) when the peg_tip is in the target hole, its depth is within
+``seat_tolerance_m`` of the target depth, pen <= ``penetration_tolerance_m`` (MuJoCo's soft contacts penetrate
+~1e-6 m under the forces here) and the peg moves slower than ``max_speed_m_s``; success needs that to hold
+for ``hold_s``. Lateral offset, tilt and yaw are therefore bounded by what the walls allow, not by
+thresholds of their own. The commanded pose is never consulted.
 """
 
 from __future__ import annotations
@@ -17,7 +29,8 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.geometry import R_FLIP_X, as_vector, quat_to_mat, twist_angle_deg
+from envs.geometry import R_FLIP_X, as_vector, edge_lines, quat_to_mat, twist_angle_deg
+from envs.shapes import CrossSection
 
 MIN_ENTRY_DEPTH_M: float = 0.002
 """The peg_tip counts as inside a hole only this far below the opening: a peg lying on the top face
@@ -38,6 +51,8 @@ class HoleSpec:
         inradius_m: radius of the largest axis-centred circle inside the hole.
         depth_m: depth of the (blind) hole.
         clearance_m: total clearance between the matching peg and the hole.
+        polygon: the hole's counter-clockwise cross-section vertices in the hole frame (m).
+        chamfer_m: width of the 45 deg chamfer at the mouth (the straight walls start at z_H = -chamfer).
     """
 
     shape: str
@@ -47,6 +62,8 @@ class HoleSpec:
     inradius_m: float
     depth_m: float
     clearance_m: float
+    polygon: tuple[tuple[float, float], ...] = ()
+    chamfer_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -60,6 +77,9 @@ class InsertionState:
         yaw_error_deg: rotation about the hole axis from the nearest symmetric goal heading.
         in_hole: the peg_tip is inside this hole: MIN_ENTRY_DEPTH_M < depth <= depth_m + FLOOR_SLACK_M
             and lateral <= inradius.
+        wall_penetration_m: pen of the module docstring (NaN when not computed: no peg given or the
+            peg_tip above the straight walls).
+        speed_m_s: speed of the peg (NaN when not given).
     """
 
     depth_m: float
@@ -67,38 +87,31 @@ class InsertionState:
     tilt_deg: float
     yaw_error_deg: float
     in_hole: bool
+    wall_penetration_m: float = float("nan")
+    speed_m_s: float = float("nan")
 
 
 @dataclass(frozen=True)
 class SuccessConfig:
-    """Criteria of a successful insertion (defaults: the task as posed, 90 % of the target depth).
-
-    The lateral tolerance is clearance/2 + ``lateral_slack_m``: a peg inside its hole cannot sit farther
-    than clearance/2 from the axis, up to contact penetration (< 0.1 mm here) and the tip shift of a peg
-    tilted in the gap ((w/2)(1 - cos tilt), < 0.05 mm for 3 deg); the 0.5 mm slack covers both with margin,
-    so at the default 1 mm clearance the tolerance equals the clearance.
+    """Criteria of a seated insertion (defaults after NVIDIA Factory: within 1 mm of fully inserted).
 
     Attributes:
-        depth_fraction: inserted depth >= depth_fraction * target insertion depth.
-        lateral_slack_m: see above.
-        max_tilt_deg: largest angle between peg and hole axes (a 1 mm gap allows ~2 deg at 27 mm depth).
-        max_yaw_error_deg: largest heading error modulo the hole's symmetry (not checked for round holes).
+        seat_tolerance_m: |depth - target depth| must be at most this.
+        penetration_tolerance_m: largest wall penetration (see the module docstring) still counted as inside.
+        max_speed_m_s: the peg must move slower than this (at rest).
         hold_s: how long (physics time) the criteria must hold without interruption.
     """
 
-    depth_fraction: float = 0.9
-    lateral_slack_m: float = 0.0005
-    max_tilt_deg: float = 3.0
-    max_yaw_error_deg: float = 5.0
+    seat_tolerance_m: float = 0.001
+    penetration_tolerance_m: float = 2e-5
+    max_speed_m_s: float = 0.005
     hold_s: float = 0.2
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.depth_fraction <= 1.0:
-            raise EnvError(f"depth_fraction={self.depth_fraction} must lie in (0, 1]")
-        for name in ("lateral_slack_m", "max_tilt_deg", "max_yaw_error_deg", "hold_s"):
+        for name in ("seat_tolerance_m", "penetration_tolerance_m", "max_speed_m_s", "hold_s"):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise EnvError(f"{name}={value} must be a finite number >= 0")
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0.0):
+                raise EnvError(f"{name}={value!r} must be a finite number >= 0")
 
 
 @dataclass(frozen=True)
@@ -132,41 +145,70 @@ def wrap_symmetric_deg(angle_deg: float, symmetry_order: int) -> float:
     return period / 2.0 if np.isclose(wrapped, -period / 2.0) else wrapped
 
 
-def insertion_state(peg_tip_pos: npt.ArrayLike, peg_tip_quat: npt.ArrayLike, hole: HoleSpec) -> InsertionState:
+def insertion_state(peg_tip_pos: npt.ArrayLike, peg_tip_quat: npt.ArrayLike, hole: HoleSpec,
+                    peg: CrossSection | None = None, speed_m_s: float = float("nan")) -> InsertionState:
     """The peg_tip pose relative to ``hole`` (equations in the module docstring).
 
     Args:
         peg_tip_pos: peg_tip position in the world (m).
         peg_tip_quat: peg_tip orientation (w, x, y, z), z along the peg axis away from the hand.
         hole: the hole.
+        peg: the peg's cross-section, to compute the wall penetration (skipped when None).
+        speed_m_s: the peg's speed, carried into the state.
 
     Raises:
         EnvError: if the pose is not 3 + 4 finite numbers or the quaternion is zero.
     """
     pos = as_vector(peg_tip_pos, 3, "peg_tip_pos")
     rot_hole = quat_to_mat(hole.quat)
-    rot_rel = rot_hole.T @ quat_to_mat(as_vector(peg_tip_quat, 4, "peg_tip_quat")) @ R_FLIP_X
+    rot_peg = rot_hole.T @ quat_to_mat(as_vector(peg_tip_quat, 4, "peg_tip_quat"))
+    rot_rel = rot_peg @ R_FLIP_X
     offset = rot_hole.T @ (pos - np.asarray(hole.pos, dtype=np.float64))
     depth = float(-offset[2])
     lateral = float(np.hypot(offset[0], offset[1]))
     tilt = float(np.rad2deg(np.arccos(np.clip(rot_rel[2, 2], -1.0, 1.0))))
     yaw = wrap_symmetric_deg(twist_angle_deg(rot_rel), hole.symmetry_order)
     in_hole = MIN_ENTRY_DEPTH_M < depth <= hole.depth_m + FLOOR_SLACK_M and lateral <= hole.inradius_m
-    return InsertionState(depth, lateral, tilt, yaw, bool(in_hole))
+    penetration = float("nan")
+    if peg is not None and depth > hole.chamfer_m:
+        penetration = wall_penetration_m(offset, rot_peg, hole, peg)
+    return InsertionState(depth, lateral, tilt, yaw, bool(in_hole), penetration, float(speed_m_s))
 
 
-def criteria_hold(state: InsertionState, hole: HoleSpec, target_depth_m: float, config: SuccessConfig) -> bool:
-    """True when the peg is in ``hole``, deep enough, centred, upright and (non-round) turned right.
+def wall_penetration_m(tip: npt.NDArray[np.float64], rot_peg: npt.NDArray[np.float64], hole: HoleSpec,
+                       peg: CrossSection) -> float:
+    """pen of the module docstring, for a peg_tip at ``tip`` with orientation ``rot_peg``, both in the hole
+    frame, with the tip below the straight walls (tip_z < -chamfer).
 
-    depth >= depth_fraction * target_depth_m, lateral <= clearance/2 + lateral_slack_m,
-    tilt <= max_tilt_deg, |yaw error| <= max_yaw_error_deg.
+    Raises:
+        EnvError: if ``hole.polygon`` is empty (a HoleSpec without geometry).
     """
-    return (
+    if not hole.polygon:
+        raise EnvError(f"hole {hole.shape!r} has no polygon to check the walls against")
+    up = -rot_peg[:, 2]  # along the peg from the tip toward the hand
+    level = -hole.chamfer_m
+    if up[2] <= 1e-9:  # the peg points up out of the hole: it cannot be inside
+        return float("inf")
+    if peg.is_round:
+        crossing = tip + up * (level - tip[2]) / up[2]
+        cos_tilt = up[2]
+        radial = max(float(np.hypot(*tip[:2])), float(np.hypot(*crossing[:2])))
+        return radial + peg.radius_m / cos_tilt - hole.inradius_m
+    corners = tip + np.column_stack([peg.polygon, np.zeros(len(peg.polygon))]) @ rot_peg.T
+    rise = np.maximum(level - corners[:, 2], 0.0) / up[2]
+    points = np.vstack([corners, corners + rise[:, None] * up])[:, :2]
+    normals, offsets = edge_lines(np.asarray(hole.polygon, dtype=np.float64))
+    return float(np.max(points @ normals.T - offsets))
+
+
+def criteria_hold(state: InsertionState, target_depth_m: float, config: SuccessConfig) -> bool:
+    """True when the peg is in the hole, seated (|depth - target| <= seat tolerance), inside the walls
+    (penetration <= tolerance) and at rest (speed <= max speed); NaN penetration or speed fail."""
+    return bool(
         state.in_hole
-        and state.depth_m >= config.depth_fraction * target_depth_m
-        and state.lateral_m <= hole.clearance_m / 2.0 + config.lateral_slack_m
-        and state.tilt_deg <= config.max_tilt_deg
-        and abs(state.yaw_error_deg) <= config.max_yaw_error_deg
+        and abs(state.depth_m - target_depth_m) <= config.seat_tolerance_m
+        and state.wall_penetration_m <= config.penetration_tolerance_m
+        and state.speed_m_s <= config.max_speed_m_s
     )
 
 
@@ -176,7 +218,9 @@ def assess_insertion(
     holes: Mapping[str, HoleSpec],
     target: str,
     target_depth_m: float,
-    config: SuccessConfig = SuccessConfig(),
+    config: SuccessConfig,
+    peg: CrossSection,
+    speed_m_s: float,
 ) -> Assessment:
     """Which hole the peg_tip is in, its state in the target hole, and whether the criteria hold.
 
@@ -185,11 +229,10 @@ def assess_insertion(
     """
     if target not in holes:
         raise EnvError(f"target hole {target!r} is not among the holes {sorted(holes)}")
-    states = {shape: insertion_state(peg_tip_pos, peg_tip_quat, hole) for shape, hole in holes.items()}
-    inside = [shape for shape, state in states.items() if state.in_hole]
+    inside = [shape for shape, hole in holes.items() if insertion_state(peg_tip_pos, peg_tip_quat, hole).in_hole]
     hole = target if target in inside else (inside[0] if inside else None)
-    state = states[target]
-    inserted = hole == target and criteria_hold(state, holes[target], target_depth_m, config)
+    state = insertion_state(peg_tip_pos, peg_tip_quat, holes[target], peg, speed_m_s)
+    inserted = hole == target and criteria_hold(state, target_depth_m, config)
     return Assessment(hole, state, inserted)
 
 

@@ -1,41 +1,31 @@
-"""Fast numpy inference of a trained ImitationFlow (no torch on the control path).
+"""Fast inference of a trained ImitationFlow without torch: compiled coupling passes (`rflow.flow_kernel`).
 
-The exported network computes exactly what `rflow.model.ImitationFlow` computes in float64 (equal to ~1e-12),
-with the coupling masks folded into the weights: the first layer's rows for the moved coordinates and the
-output columns for the conditioner coordinates are zero, so every layer works on the full vector,
-    h = act(x W_1 + b_1) ...,  [u, t] = h W_out + b_out,  s = c tanh(u),  y = x * exp(s) + t,
-with 1/c folded into the u half of W_out, and b(q) = b_theta(q + c) with the latent offset c = b_theta^-1(z_g)
-of `rflow.model`. Batches run as stacks of small blocks (see `NumpyImitationFlow`); single points (the
-control loop) use preallocated buffers and weights augmented with the bias row, about ten numpy calls per
-layer.
+The exported network computes what `rflow.model.ImitationFlow` computes in float64 (equal to ~1e-12), with only
+the unmasked weights kept: per layer the first layer's rows of the conditioner coordinates and the output
+columns of the moved coordinates,
+    h = act(x_a W_1 + b_1) ...,  [u, t] = h W_out + b_out,  s = c tanh(u),  y_b = x_b * exp(s) + t,
+with 1/c folded into the u columns, and b(q) = b_theta(q + c) with the latent offset c = b_theta^-1(z_g) of
+`rflow.model`. Batches and the single-point closed-loop step are each one compiled call; latent paths are
+matrix powers of Phi = expm(V dt).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 import scipy.linalg
 
+from rflow import flow_kernel
 from rflow.errors import RFlowError
-
-
-@dataclass(frozen=True)
-class _Layer:
-    weights: tuple[np.ndarray, ...]  # hidden layers, (in, out); the first has the moved coordinates' rows zeroed
-    biases: tuple[np.ndarray, ...]
-    w_out: np.ndarray  # (H, 2D) = [u | t]; u columns scaled by 1/c; conditioner columns zero
-    b_out: np.ndarray  # (2D,)
-    augmented: tuple[np.ndarray, ...]  # [W; b] of every linear layer, for the single-point path
-    clamp: float
+from rflow.flow_kernel import PackedFlow
 
 
 class NumpyImitationFlow:
-    """Numpy copy of an ImitationFlow: b (latent -> normalised tangent), b^-1, and exact latent steps.
+    """Torch-free copy of an ImitationFlow: b (latent -> normalised tangent), b^-1, and exact latent steps.
 
-    Build with `from_network`. Batch methods take (N, D) or (D,) arrays and return (N, D);
+    Build with `from_network`. Batch methods take (N, D) or (D,) arrays and return new (N, D) arrays;
     `step_single` is the allocation-free closed-loop step of one point.
 
     Attributes:
@@ -45,62 +35,73 @@ class NumpyImitationFlow:
         dim: tangent dimension D.
     """
 
-    # Batches run as stacks of small blocks, (n_blocks, rows, D + 1) @ W: numpy multiplies each block with one
-    # single-threaded BLAS call (OpenBLAS threads a product only above m n k = 2^18), which is as fast as one
-    # large product on an idle machine and avoids the collapse of multi-threaded BLAS on a busy one.
-    _BLOCK_MNK = 1 << 18
     _MAX_CACHED_STEPS = 64  # step matrices kept per dt
 
-    def __init__(self, layers: list[_Layer], offset: np.ndarray, drift: np.ndarray, dt: float, relu: bool):
-        self._layers = layers
-        self.offset = offset
+    def __init__(self, packed: PackedFlow, offset: np.ndarray, drift: np.ndarray, dt: float):
+        self._packed = packed
+        self._weights = (packed.cond, packed.n_cond, packed.moved, packed.n_moved, packed.w_first, packed.b_first,
+                         packed.w_hidden, packed.b_hidden, packed.w_out, packed.b_out, packed.clamp,
+                         packed.n_hidden_extra, packed.relu)
+        self.offset = np.ascontiguousarray(offset, dtype=np.float64)
+        self._zero = np.zeros_like(self.offset)
+        self._minus_offset = -self.offset
         self.drift = drift
         self.dt = float(dt)
         self.dim = int(offset.size)
-        self._relu = relu
         self._steps: dict[float, np.ndarray] = {}
         self.step_matrix(self.dt)
-        largest = max(w.shape[0] * w.shape[1] for layer in layers for w in layer.weights + (layer.w_out,))
-        self._block_rows = max(8, self._BLOCK_MNK // largest)
-        d = self.dim
-        # single-point buffers: vectors with a trailing 1 so that biases ride along in the products
-        self._x = np.ones(d + 1)
-        self._xv = self._x[:d]
-        widths = {w.shape[1] for layer in layers for w in layer.weights}
-        self._hidden = {h: (np.ones(h + 1), np.ones(h + 1)) for h in widths}
-        self._zeros = {h: np.zeros(h) for h in widths}
-        self._out = np.zeros(2 * d)
-        self._scale = self._out[:d]
-        self._shift = self._out[d:]
+        self._x = np.zeros(self.dim)  # single-point buffers
+        self._latent = np.zeros(self.dim)
+        self._hid = np.zeros((2, packed.width))
 
     @classmethod
     def from_network(cls, network, dt: float) -> "NumpyImitationFlow":
-        """Export a `rflow.model.ImitationFlow` (weights copied as float64)."""
+        """Export a `rflow.model.ImitationFlow` (weights copied as float64, masked entries dropped)."""
         import torch
 
         with torch.no_grad():
-            layers = []
             dim = network.dim
-            for coupling in network.flow.layers:
+            layers = list(network.flow.layers)
+            linears = [[m for m in c.net if isinstance(m, torch.nn.Linear)] for c in layers]
+            width = linears[0][0].out_features
+            extra = len(linears[0]) - 2
+            n_layers = len(layers)
+            cond = np.zeros((n_layers, dim), dtype=np.int64)
+            moved = np.zeros((n_layers, dim), dtype=np.int64)
+            n_cond = np.zeros(n_layers, dtype=np.int64)
+            n_moved = np.zeros(n_layers, dtype=np.int64)
+            w_first = np.zeros((n_layers, dim, width))
+            b_first = np.zeros((n_layers, width))
+            w_hidden = np.zeros((n_layers, max(extra, 1), width, width))
+            b_hidden = np.zeros((n_layers, max(extra, 1), width))
+            w_out = np.zeros((n_layers, 2 * dim, width))
+            b_out = np.zeros((n_layers, 2 * dim))
+            clamp = np.zeros(n_layers)
+            for l, (coupling, lins) in enumerate(zip(layers, linears)):
                 mask = coupling.mask.double().numpy()
-                free = 1.0 - mask
-                linears = [m for m in coupling.net if isinstance(m, torch.nn.Linear)]
-                ws = [lin.weight.double().numpy().T.copy() for lin in linears[:-1]]
-                bs = [lin.bias.double().numpy().copy() for lin in linears[:-1]]
-                ws[0] = ws[0] * mask[:, None]
+                a, b = np.flatnonzero(mask > 0.5), np.flatnonzero(mask < 0.5)
+                cond[l, : a.size], n_cond[l] = a, a.size
+                moved[l, : b.size], n_moved[l] = b, b.size
+                w1 = lins[0].weight.double().numpy()  # (H, D)
+                w_first[l, : a.size] = w1[:, a].T
+                b_first[l] = lins[0].bias.double().numpy()
+                for k, lin in enumerate(lins[1:-1]):
+                    w_hidden[l, k] = lin.weight.double().numpy().T
+                    b_hidden[l, k] = lin.bias.double().numpy()
                 c = float(coupling.log_scale_clamp)
-                w_out = linears[-1].weight.double().numpy().T.copy()
-                b_out = linears[-1].bias.double().numpy().copy()
-                w_out[:, :dim] *= free / c
-                b_out[:dim] *= free / c
-                w_out[:, dim:] *= free
-                b_out[dim:] *= free
-                aug = tuple(np.ascontiguousarray(np.vstack([w, b[None]])) for w, b in zip(ws + [w_out], bs + [b_out]))
-                layers.append(_Layer(tuple(ws), tuple(bs), np.ascontiguousarray(w_out), b_out, aug, c))
+                wo = lins[-1].weight.double().numpy()  # (2D, H): rows [raw log-scale (D); shift (D)]
+                bo = lins[-1].bias.double().numpy()
+                w_out[l, : b.size] = wo[b] / c
+                b_out[l, : b.size] = bo[b] / c
+                w_out[l, b.size : 2 * b.size] = wo[dim + b]
+                b_out[l, b.size : 2 * b.size] = bo[dim + b]
+                clamp[l] = c
+            packed = PackedFlow(cond, n_cond, moved, n_moved, w_first, b_first, w_hidden, b_hidden,
+                                np.ascontiguousarray(w_out), b_out, clamp, extra,
+                                network.config.activation == "relu")
             offset = network.offset().double().numpy().copy()
             drift = network.dynamics.drift_matrix().double().numpy().copy()
-            relu = network.config.activation == "relu"
-        return cls(layers, offset, drift, dt, relu)
+        return cls(packed, offset, drift, dt)
 
     def step_matrix(self, dt: float) -> np.ndarray:
         """Phi(dt)^T = expm(V dt)^T (for row vectors: q_next = q @ Phi^T), cached per dt."""
@@ -117,63 +118,24 @@ class NumpyImitationFlow:
 
     # ---- batches ------------------------------------------------------------------------------------
 
-    def _scale_shift(self, layer: _Layer, xa: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
-        """exp(sign * s) and t of one layer for blocks xa (n_blocks, rows, D + 1) whose last column is 1
-        (the first layer's bias rides along in its product)."""
-        h = xa @ layer.augmented[0]
-        for k, (w, b) in enumerate(zip(layer.weights, layer.biases)):
-            if k:
-                h = h @ w
-                h += b
-            if self._relu:
-                np.maximum(h, 0.0, out=h)
-            else:
-                np.tanh(h, out=h)
-        out = h @ layer.w_out
-        out += layer.b_out
-        d = self.dim
-        s = out[..., :d]
-        np.tanh(s, out=s)
-        s *= sign * layer.clamp
-        np.exp(s, out=s)
-        return s, out[..., d:]
-
-    def _blocks(self, x: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, int]:
-        """x (N, D) copied into zero-padded blocks with a column of ones, (n_blocks, rows, D + 1); the view
-        of its first D columns; and N."""
-        arr = np.asarray(x, dtype=np.float64)
-        if arr.ndim == 1:
-            arr = arr[None]
+    def _rows(self, x: npt.ArrayLike) -> np.ndarray:
+        """A C-contiguous float64 copy of x as (N, D)."""
+        arr = np.array(x, dtype=np.float64, ndmin=2, order="C")
         if arr.ndim != 2 or arr.shape[1] != self.dim:
             raise RFlowError(f"flow input has shape {np.shape(x)}, expected (N, {self.dim})")
-        n = arr.shape[0]
-        rows = max(1, min(n, self._block_rows))
-        n_blocks = -(-n // rows)
-        xa = np.ones((n_blocks * rows, self.dim + 1))
-        xa[:n, : self.dim] = arr
-        xa[n:, : self.dim] = 0.0
-        xa = xa.reshape(n_blocks, rows, self.dim + 1)
-        return xa, xa[..., : self.dim], n
+        return arr
 
     def forward(self, q: npt.ArrayLike) -> np.ndarray:
         """p = b(q) = b_theta(q + c) for latent points (N, D) -> (N, D)."""
-        xa, x, n = self._blocks(q)
-        x += self.offset
-        for layer in self._layers:
-            scale, shift = self._scale_shift(layer, xa, 1.0)
-            x *= scale
-            x += shift
-        return x.reshape(-1, self.dim)[:n]
+        x = self._rows(q)
+        flow_kernel.flow_pass_blocks(x, 1.0, self.offset, self._zero, *self._weights)
+        return x
 
     def inverse(self, p: npt.ArrayLike) -> np.ndarray:
         """q = b^-1(p) = b_theta^-1(p) - c for normalised tangent vectors (N, D) -> (N, D)."""
-        xa, x, n = self._blocks(p)
-        for layer in reversed(self._layers):
-            scale, shift = self._scale_shift(layer, xa, -1.0)
-            x -= shift
-            x *= scale
-        x -= self.offset
-        return x.reshape(-1, self.dim)[:n]
+        x = self._rows(p)
+        flow_kernel.flow_pass_blocks(x, -1.0, self._zero, self._minus_offset, *self._weights)
+        return x
 
     def step(self, p: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
         """One exact latent step in normalised tangent space: b(Phi(dt) b^-1(p)), (N, D)."""
@@ -199,45 +161,14 @@ class NumpyImitationFlow:
         return out
 
     # ---- one point, no allocations ------------------------------------------------------------------
-    def _layer_single(self, layer: _Layer, sign: float) -> None:
-        """Apply one coupling layer (sign +1) or its inverse (sign -1) to the buffer self._x in place."""
-        h = self._x
-        for w in layer.augmented[:-1]:
-            width = w.shape[1]
-            nxt = self._hidden[width][0] if h is not self._hidden[width][0] else self._hidden[width][1]
-            view = nxt[:width]
-            np.dot(h, w, out=view)
-            if self._relu:
-                np.maximum(view, self._zeros[width], out=view)
-            else:
-                np.tanh(view, out=view)
-            h = nxt
-        np.dot(h, layer.augmented[-1], out=self._out)
-        scale = self._scale
-        np.tanh(scale, out=scale)
-        np.multiply(scale, sign * layer.clamp, out=scale)
-        np.exp(scale, out=scale)
-        if sign > 0:
-            np.multiply(self._xv, scale, out=self._xv)
-            np.add(self._xv, self._shift, out=self._xv)
-        else:
-            np.subtract(self._xv, self._shift, out=self._xv)
-            np.multiply(self._xv, scale, out=self._xv)
 
     def step_single(self, p: np.ndarray, dt: float | None = None) -> np.ndarray:
         """The closed-loop step b(Phi(dt) b^-1(p)) of one normalised tangent vector (D,) -> new array (D,)."""
         phi_t = self.step_matrix(self.dt if dt is None else dt)
-        xv = self._xv
-        xv[:] = p
-        for layer in reversed(self._layers):
-            self._layer_single(layer, -1.0)
-        # latent step: q' = Phi (b_theta^-1(p) - c), then add c back for b_theta
-        np.subtract(xv, self.offset, out=xv)
-        xv[:] = xv @ phi_t
-        np.add(xv, self.offset, out=xv)
-        for layer in self._layers:
-            self._layer_single(layer, 1.0)
-        return xv.copy()
+        x = self._x
+        x[:] = p
+        flow_kernel.flow_step(x, phi_t, self.offset, self._hid, self._latent, *self._weights)
+        return x.copy()
 
 
 class TangentChart:

@@ -6,12 +6,14 @@ SPD: each vector is the Mandel vector of a symmetric matrix at G = 100 I, mapped
 UQ: the vector / 100 is mapped with Exp_g at g = 1 + [0, 0, 0]. LASA demos end at (0, 0), so every demo
 ends at the goal G (SPD) or g (UQ). Sampling time dt = 0.003.
 
-Protocol (`evaluate_shape`): one model per shape, manifold and method ("rflow" or the "naive" baseline of
-`rflow.naive`); from the first point of each demo, generate M - 1 = 999 steps, so the generated trajectory
-has the demo's M = 1000 points (the start included), and compare step by step. DTW is taken in ONE space for
-both methods: generated points on the manifold (the naive outputs after their projection) -> Log_g at the
+Protocol (`evaluate_shape`): one model per shape, manifold and method ("rflow", or the baselines "naive"
+(`rflow.naive`), "rgmm" (`rflow.rgmm`) and "fdm" (`rflow.fdm`)); from the first point of each demo, generate
+M - 1 = 999 steps, so the generated trajectory has the demo's M = 1000 points (the start included), and compare
+step by step. DTW is taken in ONE space for
+all methods: generated points on the manifold (the naive outputs after their projection) -> Log_g at the
 goal -> z = (v - mean) / std, with mean/std per dimension over all demo tangent vectors, which is exactly the
-normalisation `rflow.train.fit` computes (rflow uses its model's own; naive uses `benchmark_normalisation`).
+normalisation `rflow.train.fit` computes (rflow uses its model's own; the baselines `benchmark_normalisation`).
+R-GMM regresses a time-indexed motion, so it reproduces the same trajectory from every start (as in the paper).
 Also reported: the mean manifold distance along the sequence, RMSE and final error (z units), wall times.
 """
 
@@ -30,11 +32,13 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from rflow.errors import RFlowError
+from rflow.fdm import fit_fdm
 from rflow.generate import rollout
 from rflow.manifolds import get_manifold
 from rflow.metrics import dtw, final_error, manifold_distances, rmse
 from rflow.naive import fit_naive
 from rflow.normalise import Normalisation
+from rflow.rgmm import fit_rgmm
 from rflow.train import TrainConfig, fit
 
 LASA_SHAPES: tuple[str, ...] = (
@@ -49,7 +53,7 @@ DT_S = 0.003  # sampling time of the published Riemannian LASA data
 SPD_GOAL_SCALE = 100.0  # G = 100 I
 UQ_TANGENT_SCALE = 100.0  # UQ tangent vector = LASA vector / 100
 BENCHMARK_MANIFOLDS: Mapping[str, str] = MappingProxyType({"spd": "spd", "uq": "sphere"})  # CLI -> rflow name
-METHODS: tuple[str, ...] = ("rflow", "naive")
+METHODS: tuple[str, ...] = ("rflow", "naive", "rgmm", "fdm")
 BENCHMARK_XI = 1e-9  # stop threshold of the rollouts: small enough that all steps are generated in practice
 _GOAL_TOLERANCE = 1e-9  # max |last point - goal| of a constructed demo
 
@@ -250,7 +254,29 @@ def reproduce_naive(data: RiemannianLasa, config: TrainConfig, progress: bool = 
     return Reproduction(generated, trained - start, done - trained, None)
 
 
-REPRODUCERS: Mapping[str, Reproducer] = MappingProxyType({"rflow": reproduce_rflow, "naive": reproduce_naive})
+def reproduce_rgmm(data: RiemannianLasa, config: TrainConfig, progress: bool = False) -> Reproduction:
+    """R-GMM baseline: GMM on time x manifold (components by BIC), GMR on t = 0..(M - 1) dt for every demo.
+    ``config`` (the flow's hyperparameters) does not apply; the fit is deterministic."""
+    start = time.perf_counter()
+    model = fit_rgmm(data.demos, data.manifold, data.dt)
+    trained = time.perf_counter()
+    generated = model.generate(data.demos[:, 0], data.demos.shape[1] - 1)
+    return Reproduction(generated, trained - start, time.perf_counter() - trained, None)
+
+
+def reproduce_fdm(data: RiemannianLasa, config: TrainConfig, progress: bool = False) -> Reproduction:
+    """FDM baseline: diffeomorphic matching of the mean demo in the tangent space at the goal, the pulled-back
+    linear system run M - 1 steps from each demo's first point. ``config`` does not apply; deterministic."""
+    start = time.perf_counter()
+    model = fit_fdm(data.demos, data.manifold, data.dt)
+    trained = time.perf_counter()
+    generated = model.generate(data.demos[:, 0], data.demos.shape[1] - 1)
+    return Reproduction(generated, trained - start, time.perf_counter() - trained, None)
+
+
+REPRODUCERS: Mapping[str, Reproducer] = MappingProxyType(
+    {"rflow": reproduce_rflow, "naive": reproduce_naive, "rgmm": reproduce_rgmm, "fdm": reproduce_fdm}
+)
 
 
 @dataclass(frozen=True)
@@ -258,7 +284,8 @@ class ShapeResult:
     """Benchmark result of one shape, manifold and method (metrics averaged over the demos).
 
     Attributes:
-        shape, manifold ("spd" or "uq"), method ("rflow" or "naive"), seed, n_points, epochs: what was run.
+        shape, manifold ("spd" or "uq"), method (one of METHODS), seed, n_points, epochs: what was run
+            (seed and epochs are the flow's; R-GMM and FDM are deterministic and have no epochs).
         dtw: mean over demos of DTW(demo, generated) in the z-scored tangent space at the goal.
         dtw_per_demo: the per-demo DTW values.
         manifold_distance: mean over demos and steps of the manifold distance (Log-Euclidean for SPD,
@@ -379,7 +406,7 @@ def evaluate_data(
 
     Args:
         data: the demos of one shape on one manifold.
-        method: "rflow" or "naive" (names the result; selects the reproducer unless one is given).
+        method: one of METHODS (names the result; selects the reproducer unless one is given).
         config: training hyperparameters (seed included).
         reproduce: the method itself; default REPRODUCERS[method].
         progress: show the training progress bar.
@@ -424,7 +451,7 @@ def evaluate_shape(
         manifold: "spd" or "uq".
         config: training hyperparameters; its seed is replaced by ``seed``.
         seed: seed of the training.
-        method: "rflow" (tangent space at the goal) or "naive" (Euclidean features, projected).
+        method: "rflow" (tangent space at the goal), "naive" (Euclidean features, projected), "rgmm" or "fdm".
         n_points: points per demo (1000 for the benchmark; fewer for quick checks).
         progress: show the training progress bar.
 

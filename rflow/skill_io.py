@@ -3,8 +3,12 @@
 Two layouts, as in the paper or jointly (its "future work"):
   - "separate": a position model on R^3 (tangent p - g_p) and an orientation model on S^3 (tangent
     Log_{g_q}(q)), each its own RiemannianFlow;
-  - "joint": one model on the product R^3 x S^3 (`PoseManifold`): points [p, q] (7,), tangent
-    [p - g_p, Log_{g_q}(q)] (6,), built from the same two maps, one 6-D flow.
+  - "joint": one model on the product R^3 x S^3 (`POSE`): points [p, q] (7,), tangent
+    [p - g_p, Log_{g_q}(q)] (6,), built from the same two maps, one 6-D flow; or, for a skill that also
+    varies its translational stiffness K (issue #10), one model on R^3 x S^3 x SPD(3) (`POSE_STIFFNESS`):
+    points [p, q, vec(K)] (16,), tangent (12,), one 12-D flow. Generated stiffness is SPD by construction
+    (Exp map) and converges to the goal stiffness; `PoseSkill.bound_stiffness` clips its eigenvalues to
+    [k_min, k_max] (stored in skill.json's metadata) and says where it acted.
 
 Checkpoint directory (``save_skill`` / ``load_skill``)::
 
@@ -35,8 +39,9 @@ import numpy as np
 import numpy.typing as npt
 
 from rflow.errors import RFlowError
-from rflow.manifolds import Manifold, euclidean, get_manifold, sphere
+from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
 from rflow.model import RiemannianFlow
+from rflow.stiffness import StiffnessBounds, clip_eigenvalues, log_euclidean_mean
 
 SKILL_FILE = "skill.json"
 SKILL_FORMAT = "rflow.PoseSkill/1"
@@ -44,67 +49,26 @@ LAYOUTS = ("separate", "joint")
 MODEL_DIRS: Mapping[str, tuple[str, ...]] = {"separate": ("position", "orientation"), "joint": ("joint",)}
 
 
-class PoseManifold(Manifold):
-    """The product R^3 x S^3 of peg_tip poses, points [x, y, z, w, qx, qy, qz] (7,).
+POSE = ProductManifold("pose", ((EuclideanSpace(), (3,)), (UnitQuaternions(), (4,))))
+"""R^3 x S^3 of peg_tip poses: points [x, y, z, w, qx, qy, qz] (7,), Log_g([p, q]) = [p - g_p, Log(q * conj(g_q))]
+(6,), Exp_g([u, v]) = [g_p + u, Exp(v) * g_q]: the paper's two maps applied to the two factors."""
 
-    Log_g([p, q]) = [p - g_p, Log(q * conj(g_q))] (6,), Exp_g([u, v]) = [g_p + u, Exp(v) * g_q]:
-    the two maps of the paper applied to the two factors (numpy or torch, batched).
-    """
+POSE_STIFFNESS = ProductManifold(
+    "pose_stiffness", ((EuclideanSpace(), (3,)), (UnitQuaternions(), (4,)), (SPDNormalMatrices(), (3, 3))))
+"""R^3 x S^3 x SPD(3) of peg_tip poses and translational stiffness: points [p (3), q (4), vec(K) (9)] (16,),
+tangent [p - g_p, Log_{g_q}(q), mandel(logm(G^-1/2 K G^-1/2))] (12,) at the goal (g_p, g_q, G). The SPD
+part is the affine-invariant Log at the goal stiffness G in normal coordinates (dimensionless, see
+`rflow.manifolds.spd.normal_log_map`); Exp of any tangent vector is SPD."""
 
-    name = "pose"
-    point_ndim = 1
-
-    def check_points(self, points: Any, name: str = "points") -> Any:
-        x = euclidean.check_points(points, name)
-        if x.shape[-1] != 7:
-            raise RFlowError(f"{name} has shape {tuple(x.shape)}, expected (..., 7) poses [x, y, z, w, qx, qy, qz]")
-        sphere.check_quaternions(x[..., 3:], f"{name} quaternion part")
-        return x
-
-    def tangent_dim(self, point_shape: tuple[int, ...]) -> int:
-        return 6
-
-    def log(self, points: Any, goal: Any) -> Any:
-        x, g = self.check_points(points, "pose"), self.check_points(goal, "goal pose")
-        return _concat(euclidean.log_map(x[..., :3], g[..., :3]), sphere.log_map(x[..., 3:], g[..., 3:]))
-
-    def exp(self, tangent: Any, goal: Any) -> Any:
-        v = euclidean.check_points(tangent, "tangent")
-        if v.shape[-1] != 6:
-            raise RFlowError(f"tangent has shape {tuple(v.shape)}, expected (..., 6)")
-        g = self.check_points(goal, "goal pose")
-        return _concat(euclidean.exp_map(v[..., :3], g[..., :3]), sphere.exp_map(v[..., 3:], g[..., 3:]))
-
-    def distance(self, a: Any, b: Any) -> Any:
-        """sqrt(||p_a - p_b||^2 + ||2 Log(q_a conj(q_b))||^2) (m and rad mixed: for ordering only)."""
-        a, b = self.check_points(a, "a"), self.check_points(b, "b")
-        dp = euclidean.distance(a[..., :3], b[..., :3])
-        dq = sphere.distance(a[..., 3:], b[..., 3:])
-        return (dp * dp + dq * dq) ** 0.5
-
-    def prepare(self, trajectories: Any) -> Any:
-        """Hemisphere continuity of the quaternion part along each trajectory, all ending on one hemisphere."""
-        x = np.array(self.check_points(trajectories, "demos"), dtype=np.float64)
-        x[..., 3:] = np.asarray(get_manifold("sphere").prepare(x[..., 3:]))
-        return x
-
-
-POSE = PoseManifold()
-
-
-def _concat(a: Any, b: Any) -> Any:
-    if isinstance(a, np.ndarray):
-        return np.concatenate([a, b], axis=-1)
-    import torch
-
-    return torch.cat([a, b], dim=-1)
+JOINT_MANIFOLDS: Mapping[str, ProductManifold] = {m.name: m for m in (POSE, POSE_STIFFNESS)}
 
 
 class PoseFlow(RiemannianFlow):
-    """A RiemannianFlow that also knows the "pose" product manifold by name (for ``load``)."""
+    """A RiemannianFlow that also knows the "pose" and "pose_stiffness" product manifolds by name (for ``load``)."""
 
     def __init__(self, manifold: str | Manifold, *args: Any, **kwargs: Any):
-        super().__init__(POSE if manifold == POSE.name else manifold, *args, **kwargs)
+        joint = JOINT_MANIFOLDS.get(manifold) if isinstance(manifold, str) else None
+        super().__init__(manifold if joint is None else joint, *args, **kwargs)
 
 
 def file_sha256(path: str | os.PathLike[str]) -> str:
@@ -146,7 +110,63 @@ class PoseSkill:
     @property
     def goal_quat(self) -> np.ndarray:
         """Goal orientation g_q (4,), w-x-y-z."""
-        return (self.models["orientation"].goal if self.layout == "separate" else self.models["joint"].goal[3:]).copy()
+        return (self.models["orientation"].goal if self.layout == "separate" else self.models["joint"].goal[3:7]).copy()
+
+    # ---- stiffness (a joint model on R^3 x S^3 x SPD(3), `POSE_STIFFNESS`) --------------------------------
+    @property
+    def has_stiffness(self) -> bool:
+        """True when the skill also generates the translational stiffness (joint model on POSE_STIFFNESS)."""
+        return self.layout == "joint" and self.models["joint"].manifold.name == POSE_STIFFNESS.name
+
+    def _require_stiffness(self) -> None:
+        if not self.has_stiffness:
+            raise RFlowError("this skill has no stiffness model (train it with `pih train --stiffness ...`)")
+
+    @property
+    def goal_stiffness(self) -> np.ndarray:
+        """Goal stiffness G (3, 3), N/m. Raises RFlowError for a skill without stiffness."""
+        self._require_stiffness()
+        return self.models["joint"].goal[7:].reshape(3, 3).copy()
+
+    @property
+    def stiffness_bounds(self) -> StiffnessBounds:
+        """[k_min, k_max] (N/m) of the commanded stiffness's eigenvalues, from the training metadata."""
+        self._require_stiffness()
+        rec = self.metadata.get("stiffness") or {}
+        try:
+            return StiffnessBounds(float(rec["k_min_n_m"]), float(rec["k_max_n_m"]))
+        except (KeyError, TypeError, ValueError):
+            raise RFlowError("skill metadata has no valid stiffness bounds (k_min_n_m, k_max_n_m)") from None
+
+    @property
+    def start_stiffness(self) -> np.ndarray:
+        """The stiffness a new episode starts from (3, 3): the Log-Euclidean mean of the demos' first samples
+        (the stiffness is the model's own state, never measured)."""
+        self._require_stiffness()
+        start = (self.metadata.get("stiffness") or {}).get("start_n_m")
+        if start is None:
+            return self.goal_stiffness
+        return np.asarray(POSE_STIFFNESS.factors[2][0].check_points(np.asarray(start, float).reshape(3, 3),
+                                                                    "start stiffness"))
+
+    def bound_stiffness(self, stiffness: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """(clip(K), where the clip acted) of generated stiffness (..., 3, 3): eigenvalues clipped to the skill's
+        bounds (`rflow.stiffness.clip_eigenvalues`; the identity inside the bounds)."""
+        return clip_eigenvalues(stiffness, self.stiffness_bounds)
+
+    def joint_point(self, pos: npt.ArrayLike, quat: npt.ArrayLike, stiffness: npt.ArrayLike | None = None) -> np.ndarray:
+        """The joint model's point: [p, q] (..., 7), or [p, q, vec(K)] (..., 16) for a stiffness skill."""
+        parts = [np.asarray(pos, float), np.asarray(quat, float)]
+        if self.has_stiffness:
+            k = np.asarray(self.goal_stiffness if stiffness is None else stiffness, float)
+            parts.append(k.reshape(k.shape[:-2] + (9,)))
+        return np.concatenate(parts, -1)
+
+    def split_point(self, x: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(pos (..., 3), quat (..., 4), stiffness (..., 3, 3) or None) of joint-model points."""
+        v = np.asarray(x, float)
+        k = v[..., 7:16].reshape(v.shape[:-1] + (3, 3)) if self.has_stiffness else None
+        return v[..., :3], v[..., 3:7], k
 
     @property
     def dt(self) -> float:
@@ -156,42 +176,76 @@ class PoseSkill:
     def to_tangent(self, pos: npt.ArrayLike, quat: npt.ArrayLike) -> np.ndarray:
         """[p - g_p, Log_{g_q}(q)] (..., 6) of poses. Raises RFlowError on bad input."""
         if self.layout == "joint":
-            return self.models["joint"].to_tangent(np.concatenate([np.asarray(pos, float), np.asarray(quat, float)], -1))
+            pose = np.concatenate([np.asarray(pos, float), np.asarray(quat, float)], -1)
+            return np.asarray(POSE.log(pose, self.models["joint"].goal[:7]))
         return np.concatenate([self.models["position"].to_tangent(pos), self.models["orientation"].to_tangent(quat)], -1)
 
     def from_tangent(self, tangent: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Poses (pos (..., 3), quat (..., 4)) of tangent vectors (..., 6)."""
         v = np.asarray(tangent, dtype=np.float64)
         if self.layout == "joint":
-            x = self.models["joint"].from_tangent(v)
+            x = np.asarray(POSE.exp(v, self.models["joint"].goal[:7]))
             return x[..., :3], x[..., 3:]
         return self.models["position"].from_tangent(v[..., :3]), self.models["orientation"].from_tangent(v[..., 3:])
 
 
-def save_skill(directory: str | os.PathLike[str], skill: PoseSkill,
-               extra: Mapping[str, Callable[[Path], None]] | None = None, overwrite: bool = True) -> Path:
-    """Write a skill checkpoint directory atomically (build in DIR.tmp-XXXX, then rename).
+def is_checkpoint(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a folder holding a skill.json with this module's format marker."""
+    try:
+        record = json.loads((Path(path) / SKILL_FILE).read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return isinstance(record, dict) and record.get("format") == SKILL_FORMAT
 
-    Args:
-        directory: the checkpoint directory DIR.
-        skill: the skill.
-        extra: file name -> writer(path) called inside the temporary directory (e.g. the loss figure).
-        overwrite: replace an existing DIR (it is moved aside and deleted only after the rename).
 
-    Returns:
-        DIR.
+def check_checkpoint_target(directory: str | os.PathLike[str], overwrite: bool = False) -> Path:
+    """Check that a checkpoint may be written at ``directory`` (call before any work).
+
+    Only a previous checkpoint (`is_checkpoint`) is ever replaced, and only with ``overwrite``; a plain file
+    or any other folder at ``directory`` is never touched.
 
     Raises:
-        RFlowError: DIR exists and overwrite is False, or its parent folder does not exist.
-        Whatever a writer raises (the temporary directory is removed first).
+        RFlowError: the parent folder is missing; something that is not a checkpoint is there; a checkpoint
+            is there and ``overwrite`` is False.
     """
     out = Path(directory)
     parent = out.parent if str(out.parent) else Path(".")
     if not parent.is_dir():
         raise RFlowError(f"cannot write checkpoint {out}: folder {parent} does not exist")
-    if out.exists() and not overwrite:
-        raise RFlowError(f"checkpoint {out} already exists")
+    if out.exists() or out.is_symlink():
+        if not is_checkpoint(out):
+            kind = "folder" if out.is_dir() else "file"
+            raise RFlowError(f"{out} is a {kind} that is not a checkpoint (no {SKILL_FILE} of format "
+                             f"{SKILL_FORMAT!r}): not replacing it; choose another path")
+        if not overwrite:
+            raise RFlowError(f"checkpoint {out} already exists (use --overwrite to replace it)")
+    return out
+
+
+def save_skill(directory: str | os.PathLike[str], skill: PoseSkill,
+               extra: Mapping[str, Callable[[Path], None]] | None = None, overwrite: bool = False) -> Path:
+    """Write a skill checkpoint directory atomically (build in DIR.tmp-XXXX beside it, then rename).
+
+    Args:
+        directory: the checkpoint directory DIR.
+        skill: the skill.
+        extra: file name -> writer(path) called inside the temporary directory (e.g. the loss figure).
+        overwrite: replace an existing checkpoint at DIR (moved aside, deleted only after the rename).
+            Anything else at DIR is never replaced (`check_checkpoint_target`).
+
+    Returns:
+        DIR (mode 0777 & ~umask, 0755 by default).
+
+    Raises:
+        RFlowError: see `check_checkpoint_target`.
+        Whatever a writer raises (the temporary directory is removed first).
+    """
+    out = check_checkpoint_target(directory, overwrite)
+    parent = out.parent if str(out.parent) else Path(".")
     tmp = Path(tempfile.mkdtemp(prefix=f"{out.name}.tmp-", dir=parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700
     old: Path | None = None
     try:
         for name in MODEL_DIRS[skill.layout]:
@@ -201,7 +255,8 @@ def save_skill(directory: str | os.PathLike[str], skill: PoseSkill,
         (tmp / SKILL_FILE).write_text(json.dumps(record, indent=2, allow_nan=True))
         for name, writer in (extra or {}).items():
             writer(tmp / name)
-        if out.exists():
+        if out.exists() or out.is_symlink():
+            check_checkpoint_target(out, overwrite)  # still ours to replace
             old = Path(tempfile.mkdtemp(prefix=f"{out.name}.old-", dir=parent))
             os.replace(out, old / out.name)
         os.replace(tmp, out)
@@ -237,6 +292,8 @@ def load_skill(directory: str | os.PathLike[str]) -> PoseSkill:
     layout = record.get("layout")
     if layout not in LAYOUTS:
         raise RFlowError(f"{src / SKILL_FILE} has unknown layout {layout!r}")
+    for name in MODEL_DIRS[layout]:
+        _check_finite_weights(src / name)
     models = {name: PoseFlow.load(src / name) for name in MODEL_DIRS[layout]}
     metadata, training = record.get("metadata", {}), record.get("training", {})
     if not isinstance(metadata, dict) or not isinstance(training, dict):
@@ -246,10 +303,31 @@ def load_skill(directory: str | os.PathLike[str]) -> PoseSkill:
     return skill
 
 
+def _check_finite_weights(model_dir: Path) -> None:
+    """Raise RFlowError naming the weights file when a tensor in it is NaN or inf (a missing or unreadable
+    file is left to RiemannianFlow.load to report). Read with weights_only=True."""
+    import torch
+
+    from rflow.model import WEIGHTS_FILE
+
+    path = model_dir / WEIGHTS_FILE
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001 -- reported by RiemannianFlow.load with its own message
+        return
+    if not isinstance(state, dict):
+        return
+    for key, tensor in state.items():
+        if isinstance(tensor, torch.Tensor) and tensor.is_floating_point() and not bool(tensor.isfinite().all()):
+            raise RFlowError(f"{path}: weight {key!r} contains NaN or inf")
+
+
 def _check_models(skill: PoseSkill, src: Path) -> None:
     expected = {"position": ("euclidean", (3,)), "orientation": ("sphere", (4,)), "joint": ("pose", (7,))}
     for name, model in skill.models.items():
         manifold, shape = expected[name]
+        if name == "joint" and model.manifold.name == POSE_STIFFNESS.name:
+            manifold, shape = POSE_STIFFNESS.name, (POSE_STIFFNESS.point_size,)
         if model.manifold.name != manifold or model.point_shape != shape:
             raise RFlowError(f"{src / name}: expected a {manifold} model of {shape} points, got "
                              f"{model.manifold.name} {model.point_shape}")
@@ -275,7 +353,8 @@ def subsample(trajectories: npt.ArrayLike, factor: int) -> np.ndarray:
 
 
 def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: Any = None,
-                   layout: str = "separate", progress: bool = True) -> PoseSkill:
+                   layout: str = "separate", progress: bool = True, stiffness: npt.ArrayLike | None = None,
+                   bounds: StiffnessBounds | None = None) -> PoseSkill:
     """Train the models of a pose skill on peg_tip demonstrations (rflow.train.fit per model).
 
     Args:
@@ -284,14 +363,21 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
         dt: sampling time (s).
         config: rflow.train.TrainConfig shared by the models (default: the paper's).
         layout: "separate" (position on R^3 and orientation on S^3, as in the paper) or "joint"
-            (one model on R^3 x S^3).
+            (one model on R^3 x S^3, or on R^3 x S^3 x SPD(3) with ``stiffness``).
         progress: tqdm bars.
+        stiffness: optional (N, M, 3, 3) translational stiffness (N/m, SPD, ending at one goal stiffness),
+            learned inside the joint model (layout "joint" only).
+        bounds: [k_min, k_max] of the stiffness (default `StiffnessBounds()`); every demonstrated
+            stiffness must lie inside, and the skill clips generated stiffness to them.
 
     Returns:
-        The PoseSkill, with ``training`` holding each model's config and loss history.
+        The PoseSkill, with ``training`` holding each model's config and loss history, and with stiffness
+        ``metadata["stiffness"]`` = {k_min_n_m, k_max_n_m, start_n_m (Log-Euclidean mean of the demos'
+        first stiffness), goal_n_m}.
 
     Raises:
-        RFlowError: bad shapes, NaN, demos without a shared goal, diverged training, unknown layout.
+        RFlowError: bad shapes, NaN, demos without a shared goal, diverged training, unknown layout,
+            stiffness with the separate layout, non-SPD stiffness or stiffness outside the bounds.
     """
     from dataclasses import asdict
 
@@ -304,7 +390,13 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
         raise RFlowError(f"demos need pos (N, M, 3) and quat (N, M, 4), got {p.shape} and {q.shape}")
     if layout not in LAYOUTS:
         raise RFlowError(f"unknown skill layout {layout!r}; expected one of {LAYOUTS}")
-    if layout == "joint":
+    metadata: dict[str, Any] = {}
+    if stiffness is not None:
+        k, limits = _check_demo_stiffness(stiffness, p.shape[:2], layout, bounds)
+        data = {"joint": (np.concatenate([p, q, k.reshape(k.shape[:2] + (9,))], axis=-1), POSE_STIFFNESS)}
+        metadata["stiffness"] = {"k_min_n_m": limits.k_min_n_m, "k_max_n_m": limits.k_max_n_m,
+                                 "start_n_m": log_euclidean_mean(k[:, 0]).tolist(), "goal_n_m": k[0, -1].tolist()}
+    elif layout == "joint":
         data = {"joint": (np.concatenate([p, q], axis=-1), POSE)}
     else:
         data = {"position": (p, "euclidean"), "orientation": (q, "sphere")}
@@ -316,4 +408,54 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
         model, history = fit(demos, manifold, dt, cfg, progress=progress)
         models[name] = model
         training[name] = {"config": asdict(cfg), "history": asdict(history)}
-    return PoseSkill(layout, models, {}, training)
+    return PoseSkill(layout, models, metadata, training)
+
+
+def _check_demo_stiffness(stiffness: npt.ArrayLike, lead: tuple[int, ...], layout: str,
+                          bounds: StiffnessBounds | None) -> tuple[np.ndarray, StiffnessBounds]:
+    """The demos' stiffness (N, M, 3, 3) as SPD float64, checked against the layout and the bounds."""
+    if layout != "joint":
+        raise RFlowError("stiffness is learned inside the joint model R^3 x S^3 x SPD(3): use layout 'joint'")
+    limits = StiffnessBounds() if bounds is None else bounds
+    k = np.asarray(POSE_STIFFNESS.factors[2][0].check_points(np.asarray(stiffness, dtype=np.float64), "stiffness"))
+    if k.shape != tuple(lead) + (3, 3):
+        raise RFlowError(f"stiffness has shape {k.shape}, expected {tuple(lead) + (3, 3)} to match the poses")
+    lam = np.linalg.eigvalsh(k)
+    if not limits.contains(k):
+        raise RFlowError(f"demonstrated stiffness has eigenvalues in [{lam.min():.4g}, {lam.max():.4g}] N/m, outside "
+                         f"the bounds [{limits.k_min_n_m:g}, {limits.k_max_n_m:g}] N/m")
+    return k, limits
+
+
+def stiffness_reproduction(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike,
+                           stiffness: npt.ArrayLike) -> dict[str, Any]:
+    """How well a stiffness skill reproduces the demonstrated stiffness: from each demo's start [p, q, K]
+    generate M - 1 exact steps of the skill's dt (Algorithm 1, no early stop), clip the stiffness to the
+    bounds, and take the mean Log-Euclidean distance 1/M sum_m ||logm(K_m) - logm(K_hat_m)||_F per demo.
+
+    Args:
+        skill: a stiffness skill.
+        pos, quat, stiffness: the (subsampled) training demos (N, M, 3), (N, M, 4), (N, M, 3, 3).
+
+    Returns:
+        JSON-ready {"log_euclidean_mean", "log_euclidean_per_demo" (N,), "clip_fraction" (of generated
+        samples the eigenvalue clip changed)}.
+
+    Raises:
+        RFlowError: a skill without stiffness, bad shapes.
+    """
+    from rflow.generate import rollout
+    from rflow.stiffness import profile_distance
+
+    skill._require_stiffness()
+    p, q, k = (np.asarray(a, dtype=np.float64) for a in (pos, quat, stiffness))
+    if p.ndim != 3 or k.shape != p.shape[:2] + (3, 3) or q.shape != p.shape[:2] + (4,):
+        raise RFlowError(f"demos need pos (N, M, 3), quat (N, M, 4), stiffness (N, M, 3, 3); got {p.shape}, "
+                         f"{q.shape}, {k.shape}")
+    model = skill.models["joint"]
+    starts = np.asarray(POSE_STIFFNESS.prepare(skill.joint_point(p, q, k)))[:, 0]
+    generated = skill.split_point(rollout(model, starts, p.shape[1] - 1, xi=1e-12).points)[2]
+    bounded, clipped = skill.bound_stiffness(generated)
+    per_demo = profile_distance(k, bounded)
+    return {"log_euclidean_mean": float(per_demo.mean()), "log_euclidean_per_demo": per_demo.tolist(),
+            "clip_fraction": float(clipped.mean())}

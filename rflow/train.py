@@ -16,6 +16,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -27,7 +28,7 @@ from rflow.manifolds import Manifold, get_manifold
 from rflow.model import ImitationFlow, ModelConfig, RiemannianFlow
 from rflow.normalise import Normalisation
 
-OPTIMIZERS = ("adam", "adamax")
+OPTIMIZERS = ("adam", "adamax", "sgd", "rmsprop")  # the paper's search space (Adam the default)
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ class TrainConfig:
 
     Attributes:
         model: the architecture (`rflow.model.ModelConfig`: layers, width, activation, log-scale bound, ...).
-        optimizer: "adam" or "adamax".
+        optimizer: "adam", "adamax", "sgd" or "rmsprop".
         lr: initial learning rate (decays to lr * lr_final_fraction with a cosine schedule).
         lr_final_fraction: final lr as a fraction of lr.
         batch_size: transitions per gradient step.
@@ -211,6 +212,7 @@ def fit(
     dt: float,
     config: TrainConfig = TrainConfig(),
     progress: bool = True,
+    on_epoch: Callable[[int, RiemannianFlow, TrainHistory], None] | None = None,
 ) -> tuple[RiemannianFlow, TrainHistory]:
     """Learn a stable skill from demonstrations on a manifold.
 
@@ -222,6 +224,9 @@ def fit(
         dt: sampling time of the demos (s).
         config: hyperparameters.
         progress: show a tqdm progress bar.
+        on_epoch: called after each epoch with (epoch, model, history) (1-based epoch; the model holds a copy
+            of the weights after that epoch); an exception it raises stops training and propagates
+            (e.g. a hyperparameter search pruning the trial).
 
     Returns:
         The trained model and the loss history (train/val per epoch).
@@ -252,8 +257,10 @@ def fit(
     )
     network.float().train()
     params = list(network.parameters())
-    opt_cls = torch.optim.Adam if config.optimizer == "adam" else torch.optim.Adamax
-    opt = opt_cls(params, lr=config.lr, fused=True)  # one kernel per step: much less overhead on CPU
+    optimizers = {"adam": torch.optim.Adam, "adamax": torch.optim.Adamax, "sgd": torch.optim.SGD,
+                  "rmsprop": torch.optim.RMSprop}
+    fused = {"fused": True} if config.optimizer in ("adam", "sgd") else {}  # one kernel per step on CPU
+    opt = optimizers[config.optimizer](params, lr=config.lr, **fused)
     steps_per_epoch = max(1, math.ceil(config.transitions_per_epoch / config.batch_size))
     total = steps_per_epoch * config.epochs
     final = config.lr_final_fraction
@@ -309,5 +316,8 @@ def fit(
             history.val_loss.append(float(vl))
         good_state = copy.deepcopy(network.state_dict())
         bar.set_postfix(loss=f"{history.train_loss[-1]:.3f}")
+        if on_epoch is not None:
+            snapshot = copy.deepcopy(network)  # RiemannianFlow turns its network to float64 / eval mode
+            on_epoch(epoch + 1, RiemannianFlow(man, goal, norm, dt, config.model, snapshot), history)
     history.seconds = time.perf_counter() - t0
     return RiemannianFlow(man, goal, norm, dt, config.model, network), history

@@ -1,6 +1,12 @@
 """`pih bench`: speed of the simulation pieces, as medians over repeats (one process, one core each).
 
-    pih bench [--json runs/bench.json] [--quick]
+    pih bench [--json runs/bench.json] [--quick] [--model runs/default/model] [--only NAME ...]
+
+Every figure is also reported relative to bare `mj_step` from the same run (section "relative_to_bare"):
+rates as the ratio rate / bare steps per s, times as the number of bare mj_steps that fit in them (so machines
+of different speed compare). With a trained skill (``--model``, default runs/default/model when it exists) the
+episode figures run the skill's closed-loop policy with the flow in the loop, and "evaluation" times a
+100-episode evaluation on all local cores (episodes/s).
 
 Benchmarks are entries of ``BENCHMARKS`` (name, function(quick) -> dict of figures). Other packages add
 theirs without editing this file: every module named in ``EXTRA_BENCHMARK_MODULES`` that can be imported
@@ -51,20 +57,66 @@ def bench_control(quick: bool) -> dict[str, Any]:
     return rates
 
 
-def bench_episode_steps(quick: bool) -> dict[str, Any]:
-    """Full environment control steps (nullspace IK + 10 controlled physics steps + observation) per second."""
-    env = PegInHoleEnv()
-    rates = []
-    for repeat in range(3 if quick else 5):
-        env.reset(seed=repeat)
-        target = (env.observation.peg_tip.pos - np.array([0.0, 0.0, 0.02]), env.observation.peg_tip.quat)
-        start = time.perf_counter()
-        for _ in range(100):
-            env.step(target)
-        rates.append(100 / (time.perf_counter() - start))
-    median = float(np.median(rates))
-    return {"env_steps_per_s": median, "physics_steps_per_s": median * env.n_substeps,
-            "realtime_factor": median * env.control_period_s}
+DEFAULT_MODEL = Path("runs/default/model")
+EVALUATION_EPISODES = 100
+
+
+def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any]:
+    """Control steps per second of whole episodes.
+
+    With a skill: closed-loop episodes from the evaluation's perturbed starts (flow query, feed-forward, nullspace
+    IK, 10 controlled physics steps, observation and success check per step), timed from reset to the end.
+    Without: 100 steps toward a fixed target 2 cm below the start (no flow), per repeat.
+    """
+    if model is None:
+        env = PegInHoleEnv()
+        rates = []
+        for repeat in range(3 if quick else 5):
+            env.reset(seed=repeat)
+            target = (env.observation.peg_tip.pos - np.array([0.0, 0.0, 0.02]), env.observation.peg_tip.quat)
+            start = time.perf_counter()
+            for _ in range(100):
+                env.step(target)
+            rates.append(100 / (time.perf_counter() - start))
+        median = float(np.median(rates))
+        period = env.control_period_s
+        substeps = env.n_substeps
+        extra: dict[str, Any] = {"flow_in_loop": False}
+    else:
+        from envs.execution.episode import run_episode
+        from envs.execution.evaluate import EvaluationConfig, build_setup, sample_starts
+
+        config = EvaluationConfig(episodes=2 if quick else 5)
+        skill, env, policy = build_setup(model, config)
+        demo = skill.metadata["demo_starts"]
+        starts = sample_starts(demo["pos"], demo["quat"], config.episodes, config.seed, config.pos_range_m,
+                               config.rot_range_deg, config.around)
+        rates, successes = [], 0
+        for start in starts:
+            record, _ = run_episode(env, policy, start, feedforward_gain=config.feedforward_gain)
+            rates.append(record.steps / record.wall_s)
+            successes += int(record.success)
+        median = float(np.median(rates))
+        period = env.control_period_s
+        substeps = env.n_substeps
+        extra = {"flow_in_loop": True, "episodes": len(starts), "successes": successes}
+    return {"env_steps_per_s": median, "physics_steps_per_s": median * substeps,
+            "realtime_factor": median * period, **extra}
+
+
+def bench_evaluation(quick: bool, model: Path | None = None) -> dict[str, Any]:
+    """A closed-loop evaluation of the skill (10 episodes with --quick) on all local cores: episodes/s."""
+    if model is None:
+        return {"skipped": "no trained skill (--model)"}
+    from envs.execution.evaluate import EvaluationConfig, evaluate
+
+    config = EvaluationConfig(episodes=10 if quick else EVALUATION_EPISODES, workers=os.cpu_count() or 1)
+    start = time.perf_counter()
+    result = evaluate(model, config, progress=False)
+    wall = time.perf_counter() - start
+    successes = sum(int(r.success) for r in result.records)
+    return {"episodes": config.episodes, "workers": config.workers, "wall_s": wall,
+            "episodes_per_s": config.episodes / wall, "successes": successes}
 
 
 def bench_render(quick: bool) -> dict[str, Any]:
@@ -112,9 +164,45 @@ def bench_ik(quick: bool) -> dict[str, Any]:
 BENCHMARKS: list[Benchmark] = [
     ("control", bench_control),
     ("episode_steps", bench_episode_steps),
+    ("evaluation", bench_evaluation),
     ("render", bench_render),
     ("ik", bench_ik),
 ]
+NEEDS_MODEL: frozenset[str] = frozenset({"episode_steps", "evaluation"})
+"""Benchmarks called with the trained skill (function(quick, model))."""
+
+RATE_FIGURES: dict[str, str] = {
+    "control.closed_loop_steps_per_s": "control.ratio",
+    "episode_steps.physics_steps_per_s": "episode_steps.ratio",
+    "render.render_encode_fps": "render.frames_per_bare_step",
+    "ik.ik_solves_per_s": "ik.solves_per_bare_step",
+    "evaluation.episodes_per_s": "evaluation.episodes_per_bare_step",
+    "flow.closed_loop_rate_hz": "flow.closed_loop_steps_per_bare_step",
+}
+"""Rates reported as rate / bare mj_step rate."""
+TIME_FIGURES_MS: tuple[str, ...] = ("flow.flow_step_ms", "flow.closed_loop_step_ms", "flow.rollout_1000_ms",
+                                    "flow.rollouts_100x1000_ms", "render.render_ms_per_frame")
+"""Times reported as the number of bare mj_steps that take as long."""
+
+
+def relative_to_bare(results: dict[str, Any]) -> dict[str, float]:
+    """Every figure of RATE_FIGURES and TIME_FIGURES_MS present in `results`, relative to the bare mj_step rate of
+    the same run (results["control"]["bare_steps_per_s"]); empty without the control benchmark."""
+    bare = results.get("control", {}).get("bare_steps_per_s")
+    if not bare:
+        return {}
+    out: dict[str, float] = {"bare_steps_per_s": float(bare)}
+    for figure, name in RATE_FIGURES.items():
+        section, key = figure.split(".")
+        value = results.get(section, {}).get(key)
+        if isinstance(value, (int, float)):
+            out[name] = float(value) / bare
+    for figure in TIME_FIGURES_MS:
+        section, key = figure.split(".")
+        value = results.get(section, {}).get(key)
+        if isinstance(value, (int, float)):
+            out[f"{section}.{key[:-3]}_in_bare_steps"] = float(value) * 1e-3 * bare
+    return out
 
 
 def all_benchmarks() -> list[Benchmark]:
@@ -169,12 +257,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     parser.add_argument("--quick", action="store_true", help="fewer repeats and a 3 s render (smoke test)")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="run only these benchmarks")
+    parser.add_argument("--model", type=Path,
+                        help=f"trained skill for the episode and evaluation figures (default {DEFAULT_MODEL} "
+                             "when it exists; without one the episode figure uses a fixed target)")
 
 
 def main(args: argparse.Namespace) -> int:
     """Run the benchmarks, print them, optionally write JSON; returns the exit status."""
     if args.json is not None and not args.json.parent.is_dir():
         raise EnvError(f"--json {args.json}: folder {args.json.parent} does not exist")
+    model = getattr(args, "model", None)
+    if model is not None:
+        from rflow.errors import RFlowError
+        from rflow.skill_io import load_skill
+
+        try:
+            load_skill(model)
+        except RFlowError as err:
+            raise EnvError(f"--model {model}: {err}") from None
+    elif DEFAULT_MODEL.is_dir():
+        model = DEFAULT_MODEL
     benchmarks = all_benchmarks()
     if args.only:
         unknown = sorted(set(args.only) - {name for name, _ in benchmarks})
@@ -184,13 +286,17 @@ def main(args: argparse.Namespace) -> int:
     results: dict[str, Any] = {"machine": machine()}
     for name, function in benchmarks:
         start = time.perf_counter()
-        figures = function(bool(args.quick))
+        figures = function(bool(args.quick), model) if name in NEEDS_MODEL else function(bool(args.quick))
         figures["bench_wall_s"] = time.perf_counter() - start
         results[name] = figures
         print(f"{name}:")
         for key, value in figures.items():
             print(f"  {key:28s} {_format(value)}")
     results["machine"]["load_average_1min_end"] = os.getloadavg()[0]
+    results["relative_to_bare"] = relative_to_bare(results)
+    print("relative_to_bare:")
+    for key, value in results["relative_to_bare"].items():
+        print(f"  {key:40s} {_format(value)}")
     if args.json is not None:
         write_json(args.json, results)
         print(f"wrote {args.json}")

@@ -11,6 +11,7 @@ import importlib
 import sys
 from typing import Sequence
 
+from batch.errors import BatchError
 from controllers.errors import ControllerError
 from envs.errors import EnvError
 from rflow.errors import RFlowError
@@ -22,11 +23,12 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("scripts.evaluate", "execute a trained skill from perturbed starts and score it"),
     "render": ("scripts.render", "render an episode or a demo to MP4"),
     "lasa": ("scripts.lasa", "Riemannian LASA benchmark (SPD and unit quaternions)"),
+    "search": ("scripts.search", "Optuna hyperparameter search of RiemannianFlow on one LASA shape"),
     "bench": ("scripts.bench", "speed benchmark: control loop, rendering, IK, flow"),
     "run": ("scripts.run", "the main job: demos -> train -> evaluate -> figures and video"),
 }
 
-USER_ERRORS = (EnvError, ControllerError, RFlowError, FileNotFoundError)
+USER_ERRORS = (EnvError, ControllerError, RFlowError, BatchError, FileNotFoundError)
 
 
 def build_parser() -> argparse.ArgumentParser:

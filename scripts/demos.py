@@ -2,6 +2,7 @@
 
     pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--video runs/demos.mp4]
     pih demos --check 100 --seed 0            # success rate of the scripted expert over 100 starts
+    pih demos --import rec.npz --tool-offset franka-tcp --dt 0.001 --out demos.npz [--snap-goal]
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from envs.demos import DemoAttempt, ExpertConfig, collect_demos, demo_episode_co
 from envs.env import PegInHoleEnv  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
 from envs.scene import SceneConfig  # noqa: E402
+from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
+from scripts.demos_import import add_import_arguments, run_import  # noqa: E402
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +29,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the start-pose stream (default 0)")
     parser.add_argument("--out", type=Path, help="output .npz demo file (required unless --check)")
     parser.add_argument("--shape", default="square", help="peg and hole shape (default square)")
-    parser.add_argument("--clearance-mm", type=float, default=1.0, help="hole-minus-peg clearance in mm (default 1)")
     parser.add_argument("--samples", type=int, default=4000, help="samples M per demo (default 4000, as the paper)")
     parser.add_argument("--entry-speed", type=float, default=10.0,
                         help="speed in mm/s at which the peg enters the hole (default 10; 5 for a 0.2 mm clearance)")
@@ -34,6 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", default="front", help="camera for --video (front, side, top, closeup, wrist)")
     parser.add_argument("--check", type=int, metavar="N",
                         help="instead of recording, run the expert from N seeded starts and report the success rate")
+    add_import_arguments(parser)
+    add_task_arguments(parser, episode=False)
 
 
 def _describe(index: int, attempt: DemoAttempt) -> str:
@@ -57,8 +61,10 @@ def _check(args: argparse.Namespace, scene: SceneConfig, expert: ExpertConfig) -
 
 
 def main(args: argparse.Namespace) -> int:
-    """Record demos (or run the success-rate check); returns the exit status."""
-    scene = SceneConfig(shape=args.shape, clearance_m=args.clearance_mm * 1e-3)
+    """Record demos (or run the success-rate check, or import recorded demos); returns the exit status."""
+    if args.import_file is not None:
+        return run_import(args)
+    scene = task_from_args(args).scene_config(shape=args.shape)
     expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed * 1e-3)
     if args.check is not None:
         if args.check < 1:

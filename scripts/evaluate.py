@@ -5,12 +5,20 @@
 
 Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range (box)
 and +-rot-range (ball) -- see envs/execution/evaluate.py. Success is the physics check on the measured peg_tip pose. Prints a summary table.
+
+Long runs: each finished episode is appended to a journal (--journal, default <json>.journal.jsonl), so
+after Ctrl-C (exit 130) the same command with --resume runs only the missing episodes and writes the same
+JSON. A worker that dies or an episode over --unit-timeout is a failed episode ("worker_died",
+"wall_timeout"). Exit status: 0 when every episode has a record (failed episodes are results), 3 when the
+batch is incomplete, 130 when interrupted, 2 on bad input (all options are checked before any episode).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -18,11 +26,15 @@ from typing import Any, Sequence
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from batch import BACKENDS, Journal  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.execution.evaluate import EvaluationConfig, EvaluationResult, StartPose, evaluate  # noqa: E402
+from scripts.task_options import add_task_arguments, scene_given, task_from_args  # noqa: E402
+from envs.execution.evaluate import EvaluationConfig, EvaluationResult, StartPose, evaluate, journal_run  # noqa: E402
 from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
 
 GOAL_MISMATCH_WARN_MM = 5.0
+EXIT_INCOMPLETE = 3
+EXIT_INTERRUPTED = 130
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,7 +54,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"start orientation perturbation radius in deg (default {d.rot_range_deg:g})")
     parser.add_argument("--around", choices=("mean", "demo"), default=d.around,
                         help="centre of the start perturbations: the mean demo start (default) or a random demo's start")
-    parser.add_argument("--clearance", type=float, help="hole clearance in mm (default: the demos')")
     parser.add_argument("--shape", help="the scene's peg/hole shape (default: the demos'; must match them)")
     parser.add_argument("--hole-at-goal", action="store_true",
                         help="place the target hole at the demos' goal pose (demos recorded elsewhere)")
@@ -61,7 +72,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", default="front", help="camera of --video (front, side, top, closeup, wrist)")
     parser.add_argument("--figure", type=Path,
                         help="write the demos / generated / executed figure of the chosen episodes here (PNG)")
+    parser.add_argument("--journal", type=Path,
+                        help="append each finished episode here (JSON Lines; default <json>.journal.jsonl with --json)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run recorded in --journal: only its missing episodes are run")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace existing outputs (--json, --video, --figure and the journal) of an earlier run")
+    parser.add_argument("--backend", choices=BACKENDS, default=d.backend,
+                        help="process: local worker processes (default); ray: Ray actors (pip install -e '.[cluster]')")
+    parser.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray on all cores)")
+    parser.add_argument("--unit-timeout", type=float, default=d.unit_timeout_s,
+                        help=f"wall-clock seconds per episode before its worker is killed and the episode "
+                             f"recorded 'wall_timeout'; 0 = no limit (default {d.unit_timeout_s:g})")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_task_arguments(parser)
+
+
+def evaluation_task_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """EvaluationConfig fields of the task options: the scene options given (else the demos'), and the
+    perturbations and force limit of --preset (default: the contact preset) with the options given."""
+    task = task_from_args(args)
+    scene = scene_given(args)
+    return {"clearance_m": scene.get("clearance_m"), "chamfer_m": scene.get("chamfer_m"),
+            "peg_mode": scene.get("peg_mode"), "grasp_force_n": scene.get("grasp_force_n"),
+            "perturbations": task.perturbations, "force_limit_n": task.force_limit_n}
 
 
 def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
@@ -69,8 +103,125 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
     return EvaluationConfig(
         episodes=args.episodes, seed=args.seed, mode=args.mode, pos_range_m=args.pos_range,
         rot_range_deg=args.rot_range, around=args.around, lookahead_s=args.lookahead, feedforward_gain=args.feedforward, speed=args.speed,
-        time_limit_s=args.time_limit, clearance_m=None if args.clearance is None else args.clearance * 1e-3,
-        shape=args.shape, hole_at_goal=args.hole_at_goal, workers=args.workers)
+        time_limit_s=args.time_limit, **evaluation_task_fields(args),
+        shape=args.shape, hole_at_goal=args.hole_at_goal, workers=args.workers,
+        unit_timeout_s=None if args.unit_timeout == 0 else args.unit_timeout, backend=args.backend,
+        ray_address=args.ray_address)
+
+
+def journal_path(args: argparse.Namespace) -> Path | None:
+    """--journal, or <json>.journal.jsonl beside --json, or None."""
+    if args.journal is not None:
+        return args.journal
+    return args.json.with_name(args.json.name + ".journal.jsonl") if args.json is not None else None
+
+
+def check_output(option: str, path: Path | None, suffix: str | None, may_replace: bool) -> None:
+    """An output path: its folder exists, the suffix is right, and it does not exist unless it may be replaced.
+
+    Raises:
+        EnvError: naming the option and the problem.
+    """
+    if path is None:
+        return
+    if suffix is not None and path.suffix.lower() != suffix:
+        raise EnvError(f"{option} {path}: must end in {suffix}")
+    if str(path.parent) and not path.parent.is_dir():
+        raise EnvError(f"{option} {path}: folder {path.parent} does not exist")
+    if path.is_dir():
+        raise EnvError(f"{option} {path} is a folder")
+    if path.exists() and not may_replace:
+        raise EnvError(f"{option} {path} already exists (use --overwrite to replace it)")
+
+
+def check_video_episodes(spec: str, episodes: int) -> None:
+    """--video-episodes is 'auto' or indices within the evaluation. Raises EnvError."""
+    if spec == "auto":
+        return
+    try:
+        chosen = [int(x) for x in spec.split(",") if x.strip()]
+    except ValueError:
+        raise EnvError(f"--video-episodes {spec!r} must be 'auto' or comma-separated integers") from None
+    bad = [i for i in chosen if not 0 <= i < episodes]
+    if bad or not chosen:
+        raise EnvError(f"--video-episodes {spec!r}: indices must lie in 0..{episodes - 1}")
+
+
+def check_camera(camera: str) -> None:
+    """--camera names a camera of the scene. Raises EnvError."""
+    import mujoco
+
+    from envs.scene import build_scene
+
+    model = build_scene().model
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) for i in range(model.ncam)]
+    if camera not in names:
+        raise EnvError(f"--camera {camera!r} is not a camera of the scene (available: {', '.join(names)})")
+
+
+def check_args(args: argparse.Namespace) -> EvaluationConfig:
+    """Every option, before any work: the config, the outputs, the journal, video and figure options.
+
+    Raises:
+        EnvError: naming the offending option.
+    """
+    if not (math.isfinite(args.unit_timeout) and args.unit_timeout >= 0.0):
+        raise EnvError(f"--unit-timeout {args.unit_timeout}: must be >= 0 seconds (0 = no limit)")
+    if args.ray_address is not None and args.backend != "ray":
+        raise EnvError("--ray-address needs --backend ray")
+    config = config_from_args(args)
+    if not args.model.is_dir():
+        raise EnvError(f"--model {args.model}: checkpoint folder not found")
+    if args.resume and args.overwrite:
+        raise EnvError("--resume continues an earlier run and --overwrite replaces it: choose one")
+    check_output("--json", args.json, ".json", args.overwrite or args.resume)
+    check_output("--video", args.video, ".mp4", args.overwrite)
+    check_output("--figure", args.figure, ".png", args.overwrite)
+    journal = journal_path(args)
+    if args.resume and journal is None:
+        raise EnvError("--resume needs the journal of the earlier run: give --journal or --json")
+    if journal is not None:
+        outputs = {p.resolve() for p in (args.json, args.video, args.figure) if p is not None}
+        if journal.resolve() in outputs:
+            raise EnvError(f"--journal {journal} is also another output")
+        if str(journal.parent) and not journal.parent.is_dir():
+            raise EnvError(f"--journal {journal}: folder {journal.parent} does not exist")
+        if args.resume and not journal.is_file():
+            raise EnvError(f"--resume: journal {journal} does not exist")
+        if journal.exists() and not (args.resume or args.overwrite):
+            raise EnvError(f"journal {journal} already exists: use --resume to continue that run, "
+                           "--overwrite to start again, or another --journal")
+    if args.video is not None or args.figure is not None:
+        check_video_episodes(args.video_episodes, config.episodes)
+    if args.video is not None:
+        check_camera(args.camera)
+    return config
+
+
+def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> EvaluationResult:
+    """`evaluate` with the run's journal (opened here; a new journal with no episode in it is removed again
+    when the evaluation fails before its first episode, so a bad input leaves nothing behind)."""
+    path = journal_path(args)
+    if path is None:
+        return evaluate(args.model, config, progress=not args.quiet)
+    journal = Journal.open(path, journal_run(args.model, config), resume=args.resume, overwrite=args.overwrite)
+    try:
+        return evaluate(args.model, config, progress=not args.quiet, journal=journal)
+    except BaseException:
+        journal.close()
+        if not args.resume and not journal.done():
+            path.unlink(missing_ok=True)
+        raise
+    finally:
+        journal.close()
+
+
+def resume_command(args: argparse.Namespace) -> str:
+    """The command line that continues this run."""
+    argv = [a for a in sys.argv[1:] if a not in ("--overwrite", "--resume")]
+    if not argv or argv[0] != "evaluate":
+        return f"the same command with --resume (journal {journal_path(args)})"
+    return shlex.join(["pih", *argv, "--resume"])
 
 
 def choose_episodes(result: EvaluationResult, spec: str, failures: int = 1) -> list[int]:
@@ -84,14 +235,8 @@ def choose_episodes(result: EvaluationResult, spec: str, failures: int = 1) -> l
         ok = [r.index for r in result.records if r.success][:3]
         bad = [r.index for r in result.records if not r.success and not r.reason.startswith("unreachable")]
         return sorted(ok + bad[:failures])
-    try:
-        chosen = [int(x) for x in spec.split(",") if x.strip()]
-    except ValueError:
-        raise EnvError(f"--video-episodes {spec!r} must be 'auto' or comma-separated integers") from None
-    bad_index = [i for i in chosen if not 0 <= i < n]
-    if bad_index:
-        raise EnvError(f"--video-episodes {bad_index} outside 0..{n - 1}")
-    return chosen
+    check_video_episodes(spec, n)
+    return [int(x) for x in spec.split(",") if x.strip()]
 
 
 def render_and_plot(model_dir: Path, config: EvaluationConfig, result: EvaluationResult, episodes: Sequence[int],
@@ -171,16 +316,25 @@ def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: S
 
 
 def main(args: argparse.Namespace) -> int:
-    """Run `pih evaluate`; returns the exit status (0 even when episodes fail: the record says so)."""
-    config = config_from_args(args)
-    if args.json is not None and str(args.json.parent) and not args.json.parent.is_dir():
-        raise EnvError(f"--json {args.json}: folder {args.json.parent} does not exist")
+    """Run `pih evaluate`; returns the exit status: 0 when every episode has a record (even failed ones:
+    the record says so), 3 when the batch is incomplete, 130 when interrupted."""
     wall = time.perf_counter()
-    result = evaluate(args.model, config, progress=not args.quiet)
+    config = check_args(args)
+    result = run_evaluation(args, config)
     if result.goal_mismatch_mm > GOAL_MISMATCH_WARN_MM:
         print(f"pih evaluate: warning: the skill's goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
               "for demos recorded elsewhere use --hole-at-goal", file=sys.stderr)
     print(result.summary_table())
+    if args.json is not None:
+        result.save_json(args.json)
+        print(f"wrote {args.json}")
+    if result.interrupted or not result.complete:
+        what = "interrupted" if result.interrupted else "incomplete"
+        print(f"pih evaluate: {what} after {len(result.records)} of {config.episodes} episodes", file=sys.stderr)
+        if journal_path(args) is not None:
+            print(f"pih evaluate: finished episodes are in {journal_path(args)}; continue with: {resume_command(args)}",
+                  file=sys.stderr)
+        return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
     chosen = choose_episodes(result, args.video_episodes)
     figure_episodes = choose_episodes(result, args.video_episodes, failures=0)
     if chosen == figure_episodes:
@@ -188,9 +342,6 @@ def main(args: argparse.Namespace) -> int:
     else:  # 'auto': the figure shows successes only, the video also the first failure
         extras = render_and_plot(args.model, config, result, chosen, args.video, None, args.camera)
         extras["figure"] = render_and_plot(args.model, config, result, figure_episodes, None, args.figure)["figure"]
-    if args.json is not None:
-        result.save_json(args.json)
-        print(f"wrote {args.json}")
     for key, episodes in (("video", chosen), ("figure", figure_episodes)):
         if extras[key]:
             print(f"wrote {extras[key]} (episodes {episodes})")

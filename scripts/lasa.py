@@ -1,26 +1,30 @@
-"""`pih lasa`: the Riemannian LASA benchmark (SPD matrices and unit quaternions), RiemannianFlow vs naive.
+"""`pih lasa`: the Riemannian LASA benchmark (SPD matrices and unit quaternions), the paper's four methods.
 
-    pih lasa --shape NShape --manifold spd [--method rflow|naive] [--json r.json] [--save-trajectories t.npz]
-    pih lasa --all --workers 2 --out runs/lasa          # 30 shapes x {spd, uq} x {rflow, naive}
+    pih lasa --shape NShape --manifold spd [--method rflow|naive|rgmm|fdm] [--json r.json] [--config best.json]
+    pih lasa --all --workers 2 --out runs/lasa          # 30 shapes x {spd, uq} x {rflow, naive, rgmm, fdm}
+    pih lasa --all --workers 2 --out runs/lasa --resume # continue an interrupted run
 
 One model per shape, manifold and method; each demo is reproduced from its first point and compared with
 DTW in the z-scored tangent space at the goal (averaged over the 4 demos) and the manifold distance.
+
+`--all` runs every (shape, manifold, method) as one unit of `batch.run_batch`: each finished unit is appended
+to OUT/journal.jsonl at once, so `--resume` skips them after a crash or Ctrl-C; a worker that dies or overruns
+`--unit-timeout` is recorded as a failed unit with its reason and the batch goes on. results.json says
+"complete": true only when every unit has a record; the exit status is 0 when every unit succeeded, 1 when
+some failed (their cells read "—" with the reason listed) and 130 when interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import dataclasses
 import json
-import math
-import multiprocessing
 import os
 import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -38,44 +42,73 @@ from rflow.lasa import (
 )
 from rflow.model import ModelConfig
 from rflow.train import TrainConfig
+from scripts.lasa_report import MANIFOLD_LABELS, METHOD_LABELS, gains, markdown_table, plot_comparison, plot_results
 
-MANIFOLD_LABELS = {"spd": "SPD", "uq": "UQ"}
+JOURNAL = "journal.jsonl"
+EXIT_FAILED_UNITS = 1
+EXIT_INTERRUPTED = 130
+_HYPERPARAMETERS = ("epochs", "layers", "lr", "batch_size")  # the options --config replaces
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih lasa`."""
     parser.add_argument("--shape", help=f"LASA shape, one of: {', '.join(LASA_SHAPES)}")
     parser.add_argument("--manifold", default="spd", help="spd (2x2 SPD matrices) or uq (unit quaternions); default spd")
-    parser.add_argument("--method", default="rflow", help="rflow (tangent space at the goal) or naive; default rflow")
+    parser.add_argument("--method", default="rflow", help=f"one of {', '.join(METHODS)}; default rflow")
     parser.add_argument("--json", type=Path, help="write the result of --shape as JSON")
     parser.add_argument("--save-trajectories", type=Path, metavar="FILE.npz",
                         help="write demos and generated trajectories of --shape (manifold and z-scored tangent)")
     parser.add_argument("--figure", type=Path, metavar="FILE.png", help="plot demos vs generated of --shape")
-    parser.add_argument("--all", action="store_true", help="run all 30 shapes x spd, uq x rflow, naive")
+    parser.add_argument("--all", action="store_true", help="run all 30 shapes x spd, uq x the four methods")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes for --all (default 1)")
-    parser.add_argument("--out", type=Path, help="output folder of --all: results.json, results.md, figures/")
+    parser.add_argument("--out", type=Path, help="output folder of --all: results.json, results.md, comparison.png, "
+                                                 "figures/, trajectories/, journal.jsonl")
+    parser.add_argument("--resume", action="store_true",
+                        help="--all: continue the run journalled in OUT (same options), skipping finished units")
+    parser.add_argument("--backend", default="process", help="--all: process (spawned workers, default) or ray")
+    parser.add_argument("--ray-address", metavar="HOST:PORT",
+                        help="--all --backend ray: join this Ray cluster (default: a local Ray instance)")
+    parser.add_argument("--unit-timeout", type=float, metavar="S",
+                        help="--all: record a run taking longer than S seconds as failed (default: no limit)")
     parser.add_argument("--shapes", help="comma-separated subset of shapes for --all (default all 30)")
     parser.add_argument("--manifolds", default="spd,uq", help="comma-separated manifolds for --all (default spd,uq)")
-    parser.add_argument("--methods", default="rflow,naive", help="comma-separated methods for --all (default rflow,naive)")
-    parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
+    parser.add_argument("--methods", default=",".join(METHODS),
+                        help=f"comma-separated methods for --all (default {','.join(METHODS)})")
+    parser.add_argument("--seed", type=int, default=0, help="training seed of rflow and naive (default 0)")
     parser.add_argument("--n-points", type=int, default=LASA_POINTS,
                         help=f"points per demo, evenly subsampled (default {LASA_POINTS}: the benchmark)")
+    parser.add_argument("--config", type=Path, metavar="FILE.json",
+                        help="training hyperparameters of rflow and naive from a config file (e.g. `pih search`'s "
+                             "best.json) instead of --epochs, --layers, --lr, --batch-size")
     defaults = TrainConfig()
-    parser.add_argument("--epochs", type=int, default=defaults.epochs, help=f"training epochs (default {defaults.epochs})")
-    parser.add_argument("--layers", type=int, default=defaults.model.layers,
-                        help=f"coupling layers (default {defaults.model.layers})")
-    parser.add_argument("--lr", type=float, default=defaults.lr, help=f"learning rate (default {defaults.lr:g})")
-    parser.add_argument("--batch-size", type=int, default=defaults.batch_size,
-                        help=f"transitions per step (default {defaults.batch_size})")
+    parser.add_argument("--epochs", type=int, help=f"training epochs (default {defaults.epochs})")
+    parser.add_argument("--layers", type=int, help=f"coupling layers (default {defaults.model.layers})")
+    parser.add_argument("--lr", type=float, help=f"learning rate (default {defaults.lr:g})")
+    parser.add_argument("--batch-size", type=int, help=f"transitions per step (default {defaults.batch_size})")
     parser.add_argument("--threads", type=int, default=1,
                         help="torch threads of a single-shape run (default 1: the networks are too small to gain; "
                              "--all always uses 1 per worker)")
     parser.add_argument("--progress", action="store_true", help="show the training progress bar (single shape)")
 
 
-def _config(args: argparse.Namespace, threads: int | None = None) -> TrainConfig:
-    return TrainConfig(model=ModelConfig(layers=args.layers), epochs=args.epochs, lr=args.lr,
-                       batch_size=args.batch_size, seed=args.seed, threads=threads)
+def train_config(args: argparse.Namespace, threads: int | None = None) -> TrainConfig:
+    """The TrainConfig of the options: --config FILE, or the hyperparameter options over rflow's defaults.
+
+    Raises:
+        RFlowError: --config together with a hyperparameter option, or an invalid file or value.
+    """
+    given = [name for name in _HYPERPARAMETERS if getattr(args, name) is not None]
+    if args.config is not None:
+        if given:
+            raise RFlowError(f"--config {args.config} replaces --{given[0].replace('_', '-')}: give one or the other")
+        from rflow.config_file import load_train_config
+
+        return dataclasses.replace(load_train_config(args.config), seed=args.seed, threads=threads)
+    d = TrainConfig()
+    return TrainConfig(model=ModelConfig(layers=d.model.layers if args.layers is None else args.layers),
+                       epochs=d.epochs if args.epochs is None else args.epochs, lr=d.lr if args.lr is None else args.lr,
+                       batch_size=d.batch_size if args.batch_size is None else args.batch_size, seed=args.seed,
+                       threads=threads)
 
 
 def _check_method(method: str) -> str:
@@ -90,6 +123,8 @@ def _split(text: str, check: Callable[[str], str], what: str) -> list[str]:
         raise RFlowError(f"--{what} is empty")
     for item in items:
         check(item)
+    if len(set(items)) != len(items):
+        raise RFlowError(f"--{what} {text}: an item is repeated")
     return items
 
 
@@ -132,6 +167,11 @@ def write_json(path: Path, record: Any) -> Path:
     return _atomic_write(path, lambda f: json.dump(record, f, indent=2, allow_nan=False))
 
 
+def save_figure(path: Path, figure: Any) -> Path:
+    """Atomically write a matplotlib figure as PNG."""
+    return _atomic_write(path, lambda f: figure.savefig(f, format="png", dpi=90), mode="wb")
+
+
 def save_trajectories(path: Path, result: ShapeResult) -> Path:
     """Atomically write the demos and generated trajectories of one result to an .npz file."""
     data = riemannian_lasa(result.shape, result.manifold, result.n_points)
@@ -142,129 +182,32 @@ def save_trajectories(path: Path, result: ShapeResult) -> Path:
     return _atomic_write(path, lambda f: np.savez(f, **arrays), mode="wb")
 
 
-# ---- figures -------------------------------------------------------------------------------------------
-def plot_results(path: Path, shape: str, results: Iterable[ShapeResult]) -> Path | None:
-    """Grid of 3-D plots (manifold x method) of z-scored tangent demos (grey) vs generated (colour), goal (star).
+# ---- batch units ---------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class BatchSetup:
+    """What every worker of `--all` needs: the training config, points per demo, and the output folder."""
 
-    Returns:
-        The PNG path, or None when no result of the shape has trajectories.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    panels = [r for r in results if r.error is None and r.generated_z is not None]
-    if not panels:
-        return None
-    panels.sort(key=lambda r: (r.manifold, METHODS.index(r.method)))
-    manifolds = sorted({r.manifold for r in panels})
-    methods = [m for m in METHODS if any(r.method == m for r in panels)]
-    fig = plt.figure(figsize=(4.2 * len(methods), 3.8 * len(manifolds)))
-    for r in panels:
-        index = manifolds.index(r.manifold) * len(methods) + methods.index(r.method) + 1
-        ax = fig.add_subplot(len(manifolds), len(methods), index, projection="3d")
-        for k, (demo, gen) in enumerate(zip(r.demos_z, r.generated_z)):
-            ax.plot(*demo.T, color="0.6", lw=1.0, label="demos" if k == 0 else None)
-            ax.plot(*gen.T, color=f"C{k}", lw=1.2, label="generated" if k == 0 else None)
-            ax.scatter(*demo[0], color="k", s=8)
-        ax.scatter(*r.demos_z[0, -1], color="k", marker="*", s=60, label="goal")
-        ax.set_title(f"{MANIFOLD_LABELS[r.manifold]} {r.method}: DTW {r.dtw:.1f}", fontsize=9)
-        ax.tick_params(labelsize=6)
-        if index == 1:
-            ax.legend(fontsize=7, loc="upper left")
-    fig.suptitle(f"{shape}: z-scored tangent space at the goal", fontsize=10)
-    fig.tight_layout()
-    try:
-        return _atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=90), mode="wb")
-    finally:
-        plt.close(fig)
+    config: TrainConfig
+    n_points: int
+    out: Path
 
 
-# ---- report --------------------------------------------------------------------------------------------
-def _get(results: dict[tuple[str, str, str], ShapeResult], key: tuple[str, str, str], attr: str) -> float:
-    r = results.get(key)
-    return math.nan if r is None or r.error is not None else float(getattr(r, attr))
+def unit_key(shape: str, manifold: str, method: str) -> str:
+    """Journal key of one benchmark run."""
+    return f"{shape}/{manifold}/{method}"
 
 
-def _fmt(value: float, digits: int) -> str:
-    return "—" if not math.isfinite(value) else f"{value:.{digits}f}"
+def trajectory_path(out: Path, shape: str, manifold: str, method: str) -> Path:
+    """Where `--all` keeps the trajectories of one run (for the figures, also after --resume)."""
+    return out / "trajectories" / f"{shape}_{manifold}_{method}.npz"
 
 
-def gains(results: Iterable[ShapeResult]) -> dict[str, dict[str, float]]:
-    """Mean DTW per manifold and method over the shapes where both methods succeeded, and the gain
-    100 (naive - rflow) / naive in % (the paper: 8.2 % SPD, 17.7 % UQ)."""
-    table = {(r.shape, r.manifold, r.method): r for r in results}
-    out: dict[str, dict[str, float]] = {}
-    for manifold in BENCHMARK_MANIFOLDS:
-        shapes = [s for s in LASA_SHAPES
-                  if all(math.isfinite(_get(table, (s, manifold, m), "dtw")) for m in METHODS)]
-        if not shapes:
-            continue
-        mean = {m: float(np.mean([_get(table, (s, manifold, m), "dtw") for s in shapes])) for m in METHODS}
-        out[manifold] = {"shapes": float(len(shapes)), "rflow": mean["rflow"], "naive": mean["naive"],
-                         "gain_percent": 100.0 * (mean["naive"] - mean["rflow"]) / mean["naive"]}
-    return out
-
-
-def _row(name: str, results: list[ShapeResult]) -> str:
-    """One table row: mean DTW and manifold distance per (manifold, method), mean times, over `results`."""
-    def mean(attr: str, manifold: str | None = None, method: str | None = None) -> float:
-        values = [getattr(r, attr) for r in results if r.error is None
-                  and manifold in (None, r.manifold) and method in (None, r.method)]
-        return float(np.mean(values)) if values else math.nan
-
-    combos = [(a, m) for a in BENCHMARK_MANIFOLDS for m in METHODS]
-    cells = [name] + [_fmt(mean("dtw", a, m), 1) for a, m in combos]
-    cells += [_fmt(mean("manifold_distance", a, m), 4) for a, m in combos]
-    cells += [_fmt(mean("train_time_s"), 1), _fmt(mean("generate_time_s"), 2)]
-    return "| " + " | ".join(cells) + " |"
-
-
-def markdown_table(results: list[ShapeResult], config: TrainConfig) -> str:
-    """The Markdown report: per-shape DTW and manifold distances of rflow/naive on SPD and UQ, times, means,
-    the gain of rflow over naive per manifold, and the failures."""
-    combos = [(a, m) for a in BENCHMARK_MANIFOLDS for m in METHODS]
-    head = (["Shape"] + [f"DTW {MANIFOLD_LABELS[a]} {m}" for a, m in combos]
-            + [f"dist {MANIFOLD_LABELS[a]} {m}" for a, m in combos] + ["train s", "generate s"])
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for shape in LASA_SHAPES:
-        subset = [r for r in results if r.shape == shape]
-        if subset:
-            lines.append(_row(shape, subset))
-    lines.append(_row("**mean**", results))
-    text = [
-        "# Riemannian LASA benchmark",
-        "",
-        "DTW: sum of Euclidean distances along the optimal warping path between each demo and the trajectory "
-        "generated from its first point, in the z-scored tangent space at the goal, mean of 4 demos. "
-        "dist: mean manifold distance along the sequence (Log-Euclidean for SPD, ||2 Log(q conj(q_hat))|| "
-        "in rad for UQ). train s / generate s: mean wall time per run of the shape. "
-        f"Training: {config.epochs} epochs, {config.model.layers} layers, lr {config.lr:g}, batch {config.batch_size}, "
-        f"seed {config.seed}.",
-        "",
-        *lines,
-        "",
-        "## Gain of RiemannianFlow over naive (mean DTW over the shapes where both succeeded)",
-        "",
-        "| manifold | shapes | rflow | naive | gain % | paper gain % |",
-        "|---|---|---|---|---|---|",
-    ]
-    paper = {"spd": 8.2, "uq": 17.7}
-    for manifold, g in gains(results).items():
-        text.append(f"| {MANIFOLD_LABELS[manifold]} | {int(g['shapes'])} | {g['rflow']:.1f} | {g['naive']:.1f} | "
-                    f"{g['gain_percent']:.1f} | {paper[manifold]} |")
-    failures = [r for r in results if r.error is not None]
-    if failures:
-        text += ["", "## Failures", ""] + [f"- {r.shape} {r.manifold} {r.method}: {r.error}" for r in failures]
-    return "\n".join(text) + "\n"
-
-
-# ---- batch ---------------------------------------------------------------------------------------------
-def _init_worker() -> None:
+def init_worker(setup: BatchSetup) -> BatchSetup:
+    """Per worker: one torch thread (the networks are small; the workers share the cores)."""
     import torch
 
     torch.set_num_threads(1)
+    return setup
 
 
 def run_job(shape: str, manifold: str, method: str, config: TrainConfig, n_points: int) -> ShapeResult:
@@ -272,78 +215,124 @@ def run_job(shape: str, manifold: str, method: str, config: TrainConfig, n_point
     try:
         return evaluate_shape(shape, manifold, config, config.seed, method, n_points)
     except Exception as err:  # noqa: BLE001 - a failing shape is recorded, never aborts the batch
-        return failed_result(shape, manifold, method, config, n_points, err)
+        return failed_result(shape, manifold, method, config, n_points, f"{type(err).__name__}: "
+                             + (" ".join(str(err).split()) or type(err).__name__))
+
+
+def work_unit(setup: BatchSetup, unit: tuple[str, str, str]) -> dict[str, Any]:
+    """One unit of `--all`: run, save the trajectories of a successful run, return the JSON record."""
+    shape, manifold, method = unit
+    result = run_job(shape, manifold, method, setup.config, setup.n_points)
+    if result.error is None:
+        path = trajectory_path(setup.out, shape, manifold, method)
+        _atomic_write(path, lambda f: np.savez(f, demos_z=result.demos_z, generated_z=result.generated_z), mode="wb")
+    return result.to_dict()
 
 
 def failed_result(shape: str, manifold: str, method: str, config: TrainConfig, n_points: int,
-                  err: BaseException) -> ShapeResult:
-    """A `ShapeResult` with NaN metrics and the error as one line."""
-    message = " ".join(str(err).split()) or type(err).__name__
+                  reason: str) -> ShapeResult:
+    """A `ShapeResult` with NaN metrics and the reason of the failure."""
     return ShapeResult(shape=shape, manifold=manifold, method=method, seed=config.seed, n_points=n_points,
-                       epochs=config.epochs, error=f"{type(err).__name__}: {message}")
+                       epochs=config.epochs, error=reason)
 
 
-def _collect(futures: dict, results: list[ShapeResult], record: Callable[[], None], start: float, total: int,
-             out: Path, manifolds: list[str], methods: list[str]) -> None:
-    """Gather finished runs: append, rewrite results.json, print a line, plot a shape once all its runs are in."""
-    for future in concurrent.futures.as_completed(futures):
-        shape, manifold, method, config, n_points = futures[future]
-        try:
-            result = future.result()
-        except Exception as err:  # noqa: BLE001 - e.g. a worker killed by the OS
-            result = failed_result(shape, manifold, method, config, n_points, err)
-        results.append(result)
-        record()
-        print(f"[{len(results)}/{total} {time.perf_counter() - start:.0f} s] {summary_line(result)}", flush=True)
-        done = {(r.manifold, r.method) for r in results if r.shape == shape}
-        if all((a, m) in done for a in manifolds for m in methods):
-            try:
-                plot_results(out / "figures" / f"{shape}.png", shape, [r for r in results if r.shape == shape])
-            except Exception as err:  # noqa: BLE001 - a figure never aborts the batch
-                print(f"figure of {shape} failed: {type(err).__name__}: {err}", file=sys.stderr)
+def _failure_record(setup: BatchSetup) -> Callable[[str, Any, str], dict]:
+    def failure(key: str, unit: tuple[str, str, str], reason: str) -> dict:
+        return failed_result(*unit, setup.config, setup.n_points, reason).to_dict()
+
+    return failure
+
+
+def _figure(out: Path, shape: str, results: list[ShapeResult]) -> None:
+    """The per-shape figure from the saved trajectories of its successful runs (never aborts the batch)."""
+    try:
+        panels = []
+        for r in results:
+            path = trajectory_path(out, r.shape, r.manifold, r.method)
+            if r.error is None and path.is_file():
+                with np.load(path) as arrays:
+                    panels.append((r, arrays["demos_z"], arrays["generated_z"]))
+        plot_results(out / "figures" / f"{shape}.png", shape, panels, save_figure)
+    except Exception as err:  # noqa: BLE001 - a figure never aborts the batch
+        print(f"figure of {shape} failed: {type(err).__name__}: {err}", file=sys.stderr)
 
 
 def run_all(args: argparse.Namespace) -> int:
-    """Run the benchmark grid in parallel processes; write results.json, results.md and figures."""
+    """Run the benchmark grid as journalled batch units; write results.json, results.md and the figures."""
+    from batch import BatchConfig, BatchError, Journal, run_batch
+
     if args.out is None:
         raise RFlowError("--all needs --out DIR")
-    if args.workers < 1:
-        raise RFlowError(f"--workers {args.workers}: need at least 1")
     shapes = _split(args.shapes, check_shape, "shapes") if args.shapes else list(LASA_SHAPES)
     manifolds = [_manifold_name(m) for m in _split(args.manifolds, check_manifold, "manifolds")]
     methods = _split(args.methods, _check_method, "methods")
-    config = _config(args)
+    config = train_config(args)
+    if args.n_points < 2 or args.n_points > LASA_POINTS:
+        raise RFlowError(f"--n-points {args.n_points}: expected 2..{LASA_POINTS}")
+    try:
+        batch_config = BatchConfig(workers=args.workers, unit_timeout_s=args.unit_timeout, backend=args.backend,
+                                   ray_address=args.ray_address)
+    except BatchError as err:
+        raise RFlowError(str(err).replace("workers=", "--workers ").replace("unit_timeout_s=", "--unit-timeout ")
+                         .replace("backend=", "--backend ").replace("ray_address=", "--ray-address ")) from None
     out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise RFlowError(f"--out {out} exists and is not a folder")
+    if not args.resume and (out / JOURNAL).exists():
+        raise RFlowError(f"--out {out} holds a run already ({JOURNAL}): add --resume, or choose another folder")
+    units = [(unit_key(s, a, m), (s, a, m)) for s in shapes for a in manifolds for m in methods]
+    run = {"command": "lasa", "shapes": shapes, "manifolds": manifolds, "methods": methods,
+           "n_points": args.n_points, "config": dataclasses.asdict(config)}
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [(s, man, m) for s in shapes for man in manifolds for m in methods]
-    results: list[ShapeResult] = []
+    try:
+        journal = Journal.open(out / JOURNAL, run, resume=args.resume)
+    except BatchError as err:
+        raise RFlowError(str(err)) from None
+    setup = BatchSetup(config=config, n_points=args.n_points, out=out)
+    results: dict[str, ShapeResult] = {k: ShapeResult.from_dict(r) for k, r in journal.done().items()}
     start = time.perf_counter()
+    if results:
+        print(f"resuming: {len(results)} of {len(units)} runs already in {out / JOURNAL}", flush=True)
 
-    def record() -> None:
+    def write_results(complete: bool) -> None:
+        ordered = [results[k] for k, _ in units if k in results]
         write_json(out / "results.json", {
-            "config": dataclasses.asdict(config), "n_points": args.n_points, "complete": len(results) == len(jobs),
-            "gains": gains(results), "results": [r.to_dict() for r in results],
+            "config": dataclasses.asdict(config), "n_points": args.n_points, "complete": complete,
+            "runs": len(units), "finished": len(ordered), "failed": sum(r.error is not None for r in ordered),
+            "gains": {m: gains(ordered, m) for m in methods if m != "rflow"},
+            "results": [r.to_dict() for r in ordered],
         })
 
-    context = multiprocessing.get_context("spawn")  # no forked torch thread pools
-    with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context, initializer=_init_worker) as pool:
-        futures = {pool.submit(run_job, s, man, m, config, args.n_points): (s, man, m, config, args.n_points)
-                   for s, man, m in jobs}
+    def on_record(key: str, record: dict) -> None:
+        result = ShapeResult.from_dict(record)
+        results[key] = result
+        write_results(complete=False)
+        print(f"[{len(results)}/{len(units)} {time.perf_counter() - start:.0f} s] {summary_line(result)}", flush=True)
+        shape_keys = [unit_key(result.shape, a, m) for a in manifolds for m in methods]
+        if all(k in results for k in shape_keys):
+            _figure(out, result.shape, [results[k] for k in shape_keys])
+
+    with journal:
         try:
-            _collect(futures, results, record, start, len(jobs), out, manifolds, methods)
-        except BaseException:  # e.g. Ctrl-C: drop the queued runs; results.json keeps the finished ones
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
-    order = {key: i for i, key in enumerate(jobs)}
-    results.sort(key=lambda r: order[(r.shape, r.manifold, r.method)])
-    record()
-    _atomic_write(out / "results.md", lambda f: f.write(markdown_table(results, config)))
-    failed = sum(r.error is not None for r in results)
-    summary = "; ".join(f"{MANIFOLD_LABELS[a]} rflow {g['rflow']:.1f} vs naive {g['naive']:.1f} "
-                        f"({g['gain_percent']:+.1f} %)" for a, g in gains(results).items())
-    print(f"wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'figures'}: {len(results)} runs, "
-          f"{failed} failed, {time.perf_counter() - start:.0f} s. Mean DTW: {summary or 'n/a'}")
-    return 0
+            outcome = run_batch(units, setup, init_worker, work_unit, _failure_record(setup), batch_config, journal,
+                                on_record)
+        except BatchError as err:
+            raise RFlowError(str(err)) from None
+    results = {k: ShapeResult.from_dict(r) for k, r in outcome.records.items()}
+    complete = outcome.complete and not outcome.interrupted
+    write_results(complete)
+    ordered = [results[k] for k, _ in units if k in results]
+    _atomic_write(out / "results.md", lambda f: f.write(markdown_table(ordered, config)))
+    plot_comparison(out / "comparison.png", ordered, save_figure)
+    failed = sum(r.error is not None for r in ordered)
+    means = "; ".join(f"{MANIFOLD_LABELS[a]} {METHOD_LABELS[m]} {g[m]:.1f} vs RiemannianFlow {g['rflow']:.1f}"
+                      for m in methods if m != "rflow" for a, g in gains(ordered, m).items())
+    print(f"wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'comparison.png'}: {len(ordered)} of "
+          f"{len(units)} runs, {failed} failed, {time.perf_counter() - start:.0f} s. Mean DTW: {means or 'n/a'}")
+    if outcome.interrupted:
+        print(f"interrupted: {len(units) - len(ordered)} runs left; continue with --resume", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return EXIT_FAILED_UNITS if failed else 0
 
 
 def run_one(args: argparse.Namespace) -> int:
@@ -353,18 +342,18 @@ def run_one(args: argparse.Namespace) -> int:
     shape = check_shape(args.shape)
     manifold = _manifold_name(args.manifold)
     method = _check_method(args.method)
+    config = train_config(args, args.threads)
     for option in ("json", "save_trajectories", "figure"):
         path = getattr(args, option)
         if path is not None and path.parent != Path("") and not path.parent.is_dir():
             raise RFlowError(f"--{option.replace('_', '-')} {path}: folder {path.parent} does not exist")
-    result = evaluate_shape(shape, manifold, _config(args, args.threads), args.seed, method, args.n_points,
-                            progress=args.progress)
+    result = evaluate_shape(shape, manifold, config, args.seed, method, args.n_points, progress=args.progress)
     if args.json is not None:
         write_json(args.json, result.to_dict())
     if args.save_trajectories is not None:
         save_trajectories(args.save_trajectories, result)
     if args.figure is not None:
-        plot_results(args.figure, shape, [result])
+        plot_results(args.figure, shape, [(result, result.demos_z, result.generated_z)], save_figure)
     print(summary_line(result))
     return 0
 

@@ -21,6 +21,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from envs.errors import EnvError  # noqa: E402
 
+RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "episodes.mp4", "summary.json")
+"""What `pih run` writes into runs/<name>/; a folder holding anything else is not replaced."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih run`."""
@@ -56,7 +59,9 @@ def main(args: argparse.Namespace) -> int:
 
     if not args.name or "/" in args.name or args.name in (".", ".."):
         raise EnvError(f"--name {args.name!r} must be a plain folder name")
+    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers)  # validated first
     out = args.root / args.name
+    check_run_folder(out)
     out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     wall = time.perf_counter()
@@ -77,15 +82,19 @@ def main(args: argparse.Namespace) -> int:
     _step("2/4 training the position and orientation models")
     t0 = time.perf_counter()
     overrides = {} if args.epochs is None else {"epochs": args.epochs}
-    model_dir = train_skill(demo_path, out / "model", skill_train_config(**overrides), subsample=args.subsample)
+    model_dir = train_skill(demo_path, out / "model", skill_train_config(**overrides), subsample=args.subsample,
+                            overwrite=True)  # this run's own checkpoint (a foreign folder there is refused)
     timings["train_s"] = time.perf_counter() - t0
 
     _step(f"3/4 evaluating {args.episodes} perturbed starts (closed loop, {args.workers} workers)")
     t0 = time.perf_counter()
-    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers)
     result = evaluate(model_dir, config)
     result.save_json(out / "eval.json")
     timings["evaluate_s"] = time.perf_counter() - t0
+    if result.interrupted or not result.complete:
+        print(f"pih run: evaluation {'interrupted' if result.interrupted else 'incomplete'} after "
+              f"{len(result.records)} of {config.episodes} episodes (see {out / 'eval.json'})")
+        return 130 if result.interrupted else 3
 
     _step("4/4 figures and video")
     t0 = time.perf_counter()
@@ -104,10 +113,38 @@ def main(args: argparse.Namespace) -> int:
                "success_rate": result.success_rate, "success_rate_ci95": [low, high],
                "episodes": len(result.records), "timings": timings, "video": extras["video"],
                "figure": extras["figure"], "load_average_1min": os.getloadavg()[0]}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json_atomic(out / "summary.json", summary)
     print()
     print(result.summary_table())
     print(f"{'files':<30}  {out}/ (demos.npz, model/, eval.json, skill.png, outcomes.png"
           f"{', episodes.mp4' if extras['video'] else ''}, summary.json)")
     print("timings (s)".ljust(30) + "  " + ", ".join(f"{k[:-2]} {v:.0f}" for k, v in timings.items()))
     return 0
+
+
+def check_run_folder(out: Path) -> None:
+    """runs/<name> may be (re)written only when it is new or holds nothing but `pih run` outputs.
+
+    Raises:
+        EnvError: naming what in the folder `pih run` did not write.
+    """
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise EnvError(f"run folder {out} is a file")
+    foreign = sorted(p.name for p in out.iterdir()  # outputs and their temporary names (".eval.json.tmp-1", "model.tmp-x")
+                     if not any(p.name.lstrip(".").startswith(name) for name in RUN_OUTPUTS))
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
+        raise EnvError(f"run folder {out} holds files `pih run` did not write ({shown}): choose another --name")
+
+
+def write_json_atomic(path: Path, value: Any) -> Path:
+    """Write ``value`` as JSON to a temporary file beside ``path`` (mode per umask) and rename it into place."""
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps(value, indent=2))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from rflow.stiffness import StiffnessBounds
+
 DEFAULT_SUBSAMPLE = 10
 """Demo samples kept: every 10th (M = 4000 -> 400, dt ~17.5 ms); generation steps are exact for any dt."""
 DEFAULT_LOG_SCALE_CLAMP = 0.5
@@ -31,6 +33,8 @@ plans with a jump over 0.5 m/s or 2 rad/s and 25 more than 1 deg off at the hole
 jumps, none off by 1 deg, and the best lateral precision at the opening (90th percentile 0.14-0.16 mm vs 0.20
 mm at 0 and 0.30 mm at 1, a stronger prior trading fit near the goal for tameness)."""
 PREVIEW_SAMPLES = 400
+STIFFNESS_SOURCES = ("expert", "variability")
+DEFAULT_BOUNDS = StiffnessBounds()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,9 +43,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     d = TrainConfig()
     parser.add_argument("--demos", required=True, help="demo file (.npz) from `pih demos` or the same schema")
-    parser.add_argument("--out", required=True, help="checkpoint directory to write (replaced atomically)")
+    parser.add_argument("--out", required=True,
+                        help="checkpoint directory to write (built beside it and renamed into place); an earlier "
+                             "checkpoint there is replaced only with --overwrite, anything else never")
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier checkpoint at --out")
     parser.add_argument("--joint", action="store_true",
                         help="one joint 6-D model on R^3 x S^3 instead of separate position and orientation models")
+    parser.add_argument("--stiffness", choices=STIFFNESS_SOURCES,
+                        help="also learn the translational stiffness, in one joint 12-D model on R^3 x S^3 x SPD(3): "
+                             "'expert' = the stiffness recorded in the demo file, 'variability' = alpha (Sigma + eps "
+                             "I)^-1 from the demos' spread (rflow.stiffness)")
+    parser.add_argument("--k-min", type=float, default=DEFAULT_BOUNDS.k_min_n_m,
+                        help=f"--stiffness: smallest eigenvalue of the commanded stiffness, N/m "
+                             f"(default {DEFAULT_BOUNDS.k_min_n_m:g})")
+    parser.add_argument("--k-max", type=float, default=DEFAULT_BOUNDS.k_max_n_m,
+                        help=f"--stiffness: largest eigenvalue of the commanded stiffness, N/m "
+                             f"(default {DEFAULT_BOUNDS.k_max_n_m:g})")
     parser.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs (default {d.epochs})")
     parser.add_argument("--subsample", type=int, default=DEFAULT_SUBSAMPLE,
                         help=f"keep every k-th demo sample, counted from the goal (default {DEFAULT_SUBSAMPLE})")
@@ -65,6 +82,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1,
                         help="torch threads (default 1: deterministic and polite on a shared 2-core machine)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--config", metavar="FILE.json",
+                        help="training hyperparameters from a config file (e.g. `pih search`'s best.json) instead of "
+                             "the hyperparameter options; --seed and --threads still apply")
 
 
 def skill_train_config(**overrides: Any) -> Any:
@@ -80,9 +100,16 @@ def skill_train_config(**overrides: Any) -> Any:
 
 
 def train_config_from_args(args: argparse.Namespace) -> Any:
-    """The rflow TrainConfig of the parsed options."""
+    """The rflow TrainConfig of the parsed options (or of --config FILE, with the options' seed and threads)."""
     from rflow.model import ModelConfig
     from rflow.train import TrainConfig
+
+    if getattr(args, "config", None) is not None:
+        import dataclasses
+
+        from rflow.config_file import load_train_config
+
+        return dataclasses.replace(load_train_config(args.config), seed=args.seed, threads=args.threads)
 
     model = ModelConfig(layers=args.layers, width=args.width, log_scale_clamp=args.log_scale_clamp)
     return TrainConfig(model=model, epochs=args.epochs, lr=args.lr, prior_weight=args.prior_weight,
@@ -91,28 +118,66 @@ def train_config_from_args(args: argparse.Namespace) -> Any:
                        threads=args.threads)
 
 
+def demo_stiffness(demos: Any, source: str, bounds: StiffnessBounds, demos_path: str | Path) -> np.ndarray:
+    """The demos' stiffness (N, M, 3, 3) from ``source``: "expert" (recorded in the file) or "variability"
+    (rflow.stiffness.variability_stiffness, one profile for all demos).
+
+    Raises:
+        EnvError: "expert" and the file has no stiffness. RFlowError: unknown source, too few demos.
+    """
+    from envs.errors import EnvError
+    from rflow.errors import RFlowError
+    from rflow.stiffness import VariabilityConfig, variability_stiffness
+
+    if source == "expert":
+        if demos.stiffness is None:
+            raise EnvError(f"--stiffness expert: demo file {demos_path} has no 'stiffness' (record it with the "
+                           "scripted expert, or use --stiffness variability)")
+        return np.asarray(demos.stiffness, dtype=np.float64)
+    if source == "variability":
+        profile = variability_stiffness(demos.pos, VariabilityConfig(bounds=bounds))
+        return np.broadcast_to(profile, demos.pos.shape[:2] + (3, 3)).copy()
+    raise RFlowError(f"unknown stiffness source {source!r}; expected one of {STIFFNESS_SOURCES}")
+
+
 def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joint: bool = False,
-                subsample: int = DEFAULT_SUBSAMPLE, progress: bool = True) -> Path:
+                subsample: int = DEFAULT_SUBSAMPLE, progress: bool = True, stiffness: str | None = None,
+                bounds: StiffnessBounds = DEFAULT_BOUNDS, overwrite: bool = False) -> Path:
     """Load demos, train the skill, write the checkpoint directory (see the module docstring).
+
+    With ``stiffness`` ("expert" or "variability", see `demo_stiffness`) the skill is one joint model on
+    R^3 x S^3 x SPD(3) whatever ``joint`` says, and skill.json's metadata["stiffness"] also records the
+    source and the Log-Euclidean distance of the stiffness generated from each demo's start to the
+    demo's (rflow.skill_io.stiffness_reproduction).
 
     Returns:
         The checkpoint directory.
 
     Raises:
-        EnvError: unreadable or invalid demo file. RFlowError: training failures, bad subsampling.
+        EnvError: unreadable or invalid demo file (as strictly as `pih evaluate`: shape, clearance and the
+            recorded scene must make a valid scene), "expert" stiffness missing from it.
+        RFlowError: ``out`` holds something other than a checkpoint, or a checkpoint without ``overwrite``
+            (checked before training); training failures, bad subsampling, stiffness outside ``bounds``.
     """
     from envs.demo_file import load_demos
     from envs.execution.figures import plot_loss
-    from rflow.skill_io import file_sha256, fit_pose_skill, save_skill, subsample as take_every
+    from rflow.skill_io import check_checkpoint_target, file_sha256, fit_pose_skill, save_skill, stiffness_reproduction, subsample as take_every
     cfg = skill_train_config() if config is None else config
+    check_checkpoint_target(out, overwrite)
     demos = load_demos(demos_path)
+    check_demo_scene(demos, demos_path)
     pos, quat = take_every(demos.pos, subsample), take_every(demos.quat, subsample)
+    k = None if stiffness is None else take_every(demo_stiffness(demos, stiffness, bounds, demos_path), subsample)
     dt = demos.dt * subsample
     wall = time.perf_counter()
-    skill = fit_pose_skill(pos, quat, dt, cfg, "joint" if joint else "separate", progress)
+    skill = fit_pose_skill(pos, quat, dt, cfg, "joint" if joint or k is not None else "separate", progress,
+                           stiffness=k, bounds=bounds)
     train_s = time.perf_counter() - wall
     scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None
+    if k is not None:
+        skill.metadata["stiffness"].update(source=stiffness, **stiffness_reproduction(skill, pos, quat, k))
     skill.metadata = {
+        **skill.metadata,  # the stiffness record of a stiffness skill
         "shape": demos.shape,
         "clearance_m": demos.clearance_m,
         "demo_file": str(Path(demos_path).resolve()),
@@ -137,19 +202,43 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
 
     histories = {name: rec["history"] for name, rec in skill.training.items()}
     extra = {"demos.npz": write_preview, "loss.png": lambda path: plot_loss(histories, path)}
-    return save_skill(out, skill, extra)
+    return save_skill(out, skill, extra, overwrite=overwrite)
+
+
+def check_demo_scene(demos: Any, demos_path: str | Path) -> None:
+    """The demos' shape, clearance and recorded scene must make the scene `pih evaluate` would build.
+
+    Raises:
+        EnvError: naming the demo file and the problem (unknown shape, clearance <= 0 or out of range, ...).
+    """
+    from envs.errors import EnvError
+    from envs.execution.evaluate import EvaluationConfig, scene_config_for
+    from envs.poses import Pose
+
+    scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None
+    metadata = {"shape": demos.shape, "clearance_m": demos.clearance_m, "scene": scene}
+    try:
+        scene_config_for(metadata, EvaluationConfig(), Pose(pos=demos.goal_pos, quat=demos.goal_quat))
+    except (EnvError, TypeError, ValueError) as err:
+        raise EnvError(f"demo file {demos_path}: {err}") from None
 
 
 def main(args: argparse.Namespace) -> int:
     """Run `pih train`."""
     wall = time.perf_counter()
+    bounds = StiffnessBounds(args.k_min, args.k_max)
     out = train_skill(args.demos, args.out, train_config_from_args(args), args.joint, args.subsample,
-                      progress=not args.quiet)
+                      progress=not args.quiet, stiffness=args.stiffness, bounds=bounds, overwrite=args.overwrite)
     record = json.loads((out / "skill.json").read_text())
     losses = {name: rec["history"]["train_loss"][-1] for name, rec in record["training"].items()}
     print(f"wrote {out} ({record['layout']}: "
           + ", ".join(f"{n} loss {v:.3f}" for n, v in losses.items())
           + f") in {time.perf_counter() - wall:.1f} s")
+    rec = record["metadata"].get("stiffness")
+    if rec:
+        print(f"stiffness ({rec['source']}): mean Log-Euclidean distance of generated to demonstrated profiles "
+              f"{rec['log_euclidean_mean']:.3f} (per demo " + ", ".join(f"{d:.3f}" for d in rec["log_euclidean_per_demo"])
+              + f"); eigenvalue clip acted on {100 * rec['clip_fraction']:.2f} % of generated samples")
     return 0
 
 

@@ -1,7 +1,5 @@
 """Tests of rflow.metrics: DTW against similaritymeasures, RMSE, final error, manifold distances."""
 
-import time
-
 import numpy as np
 import pytest
 import similaritymeasures
@@ -30,15 +28,11 @@ def test_dtw_of_identical_curves_is_zero() -> None:
     assert dtw(a, a) == 0.0
 
 
-def test_dtw_is_fast_for_1000_points() -> None:
+def test_dtw_equals_similaritymeasures_for_1000_points() -> None:
+    """Long anti-diagonals of unequal length (its speed is `pih bench`'s business, not a test's)."""
     rng = np.random.default_rng(1)
-    a, b = rng.normal(size=(1000, 3)), rng.normal(size=(1000, 3))
-    timings = []
-    for _ in range(3):
-        start = time.perf_counter()
-        dtw(a, b)
-        timings.append(time.perf_counter() - start)
-    assert min(timings) < 0.1
+    a, b = rng.normal(size=(1000, 3)), rng.normal(size=(300, 3))
+    assert dtw(a, b) == pytest.approx(similaritymeasures.dtw(a, b)[0], rel=1e-12)
 
 
 @pytest.mark.parametrize(

@@ -72,7 +72,7 @@ def test_failed_writer_leaves_nothing_behind(skill, tmp_path):
 def test_failed_overwrite_keeps_the_old_checkpoint(skill, tmp_path):
     save_skill(tmp_path / "ck", skill)
     with pytest.raises(OSError):
-        save_skill(tmp_path / "ck", skill, {"x": lambda path: (_ for _ in ()).throw(OSError("no"))})
+        save_skill(tmp_path / "ck", skill, {"x": lambda path: (_ for _ in ()).throw(OSError("no"))}, overwrite=True)
     assert load_skill(tmp_path / "ck").layout == "separate"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ck"]
 

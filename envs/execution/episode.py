@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import time
 import traceback
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -19,17 +19,24 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.execution.policy import feedforward_pose
+from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
 
 FloatArray = npt.NDArray[np.float64]
 
+CONTACT_THRESHOLD_N: float = 1.0
+"""An episode "touched" the walls when the peak contact force on the peg exceeded this."""
+
+
 @dataclass(frozen=True)
 class StartPose:
-    """A perturbed start: episode index, the demo it was drawn around, and the pose."""
+    """A perturbed start: episode index, the demo it was drawn around, the pose, and the episode's task
+    perturbation (hole-pose error, grasp offset; envs.perturbation)."""
 
     index: int
     demo_index: int
     pose: Pose
+    perturbation: Perturbation = field(default_factory=Perturbation)
 
 
 @dataclass
@@ -41,13 +48,21 @@ class EpisodeRecord:
         demo_index: the demo whose start was perturbed (-1: the mean demo start).
         start_pos, start_quat: start pose (m; w, x, y, z).
         success: the physics check declared success.
-        reason: "success", "time_limit (...)", "instability: ...", "unreachable start: ...", "error: ...".
+        reason: "success", "time_limit (...)", "force_limit (...)", "instability: ...", "unreachable start: ...",
+            "error: ...".
+        perturbation: the episode's hole-pose error and grasp offset (mm, deg).
         time_to_insert_s: simulated time until success (None on failure).
-        final_pos_error_mm: ||p_final - g_p|| against the scene's goal.
-        final_angle_error_deg: angle between the final and the goal orientation.
+        final_pos_error_mm: ||p_final - g_p|| against the real (perturbed) hole's goal.
+        final_angle_error_deg: angle between the final and the real goal orientation.
         insertion_depth_mm: depth of the peg_tip below the target hole's opening (negative above).
         lateral_error_mm, tilt_deg: peg_tip distance from the hole axis and peg tilt at the end.
-        max_contact_force_n: largest contact force magnitude on the peg over the episode.
+        wall_penetration_mm: how far the peg would have to sink into the walls at the end (<= 0: inside).
+        grasp_shift_mm: |peg_tip - tcp| at the end: grasp offset plus slip and tilt in the grasp.
+        peak_contact_force_n: largest sum of the environment's normal-force magnitudes on the peg (1 kHz).
+        peak_single_contact_n: largest single contact normal force on the peg.
+        touched: peak_contact_force_n > CONTACT_THRESHOLD_N.
+        peak_wrist_force_n, median_wrist_force_n: |F| of the wrist F/T sensor (zeroed for the tool load).
+        peak_wrist_torque_nm, median_wrist_torque_nm: |tau| of the wrist F/T sensor.
         final_pos, final_quat: measured peg_tip pose at the end.
         steps: control steps run.
         wall_s: wall-clock seconds.
@@ -59,13 +74,22 @@ class EpisodeRecord:
     start_quat: list[float]
     success: bool = False
     reason: str = "not run"
+    perturbation: dict[str, float] = field(default_factory=dict)
     time_to_insert_s: float | None = None
     final_pos_error_mm: float = float("nan")
     final_angle_error_deg: float = float("nan")
     insertion_depth_mm: float = float("nan")
     lateral_error_mm: float = float("nan")
     tilt_deg: float = float("nan")
-    max_contact_force_n: float = float("nan")
+    wall_penetration_mm: float = float("nan")
+    grasp_shift_mm: float = float("nan")
+    peak_contact_force_n: float = float("nan")
+    peak_single_contact_n: float = float("nan")
+    touched: bool = False
+    peak_wrist_force_n: float = float("nan")
+    median_wrist_force_n: float = float("nan")
+    peak_wrist_torque_nm: float = float("nan")
+    median_wrist_torque_nm: float = float("nan")
     final_pos: list[float] | None = None
     final_quat: list[float] | None = None
     steps: int = 0
@@ -119,32 +143,30 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
         (EpisodeRecord, EpisodeTrace or None).
     """
     wall = time.perf_counter()
-    rec = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist())
+    rec = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
+                        perturbation=start.perturbation.to_dict())
     rows: list[tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, float]] = []
     try:
         try:
-            obs = env.reset(start_pose=start.pose)
+            obs = env.reset(start_pose=start.pose, perturbation=start.perturbation)
         except EnvError as err:
             rec.reason = f"unreachable start: {err}"
             return rec, None
         period = env.control_period_s
-        policy.reset(obs.peg_tip, period)
-        max_force = float(np.linalg.norm(obs.wrench[:3]))
-        rows.append((obs.time_s, obs.peg_tip.pos, obs.peg_tip.quat, obs.peg_tip.pos, obs.peg_tip.quat, max_force))
+        policy.reset(obs.tcp, period)
+        rows.append((obs.time_s, obs.peg_tip.pos, obs.peg_tip.quat, obs.tcp.pos, obs.tcp.quat, obs.contact_force_n))
         if on_step is not None:
             on_step(env)
         step = 0
         result = None
         while not env.done:
-            command = policy.command(step, env.observation.peg_tip)
+            command = policy.command(step, env.observation.tcp)
             target = feedforward_pose(env, command, feedforward_gain)
             result = env.step(target)
             step += 1
-            force = float(np.linalg.norm(result.obs.wrench[:3]))
-            max_force = max(max_force, force)
             if record_trace:
                 o = result.obs
-                rows.append((o.time_s, o.peg_tip.pos, o.peg_tip.quat, target.pos, target.quat, force))
+                rows.append((o.time_s, o.peg_tip.pos, o.peg_tip.quat, target.pos, target.quat, o.contact_force_n))
             if on_step is not None:
                 on_step(env)
         obs = env.observation
@@ -157,7 +179,8 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
         else:
             reason = env.reason or "not inserted"
             rec.reason = (f"{reason} (depth {ins.depth_m * 1e3:.1f} mm, lateral {ins.lateral_m * 1e3:.2f} mm, "
-                          f"tilt {ins.tilt_deg:.1f} deg, yaw {ins.yaw_error_deg:.1f} deg, hole {obs.hole})")
+                          f"tilt {ins.tilt_deg:.1f} deg, yaw {ins.yaw_error_deg:.1f} deg, "
+                          f"speed {ins.speed_m_s * 1e3:.1f} mm/s, hole {obs.hole})")
         rec.final_pos = obs.peg_tip.pos.tolist()
         rec.final_quat = obs.peg_tip.quat.tolist()
         rec.final_pos_error_mm = float(np.linalg.norm(obs.peg_tip.pos - env.goal.pos) * 1e3)
@@ -165,7 +188,11 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
         rec.insertion_depth_mm = float(ins.depth_m * 1e3)
         rec.lateral_error_mm = float(ins.lateral_m * 1e3)
         rec.tilt_deg = float(ins.tilt_deg)
-        rec.max_contact_force_n = max_force
+        rec.wall_penetration_mm = float(ins.wall_penetration_m * 1e3)
+        rec.grasp_shift_mm = float(np.linalg.norm(obs.peg_tip.pos - obs.tcp.pos) * 1e3)
+        for key, value in env.stats.summary().items():
+            setattr(rec, key, float("nan") if value is None else float(value))
+        rec.touched = bool(rec.peak_contact_force_n > CONTACT_THRESHOLD_N)
     except Exception as err:  # an episode must never abort the batch
         last = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         where = f" at {Path(last.filename).name}:{last.lineno}" if last else ""

@@ -8,6 +8,11 @@ demo drawn uniformly ("demo": harder, it reaches up to 15 deg past the demos' ow
 Defaults: +-5 cm, +-15 deg. All starts come from one generator seeded with ``seed``, drawn before any
 episode runs, so the result does not depend on the number of workers.
 
+Batch. Episodes are the units of a `batch.run_batch`: in this process, in spawned worker processes or on
+Ray; each finished record goes into the run's journal (if any) as it ends, so an interrupted evaluation
+resumes from it with the same result. A worker that dies or an episode over ``unit_timeout_s`` of wall
+time is recorded as a failed episode with reason "worker_died" or "wall_timeout".
+
 Episode. The arm is put at the start with mink IK (PegInHoleEnv.reset; an unreachable or colliding start
 is recorded as a failure with its reason, not raised), then each control period the policy
 (envs.execution.policy) commands a peg_tip pose to the impedance controller. Success is the physics-based check of
@@ -22,7 +27,6 @@ from __future__ import annotations
 
 import json
 import math
-import multiprocessing
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -32,9 +36,13 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from batch import BatchConfig, BatchError, Journal, run_batch
 from envs.jsonable import to_jsonable
 from envs.errors import EnvError
+from envs.perturbation import PerturbationRanges, sample_perturbation
 from envs.poses import Pose, StartRegion, format_pose, mean_quat, sample_start_poses
+from envs.sorter import check_chamfer, check_clearance
+from envs.task import DEFAULT_PRESET, PRESETS
 from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose, run_episode
 from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES, make_policy
 
@@ -79,9 +87,17 @@ class EvaluationConfig:
         speed: time scaling of the learned flow (the same path, speed times as fast), both modes.
         time_limit_s: an episode without success ends (fails) after this much simulated time.
         clearance_m: hole clearance of the scene (None: the demos').
+        chamfer_m, peg_mode, grasp_force_n: the scene's chamfer, peg mount and grasp force (None: the demos').
+        perturbations: per-episode hole-pose error and grasp offset ranges (envs.perturbation), drawn from a
+            generator seeded with (seed, 1), apart from the start poses, so the starts do not depend on them.
+        force_limit_n: wrist force limit of an episode (N; inf: none).
         shape: the scene's peg/hole shape (None: the demos'); must equal the demos' shape.
         hole_at_goal: place the target hole at the skill's goal pose (demos from another setup).
-        workers: processes (1: in this process).
+        workers: processes (1: in this process) or Ray actors.
+        unit_timeout_s: wall-clock seconds one episode may take before its worker is killed and the episode
+            recorded "wall_timeout" (None: no limit).
+        backend: "process" (local processes) or "ray".
+        ray_address: HOST:PORT of a Ray cluster (None: a local Ray instance on all cores).
     """
 
     episodes: int = 100
@@ -95,9 +111,17 @@ class EvaluationConfig:
     speed: float = 1.0
     time_limit_s: float = 20.0
     clearance_m: float | None = None
+    chamfer_m: float | None = None
+    peg_mode: str | None = None
+    grasp_force_n: float | None = None
+    perturbations: PerturbationRanges = field(default_factory=lambda: PRESETS[DEFAULT_PRESET].perturbations)
+    force_limit_n: float = PRESETS[DEFAULT_PRESET].force_limit_n
     shape: str | None = None
     hole_at_goal: bool = False
     workers: int = 1
+    unit_timeout_s: float | None = 300.0
+    backend: str = "process"
+    ray_address: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.episodes, int) or self.episodes < 1:
@@ -120,17 +144,34 @@ class EvaluationConfig:
             raise EnvError(f"speed={self.speed!r} must be > 0")
         if not (np.isfinite(self.feedforward_gain) and self.feedforward_gain >= 0.0):
             raise EnvError(f"feedforward_gain={self.feedforward_gain!r} must be >= 0")
-        if self.clearance_m is not None and not (np.isfinite(self.clearance_m) and self.clearance_m > 0.0):
-            raise EnvError(f"clearance_m={self.clearance_m!r} must be > 0")
+        if self.clearance_m is not None:
+            check_clearance(self.clearance_m)
+        if self.chamfer_m is not None:
+            check_chamfer(self.chamfer_m)
+        if not isinstance(self.perturbations, PerturbationRanges):
+            raise EnvError(f"perturbations={self.perturbations!r} must be a PerturbationRanges")
+        if not (isinstance(self.force_limit_n, (int, float)) and not math.isnan(self.force_limit_n)
+                and self.force_limit_n > 0.0):
+            raise EnvError(f"force_limit_n={self.force_limit_n!r} must be > 0 (inf: no limit)")
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
+        try:
+            self.batch_config()
+        except BatchError as err:
+            raise EnvError(str(err)) from None
+
+    def batch_config(self) -> BatchConfig:
+        """How the episodes run as a batch (workers, wall-time limit, backend)."""
+        return BatchConfig(workers=self.workers, unit_timeout_s=self.unit_timeout_s, backend=self.backend,
+                           ray_address=self.ray_address)
 
 
 # --------------------------------------------------------------------------------------------- set-up
 
 
 def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike, num: int, seed: int,
-                  pos_range_m: float, rot_range_deg: float, around: str = "mean") -> list[StartPose]:
+                  pos_range_m: float, rot_range_deg: float, around: str = "mean",
+                  perturbations: PerturbationRanges = PerturbationRanges()) -> list[StartPose]:
     """Perturbed start poses around the demos' starts (module docstring).
 
     Args:
@@ -140,6 +181,8 @@ def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike,
         seed: generator seed.
         pos_range_m, rot_range_deg: perturbation box half-width and ball radius.
         around: "mean" (the mean demo start; demo_index -1) or "demo" (a random demo's start).
+        perturbations: ranges of each episode's hole-pose error and grasp offset, drawn from a second
+            generator seeded with (seed, 1) so that the start poses do not depend on them.
 
     Raises:
         EnvError: malformed demo starts.
@@ -154,12 +197,14 @@ def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike,
         raise EnvError(f"around={around!r} must be one of {', '.join(AROUND)}")
     region = StartRegion(pos_half_width_m=(pos_range_m,) * 3, max_angle_deg=rot_range_deg)
     rng = np.random.default_rng(seed)
+    task_rng = np.random.default_rng([seed, 1])
     mean = Pose(pos=p.mean(axis=0), quat=mean_quat(q))
     starts = []
     for k in range(num):
         n = int(rng.integers(p.shape[0])) if around == "demo" else -1
         centre = Pose(pos=p[n], quat=q[n] / np.linalg.norm(q[n])) if n >= 0 else mean
-        starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0]))
+        starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0],
+                                sample_perturbation(perturbations, task_rng)))
     return starts
 
 
@@ -184,6 +229,12 @@ def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: P
     for key in ("goal_pos", "goal_yaw_deg", "hole_depth_m", "insertion_depth_m"):
         if key in recorded and recorded[key] is not None:
             kwargs[key] = tuple(recorded[key]) if isinstance(recorded[key], list) else recorded[key]
+    for key in ("chamfer_m", "peg_mode", "grasp_force_n"):  # the demos' scene unless overridden
+        value = getattr(config, key)
+        if value is None:
+            value = recorded.get(key)
+        if value is not None:
+            kwargs[key] = value
     clearance = config.clearance_m if config.clearance_m is not None else metadata.get("clearance_m")
     if clearance is not None:
         kwargs["clearance_m"] = float(clearance)
@@ -198,7 +249,7 @@ def check_goal_reachable(env: Any) -> None:
     from controllers.ik import solve_ik
 
     try:
-        solve_ik(env.model, env.peg_tip_site, env.goal.pos, env.goal.quat, env.q_nominal, env.config.ik)
+        solve_ik(env.arm_model, "tcp", env.goal.pos, env.goal.quat, env.q_nominal, env.config.ik)
     except ControllerError as err:
         raise EnvError(f"the goal pose {format_pose(env.goal)} is out of the arm's reach ({err})") from None
 
@@ -218,6 +269,8 @@ class EvaluationResult:
     metadata: dict[str, Any] = field(default_factory=dict)
     scene: dict[str, Any] = field(default_factory=dict)
     goal_mismatch_mm: float = 0.0
+    complete: bool = True
+    interrupted: bool = False
 
     @property
     def num_success(self) -> int:
@@ -257,8 +310,14 @@ class EvaluationResult:
             "median_final_pos_error_mm": med(r.final_pos_error_mm for r in self.records),
             "median_final_angle_error_deg": med(r.final_angle_error_deg for r in self.records),
             "median_insertion_depth_mm": med(r.insertion_depth_mm for r in self.records),
-            "median_max_contact_force_n": med(r.max_contact_force_n for r in self.records),
-            "max_contact_force_n": top(r.max_contact_force_n for r in self.records),
+            "contact_rate": sum(r.touched for r in self.records) / max(len(self.records), 1),
+            "median_peak_contact_force_n": med(r.peak_contact_force_n for r in self.records),
+            "max_peak_contact_force_n": top(r.peak_contact_force_n for r in self.records),
+            "max_single_contact_n": top(r.peak_single_contact_n for r in self.records),
+            "median_peak_wrist_force_n_successes": med(r.peak_wrist_force_n for r in ok),
+            "max_peak_wrist_force_n_successes": top(r.peak_wrist_force_n for r in ok),
+            "median_peak_wrist_force_n": med(r.peak_wrist_force_n for r in self.records),
+            "median_peak_wrist_torque_nm": med(r.peak_wrist_torque_nm for r in self.records),
             "failures_by_kind": kinds,
             "median_episode_wall_s": med(r.wall_s for r in self.records),
         }
@@ -268,6 +327,8 @@ class EvaluationResult:
         low, high = self.interval
         return {
             "model": self.model_dir,
+            "complete": self.complete,
+            "interrupted": self.interrupted,
             "config": asdict(self.config),
             "scene": self.scene,
             "skill": self.metadata,
@@ -311,7 +372,12 @@ class EvaluationResult:
             ("final position error (median)", fmt(s["median_final_pos_error_mm"], "mm")),
             ("final angle error (median)", fmt(s["median_final_angle_error_deg"], "deg")),
             ("insertion depth (median)", fmt(s["median_insertion_depth_mm"], "mm", 1)),
-            ("max contact force (median/max)", f"{fmt(s['median_max_contact_force_n'], 'N', 1)} / {fmt(s['max_contact_force_n'], 'N', 1)}"),
+            ("episodes touching a wall", f"{100 * s['contact_rate']:.0f} % (peak contact force > 1 N)"),
+            ("peak contact force (median/max)",
+             f"{fmt(s['median_peak_contact_force_n'], 'N', 1)} / {fmt(s['max_peak_contact_force_n'], 'N', 1)}"),
+            ("peak wrist force, successes (median/max)",
+             f"{fmt(s['median_peak_wrist_force_n_successes'], 'N', 1)} / "
+             f"{fmt(s['max_peak_wrist_force_n_successes'], 'N', 1)}"),
             ("failures", ", ".join(f"{k}: {v}" for k, v in s["failures_by_kind"].items()) or "none"),
             ("wall time", f"{self.wall_s:.1f} s ({self.config.workers} worker(s))"),
         ]
@@ -342,31 +408,71 @@ def build_setup(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
     skill = load_skill(model_dir)
     goal = Pose(pos=skill.goal_pos, quat=skill.goal_quat)
     scene_config = scene_config_for(skill.metadata, config, goal)
-    env = PegInHoleEnv(scene_config, episode_config=EpisodeConfig(time_limit_s=config.time_limit_s))
+    env = PegInHoleEnv(scene_config, episode_config=EpisodeConfig(time_limit_s=config.time_limit_s,
+                                                                  force_limit_n=config.force_limit_n))
     if config.hole_at_goal:
         check_goal_reachable(env)
     policy = make_policy(skill, config.mode, config.lookahead_s, config.time_limit_s, config.speed)
     return skill, env, policy
 
 
-_WORKER: dict[str, Any] = {}
-"""Per-process state of a pool worker (env, policy), set once by `_init_worker` in that process only."""
-
-
-def _init_worker(setup: _Setup) -> None:
+def _init_worker(setup: _Setup) -> dict[str, Any]:
+    """Worker context: the environment and policy of ``setup`` (torch on one thread per worker)."""
     import torch
 
     torch.set_num_threads(1)
     _, env, policy = build_setup(setup.model_dir, setup.config)
-    _WORKER.update(env=env, policy=policy, gain=setup.config.feedforward_gain)
+    return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain}
 
 
-def _run_in_worker(start: StartPose) -> EpisodeRecord:
-    return run_episode(_WORKER["env"], _WORKER["policy"], start, feedforward_gain=_WORKER["gain"])[0]
+def _run_unit(context: dict[str, Any], start: StartPose) -> dict[str, Any]:
+    """The record (as a dict) of one episode."""
+    return run_episode(context["env"], context["policy"], start, feedforward_gain=context["gain"])[0].to_dict()
+
+
+def _failed_unit(key: str, start: StartPose, reason: str) -> dict[str, Any]:
+    """The record of an episode that produced none ("worker_died", "wall_timeout", "error: ...")."""
+    return EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
+                         reason=reason).to_dict()
+
+
+def record_from_dict(values: dict[str, Any]) -> EpisodeRecord:
+    """An EpisodeRecord from its ``to_dict`` (as read back from JSON); keys it does not know are dropped, so
+    journals and files of other versions of the record still load. None stands for NaN.
+
+    Raises:
+        EnvError: a field without a default is missing.
+    """
+    from dataclasses import fields
+
+    known = {f.name for f in fields(EpisodeRecord)}
+    try:
+        return EpisodeRecord(**{k: v for k, v in values.items() if k in known})
+    except TypeError as err:
+        raise EnvError(f"episode record {values.get('index', '?')} is incomplete: {err}") from None
+
+
+def journal_run(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> dict[str, Any]:
+    """What identifies an evaluation for its journal: the checkpoint (path and skill.json checksum) and
+    every config field that changes a record (not workers, backend, address or the wall-time limit).
+
+    Raises:
+        RFlowError: no skill.json in ``model_dir``.
+    """
+    from rflow.errors import RFlowError
+    from rflow.skill_io import SKILL_FILE, file_sha256
+
+    try:
+        checksum = file_sha256(Path(model_dir) / SKILL_FILE)
+    except OSError:
+        raise RFlowError(f"no {SKILL_FILE} in checkpoint {model_dir} (not a `pih train` output?)") from None
+    settings = {k: v for k, v in asdict(config).items() if k not in ("workers", "unit_timeout_s", "backend", "ray_address")}
+    return {"task": "pih evaluate", "model": str(model_dir), "skill_sha256": checksum, "config": settings}
 
 
 def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = EvaluationConfig(),
-             progress: bool = True, starts: Sequence[StartPose] | None = None) -> EvaluationResult:
+             progress: bool = True, starts: Sequence[StartPose] | None = None,
+             journal: Journal | None = None) -> EvaluationResult:
     """Run ``config.episodes`` episodes of the skill in ``model_dir`` and collect the records.
 
     Args:
@@ -374,12 +480,16 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
         config: the evaluation.
         progress: tqdm bar.
         starts: explicit start poses (default: `sample_starts` from the skill's demo starts).
+        journal: episodes already in it are not run again; new records are appended as they finish
+            (open it with `journal_run(model_dir, config)` as the run).
 
     Returns:
-        EvaluationResult (records sorted by episode index).
+        EvaluationResult (records sorted by episode index; ``complete`` False and ``interrupted`` True
+        after Ctrl-C / SIGTERM, with the episodes finished so far).
 
     Raises:
         RFlowError / EnvError: bad checkpoint, shape mismatch, unreachable goal with hole_at_goal.
+        BatchError: Ray unreachable, or workers that cannot build the environment.
     """
     from tqdm import tqdm
 
@@ -393,35 +503,35 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
             raise EnvError(f"checkpoint {model_dir} has no demo start poses (metadata 'demo_starts')")
         starts = sample_starts(meta_starts["pos"], meta_starts["quat"], config.episodes, config.seed,
                                config.pos_range_m, config.rot_range_deg, config.around)
-    bar = tqdm(total=len(starts), desc=f"evaluate ({config.mode})", unit="ep", disable=not progress, leave=False)
-    records: list[EpisodeRecord] = []
-    workers = min(config.workers, len(starts))
-    try:
-        if workers <= 1:
-            import torch
+    batch = config.batch_config()
+    in_process = batch.backend == "process" and batch.workers == 1
+    here = {"env": env, "policy": policy, "gain": config.feedforward_gain}
+    del env, policy  # workers build their own
+    done = journal.done() if journal is not None else {}
+    bar = tqdm(total=len(starts), initial=sum(str(s.index) in done for s in starts), desc=f"evaluate ({config.mode})",
+               unit="ep", disable=not progress, leave=False)
+    successes = [sum(bool(done[str(s.index)].get("success")) for s in starts if str(s.index) in done)]
 
-            threads = torch.get_num_threads()
-            torch.set_num_threads(1)
-            try:
-                for start in starts:
-                    records.append(run_episode(env, policy, start, feedforward_gain=config.feedforward_gain)[0])
-                    bar.update(1)
-                    bar.set_postfix(success=f"{sum(r.success for r in records)}/{len(records)}")
-            finally:
-                torch.set_num_threads(threads)
-        else:
-            del env, policy
-            ctx = multiprocessing.get_context("spawn")
-            with ctx.Pool(workers, initializer=_init_worker, initargs=(_Setup(str(model_dir), config),)) as pool:
-                for rec in pool.imap_unordered(_run_in_worker, starts):
-                    records.append(rec)
-                    bar.update(1)
-                    bar.set_postfix(success=f"{sum(r.success for r in records)}/{len(records)}")
+    def on_record(key: str, record: dict[str, Any]) -> None:
+        successes[0] += bool(record.get("success"))
+        bar.update(1)
+        bar.set_postfix(success=f"{successes[0]}/{bar.n}")
+
+    import torch
+
+    threads = torch.get_num_threads()
+    if in_process:
+        torch.set_num_threads(1)
+    try:
+        outcome = run_batch([(str(s.index), s) for s in starts], _Setup(str(model_dir), config),
+                            (lambda _: here) if in_process else _init_worker, _run_unit, _failed_unit, batch,
+                            journal, on_record)
     finally:
+        torch.set_num_threads(threads)
         bar.close()
-    records.sort(key=lambda r: r.index)
+    records = sorted((record_from_dict(r) for r in outcome.records.values()), key=lambda r: r.index)
     return EvaluationResult(config, records, time.perf_counter() - wall, str(model_dir), skill.metadata,
-                            to_jsonable(asdict(env_scene)), goal_mismatch_mm)
+                            to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted)
 
 
 def replay_episodes(model_dir: str | os.PathLike[str], config: EvaluationConfig, starts: Sequence[StartPose],
@@ -462,6 +572,8 @@ __all__ = [
     "build_setup",
     "check_goal_reachable",
     "evaluate",
+    "journal_run",
+    "record_from_dict",
     "replay_episodes",
     "run_episode",
     "sample_starts",

@@ -22,6 +22,16 @@ to the commanded pose (position + world rotation vector), with xi_d the flow's t
 differences over the step (v = dp/dt, omega = rotvec(q1 conj(q0))/dt).
 
 Measured quaternions are put on the goal's hemisphere first (q and -q are the same orientation).
+
+Stiffness (issue #10). A skill trained with `pih train --stiffness` is one joint model on R^3 x S^3 x SPD(3)
+that also generates the translational stiffness K (3x3, N/m, world frame). Closed loop, the pose part is
+queried at the measured pose as above, while K is the model's own state (it is not measured): it starts at
+the skill's start stiffness and is integrated alongside, one exact flow step of the control period (times
+``speed``) per control step from [measured pose, K]. Open loop, K is generated with the trajectory. Either
+way the commanded K is the generated one with its eigenvalues clipped to the skill's [k_min, k_max]
+(`PoseSkill.bound_stiffness`, counted in ``stiffness_clipped_steps``). `StiffnessSetting` chooses between
+that learned stiffness, a constant isotropic K, or none (the controller's default); `full_stiffness` makes
+the 6x6 matrix for env.step.
 """
 
 from __future__ import annotations
@@ -55,12 +65,64 @@ class Command:
         anchor: the pose the feed-forward lead is added to (closed loop: the measured pose, so the arm
             moves at the flow's twist from where it is; open loop: the plan's pose).
         accel: (6,) [a (m/s^2); alpha (rad/s^2)] of the skill there, for inertia feed-forward.
+        stiffness: (3, 3) translational stiffness to command (N/m, world frame, SPD), or None for the
+            controller's default; pass ``full_stiffness(stiffness, k_rot)`` to env.step.
     """
 
     pose: Pose
     twist: FloatArray
     anchor: Pose
     accel: FloatArray = field(default_factory=lambda: np.zeros(6))
+    stiffness: FloatArray | None = None
+
+
+STIFFNESS_KINDS: tuple[str, ...] = ("learned", "constant")
+
+
+@dataclass(frozen=True)
+class StiffnessSetting:
+    """Which translational stiffness a policy commands: "learned" (the skill's) or "constant" (K I, N/m)."""
+
+    kind: str
+    constant_n_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in STIFFNESS_KINDS:
+            raise EnvError(f"stiffness kind {self.kind!r} must be one of {', '.join(STIFFNESS_KINDS)}")
+        if self.kind == "constant" and not (np.isfinite(self.constant_n_m) and self.constant_n_m > 0.0):
+            raise EnvError(f"constant stiffness {self.constant_n_m!r} N/m must be a positive finite number")
+
+    @classmethod
+    def parse(cls, text: str) -> "StiffnessSetting":
+        """"learned" or "constant:K" (K in N/m, > 0). Raises EnvError naming the text."""
+        if text == "learned":
+            return cls("learned")
+        kind, _, value = str(text).partition(":")
+        if kind != "constant" or not value:
+            raise EnvError(f"stiffness {text!r} must be 'learned' or 'constant:K' with K in N/m")
+        try:
+            k = float(value)
+        except ValueError:
+            raise EnvError(f"stiffness {text!r}: K={value!r} is not a number of N/m") from None
+        if not (np.isfinite(k) and k > 0.0):
+            raise EnvError(f"stiffness {text!r}: K must be a positive finite number of N/m")
+        return cls("constant", k)
+
+    def check_skill(self, skill: PoseSkill) -> None:
+        """Raise EnvError when "learned" is asked of a skill without a stiffness model."""
+        if self.kind == "learned" and not skill.has_stiffness:
+            raise EnvError("stiffness 'learned' needs a skill trained with `pih train --stiffness ...`")
+
+
+def full_stiffness(k_trans: npt.ArrayLike, k_rot: float | npt.ArrayLike) -> FloatArray:
+    """The 6x6 Cartesian stiffness [[K_t, 0], [0, K_r]] (N/m, N m/rad) for env.step, from the translational
+    block K_t (3, 3) and the rotational block K_r (a scalar: K_r I, e.g. the controller's default
+    ImpedanceConfig.rotational_stiffness; or (3, 3))."""
+    k = np.zeros((6, 6))
+    k[:3, :3] = np.asarray(k_trans, dtype=np.float64)
+    rot = np.asarray(k_rot, dtype=np.float64)
+    k[3:, 3:] = rot * np.eye(3) if rot.ndim == 0 else rot
+    return k
 
 
 def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.ArrayLike, dt: float) -> FloatArray:
@@ -77,7 +139,8 @@ def on_goal_hemisphere(quat: npt.ArrayLike, goal_quat: npt.ArrayLike) -> FloatAr
     return q * sign[..., None]
 
 
-def skill_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, horizon_s: float) -> tuple[FloatArray, FloatArray]:
+def skill_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, horizon_s: float,
+               stiffness: npt.ArrayLike | None = None) -> tuple[FloatArray, FloatArray]:
     """The pose ``horizon_s`` later along the learned flow from (pos, quat), batched or single.
 
     Args:
@@ -85,12 +148,24 @@ def skill_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, horizo
         pos: (3,) or (B, 3) peg_tip positions, m.
         quat: (4,) or (B, 4) unit quaternions (either hemisphere).
         horizon_s: flow time to advance (s), > 0.
+        stiffness: a stiffness skill's current stiffness state (3, 3) or (B, 3, 3) (default: the goal's).
 
     Returns:
         (pos, quat) of the same shapes.
 
     Raises:
         EnvError: NaN or malformed poses, horizon <= 0.
+    """
+    pos1, quat1, _ = skill_state_step(skill, pos, quat, stiffness, horizon_s)
+    return pos1, quat1
+
+
+def skill_state_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, stiffness: npt.ArrayLike | None,
+                     horizon_s: float) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """`skill_step` that also advances a stiffness skill's stiffness state: (pos, quat, stiffness or None).
+
+    Raises:
+        EnvError: NaN or malformed poses or stiffness, horizon <= 0.
     """
     if not (np.isfinite(horizon_s) and horizon_s > 0.0):
         raise EnvError(f"flow horizon {horizon_s} s must be > 0")
@@ -99,10 +174,9 @@ def skill_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, horizo
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     try:
         if skill.layout == "joint":
-            x = next_point(skill.models["joint"], np.concatenate([p, q], axis=-1), horizon_s)
-            return x[..., :3], x[..., 3:]
+            return skill.split_point(next_point(skill.models["joint"], skill.joint_point(p, q, stiffness), horizon_s))
         return (next_point(skill.models["position"], p, horizon_s),
-                next_point(skill.models["orientation"], q, horizon_s))
+                next_point(skill.models["orientation"], q, horizon_s), None)
     except RFlowError as err:
         raise EnvError(f"cannot query the skill at pos {p.tolist()}, quat {q.tolist()}: {err}") from None
 
@@ -116,12 +190,17 @@ class Plan:
         pos: (K, 3) positions, m.
         quat: (K, 4) unit quaternions on the goal's hemisphere.
         tangent: (K, 6) [p - g_p, Log_g(q)].
+        stiffness: (K, 3, 3) generated translational stiffness clipped to the skill's bounds (N/m), or None
+            for a skill without stiffness.
+        stiffness_clipped: (K,) where that clip acted (None without stiffness).
     """
 
     period_s: float
     pos: FloatArray
     quat: FloatArray
     tangent: FloatArray
+    stiffness: FloatArray | None = None
+    stiffness_clipped: npt.NDArray[np.bool_] | None = None
 
     @property
     def times_s(self) -> FloatArray:
@@ -130,11 +209,12 @@ class Plan:
 
 
 def generate_plan(skill: PoseSkill, start: Pose, duration_s: float, period_s: float,
-                  xi_pos_m: float = 1e-4, xi_rot_rad: float = 1e-4) -> Plan:
+                  xi_pos_m: float = 1e-4, xi_rot_rad: float = 1e-4, start_stiffness: npt.ArrayLike | None = None) -> Plan:
     """Generate the skill's trajectory from ``start`` (Algorithm 1, exact latent steps of ``period_s``).
 
     Each model stops at its own threshold (``xi_pos_m`` on ||p - g_p||, ``xi_rot_rad`` on ||Log_g(q)||;
-    the joint model stops on ||tangent|| < min of both) and then holds its goal.
+    the joint model stops on ||tangent|| < min of both) and then holds its goal. A stiffness skill starts
+    its stiffness at ``start_stiffness`` (default: the skill's start stiffness).
 
     Args:
         skill: the trained skill.
@@ -153,33 +233,60 @@ def generate_plan(skill: PoseSkill, start: Pose, duration_s: float, period_s: fl
     steps = int(round(duration_s / period_s))
     quat0 = on_goal_hemisphere(start.quat, skill.goal_quat)
     try:
+        stiffness = clipped = None
         if skill.layout == "joint":
-            r = rollout(skill.models["joint"], np.concatenate([start.pos, quat0])[None], steps,
+            k0 = (skill.start_stiffness if start_stiffness is None else start_stiffness) if skill.has_stiffness else None
+            r = rollout(skill.models["joint"], skill.joint_point(start.pos, quat0, k0)[None], steps,
                         min(xi_pos_m, xi_rot_rad), period_s)
-            pos, quat = r.points[0, :, :3], r.points[0, :, 3:]
+            pos, quat, stiffness = skill.split_point(r.points[0])
+            if stiffness is not None:
+                stiffness, clipped = skill.bound_stiffness(stiffness)
         else:
             pos = rollout(skill.models["position"], start.pos[None], steps, xi_pos_m, period_s).points[0]
             quat = rollout(skill.models["orientation"], quat0[None], steps, xi_rot_rad, period_s).points[0]
     except RFlowError as err:
         raise EnvError(f"cannot generate a plan from pos {start.pos.tolist()}: {err}") from None
     quat = on_goal_hemisphere(quat, skill.goal_quat)
-    return Plan(period_s, pos, quat, skill.to_tangent(pos, quat))
+    return Plan(period_s, pos, quat, skill.to_tangent(pos, quat), stiffness, clipped)
+
+
+def _commanded_stiffness(setting: StiffnessSetting | None, learned: FloatArray | None) -> FloatArray | None:
+    """The translational stiffness a policy commands: the learned (already bounded) one, K I, or None."""
+    if setting is None:
+        return None
+    if setting.kind == "constant":
+        return setting.constant_n_m * np.eye(3)
+    return None if learned is None else learned.copy()
 
 
 class ClosedLoopPolicy:
-    """Command the flow's pose ``lookahead_s`` ahead of the measured peg_tip pose (module docstring)."""
+    """Command the flow's pose ``lookahead_s`` ahead of the measured peg_tip pose (module docstring).
 
-    def __init__(self, skill: PoseSkill, lookahead_s: float = DEFAULT_LOOKAHEAD_S, speed: float = 1.0):
+    For a stiffness skill the stiffness state K is integrated alongside (module docstring) whatever
+    ``stiffness`` commands, since the joint model's pose part is conditioned on it.
+    """
+
+    def __init__(self, skill: PoseSkill, lookahead_s: float = DEFAULT_LOOKAHEAD_S, speed: float = 1.0,
+                 stiffness: StiffnessSetting | None = None):
         if not (np.isfinite(lookahead_s) and lookahead_s > 0.0):
             raise EnvError(f"lookahead {lookahead_s} s must be > 0")
         if not (np.isfinite(speed) and speed > 0.0):
             raise EnvError(f"speed factor {speed} must be > 0")
+        if stiffness is not None:
+            stiffness.check_skill(skill)
         self.skill = skill
         self.lookahead_s = float(lookahead_s)
         self.speed = float(speed)
+        self.stiffness = stiffness
+        self.stiffness_state: FloatArray | None = None
+        self.stiffness_clipped_steps = 0
+        self._flow_period_s = 0.0
 
     def reset(self, start: Pose, period_s: float) -> None:
-        """Start an episode (nothing to precompute in closed loop)."""
+        """Start an episode: the stiffness state (stiffness skills) starts at the skill's start stiffness."""
+        self._flow_period_s = float(period_s) * self.speed
+        self.stiffness_state = self.skill.start_stiffness if self.skill.has_stiffness else None
+        self.stiffness_clipped_steps = 0
 
     def command(self, step: int, measured: Pose) -> Command:
         """Target for control step ``step`` (from 0) given the measured peg_tip pose x: the flow's pose
@@ -187,15 +294,22 @@ class ClosedLoopPolicy:
         x_2 = Phi(2L) x (xi_1 = (x_1 - x)/L, xi_2 = (x_2 - x_1)/L, a = (xi_2 - xi_1)/L, xi = xi_1 - a L/2),
         both time-scaled by ``speed`` (xi * s, a * s^2)."""
         step_s = self.lookahead_s
-        p1, q1 = skill_step(self.skill, measured.pos, measured.quat, step_s)
-        p2, q2 = skill_step(self.skill, p1, q1, step_s)
+        k = self.stiffness_state
+        p1, q1, k1 = skill_state_step(self.skill, measured.pos, measured.quat, k, step_s)
+        p2, q2 = skill_step(self.skill, p1, q1, step_s, k1)
         q1 = q1 / np.linalg.norm(q1)
         here = Pose(pos=np.asarray(measured.pos, dtype=np.float64), quat=on_goal_hemisphere(measured.quat, q1))
         xi1 = pose_twist(here.pos, here.quat, p1, q1, step_s)
         xi2 = pose_twist(p1, q1, p2, on_goal_hemisphere(q2, q1), step_s)
         accel = (xi2 - xi1) / step_s
         twist = xi1 - 0.5 * step_s * accel
-        return Command(Pose(pos=p1, quat=q1), self.speed * twist, here, self.speed**2 * accel)
+        learned = None
+        if k is not None:
+            learned, clipped = self.skill.bound_stiffness(k)
+            self.stiffness_clipped_steps += int(clipped)
+            self.stiffness_state = skill_state_step(self.skill, measured.pos, measured.quat, k, self._flow_period_s)[2]
+        return Command(Pose(pos=p1, quat=q1), self.speed * twist, here, self.speed**2 * accel,
+                       _commanded_stiffness(self.stiffness, learned))
 
 
 class OpenLoopPolicy:
@@ -205,9 +319,13 @@ class OpenLoopPolicy:
     s times as fast); twists and accelerations are taken per real control period.
     """
 
-    def __init__(self, skill: PoseSkill, duration_s: float = 20.0, speed: float = 1.0):
+    def __init__(self, skill: PoseSkill, duration_s: float = 20.0, speed: float = 1.0,
+                 stiffness: StiffnessSetting | None = None):
         if not (np.isfinite(speed) and speed > 0.0):
             raise EnvError(f"speed factor {speed} must be > 0")
+        if stiffness is not None:
+            stiffness.check_skill(skill)
+        self.stiffness = stiffness
         self.skill = skill
         self.duration_s = float(duration_s)
         self.speed = float(speed)
@@ -228,34 +346,52 @@ class OpenLoopPolicy:
         last = plan.pos.shape[0] - 1
         k = min(step + 1, last)
         pose = Pose(pos=plan.pos[k].copy(), quat=plan.quat[k].copy())
+        stiffness = _commanded_stiffness(self.stiffness, None if plan.stiffness is None else plan.stiffness[k])
         if k >= last:
-            return Command(pose, np.zeros(6), pose)
+            return Command(pose, np.zeros(6), pose, stiffness=stiffness)
         dt = self.period_s
         back = pose_twist(plan.pos[k - 1], plan.quat[k - 1], plan.pos[k], plan.quat[k], dt)
         ahead = pose_twist(plan.pos[k], plan.quat[k], plan.pos[k + 1], plan.quat[k + 1], dt)
-        return Command(pose, 0.5 * (back + ahead), pose, (ahead - back) / dt)
+        return Command(pose, 0.5 * (back + ahead), pose, (ahead - back) / dt, stiffness)
+
+    @property
+    def stiffness_clipped_steps(self) -> int:
+        """Plan samples up to now whose generated stiffness the eigenvalue clip changed (0 without stiffness)."""
+        plan = self.plan
+        return 0 if plan is None or plan.stiffness_clipped is None else int(plan.stiffness_clipped.sum())
 
 
 def make_policy(skill: PoseSkill, mode: str, lookahead_s: float = DEFAULT_LOOKAHEAD_S,
-                duration_s: float = 20.0, speed: float = 1.0) -> ClosedLoopPolicy | OpenLoopPolicy:
-    """The policy of ``mode`` ("closed-loop" or "open-loop").
+                duration_s: float = 20.0, speed: float = 1.0,
+                stiffness: StiffnessSetting | None = None) -> ClosedLoopPolicy | OpenLoopPolicy:
+    """The policy of ``mode`` ("closed-loop" or "open-loop"), commanding ``stiffness`` (None: the default).
 
     Raises:
-        EnvError: unknown mode.
+        EnvError: unknown mode, "learned" stiffness for a skill without one.
     """
     if mode == "closed-loop":
-        return ClosedLoopPolicy(skill, lookahead_s, speed)
+        return ClosedLoopPolicy(skill, lookahead_s, speed, stiffness)
     if mode == "open-loop":
-        return OpenLoopPolicy(skill, duration_s, speed)
+        return OpenLoopPolicy(skill, duration_s, speed, stiffness)
     raise EnvError(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
 
 
-def impedance_damping_lead(env: Any, twist: npt.ArrayLike, accel: npt.ArrayLike | None = None) -> FloatArray:
+def impedance_damping_lead(env: Any, twist: npt.ArrayLike, accel: npt.ArrayLike | None = None,
+                           stiffness: npt.ArrayLike | None = None) -> FloatArray:
     """delta = K^-1 (D(q) twist + Lambda(q) accel) (6,): the pose lead that makes the impedance controller
     of ``env`` (Lambda x'' + D x' + K (x - x_cmd) = 0 in free space) follow ``twist`` and ``accel``
-    (module docstring), computed by the controller itself from the current state of ``env`` (not changed).
+    (module docstring), computed by the controller itself from the current state of ``env`` (not changed),
+    with the 6x6 ``stiffness`` to be commanded (None: the controller's default; D follows K).
     """
-    return env.controller.pose_lead(env.data, twist, accel)
+    return env.controller.pose_lead(env.data, twist, accel, stiffness)
+
+
+def command_stiffness(env: Any, command: Command) -> FloatArray | None:
+    """The 6x6 stiffness to pass to ``env.step`` with ``command``: `full_stiffness` of the command's translational
+    stiffness and the controller's default rotational stiffness, or None (the default) when it has none."""
+    if command.stiffness is None:
+        return None
+    return full_stiffness(command.stiffness, env.controller.config.rotational_stiffness)
 
 
 MAX_SPEED_M_S: float = 0.5
@@ -286,13 +422,13 @@ def limit_accel(accel: npt.ArrayLike) -> FloatArray:
 
 def feedforward_pose(env: Any, command: Command, gain: float = 1.0) -> Pose:
     """The pose to send to ``env.step``: with gain > 0 the command's anchor led by gain * K^-1 D(q) twist
-    (position + world-frame rotation vector: q' = exp(delta_r) q), the twist limited by `limit_twist`;
-    with gain 0 the command's pose."""
+    (position + world-frame rotation vector: q' = exp(delta_r) q), the twist limited by `limit_twist`, K the
+    stiffness commanded with it (`command_stiffness`); with gain 0 the command's pose."""
     if gain == 0.0:
         return command.pose
     twist = limit_twist(command.twist)
     scale = float(np.linalg.norm(twist) / np.linalg.norm(command.twist)) if np.any(command.twist) else 1.0
     accel = limit_accel(scale * command.accel)
-    lead = gain * impedance_damping_lead(env, twist, accel)
+    lead = gain * impedance_damping_lead(env, twist, accel, command_stiffness(env, command))
     quat = quat_mul(quat_from_rotvec(lead[3:]), command.anchor.quat)
     return Pose(pos=command.anchor.pos + lead[:3], quat=quat / np.linalg.norm(quat))

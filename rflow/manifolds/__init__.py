@@ -3,7 +3,9 @@
 Each manifold gives the same small interface on arrays of points (numpy or torch, batched):
 ``log`` (points -> tangent vectors at the goal, (..., D)), ``exp`` (tangent vectors -> points),
 ``distance`` and ``prepare`` (per-trajectory preprocessing, e.g. quaternion hemisphere continuity).
-Tangent vectors are flat: R^n itself, T S^3 as 3-vectors, T SPD(d) as Mandel vectors of length d(d+1)/2.
+Tangent vectors are flat: R^n itself, T S^3 as 3-vectors, T SPD(d) as Mandel vectors of length d(d+1)/2
+("spd": of Log_G(P); "spd_normal": of its normal coordinates logm(G^-1/2 P G^-1/2)). `ProductManifold`
+joins them, points and tangent vectors concatenated flat.
 
     >>> from rflow.manifolds import get_manifold
     >>> sphere = get_manifold("sphere")
@@ -15,9 +17,11 @@ from __future__ import annotations
 from types import MappingProxyType
 from typing import Mapping
 
+import numpy as np
+
 from rflow.errors import RFlowError
 from rflow.manifolds import euclidean, sphere, spd
-from rflow.manifolds._backend import Array
+from rflow.manifolds._backend import Array, concat
 
 
 class Manifold:
@@ -132,8 +136,106 @@ class SPDMatrices(Manifold):
         return spd.log_euclidean_distance(a, b)
 
 
+class SPDNormalMatrices(SPDMatrices):
+    """SPD(d) with the affine-invariant maps in normal coordinates at G: tangent = mandel(logm(G^-1/2 P G^-1/2)).
+
+    The same geodesics as "spd" (the tangent matrix is G^-1/2 Log_G(P) G^-1/2), but dimensionless, with
+    ||tangent|| the Riemannian distance d(G, P): the chart for SPD factors of a product manifold.
+    """
+
+    name = "spd_normal"
+
+    def log(self, points: Array, goal: Array) -> Array:
+        return spd.mandel(spd.normal_log_map(points, goal))
+
+    def exp(self, tangent: Array, goal: Array) -> Array:
+        return spd.normal_exp_map(spd.mandel_inverse(tangent), goal)
+
+
+class ProductManifold(Manifold):
+    """A product M_1 x ... x M_k of the manifolds above with flat points and flat tangent vectors.
+
+    A point is the concatenation of the factors' flattened points (e.g. R^3 x S^3 x SPD(3): [p (3), q (4),
+    vec(K) (9)] = 16 numbers), a tangent vector the concatenation of the factors' tangent vectors
+    (3 + 3 + 6 = 12):
+        Log_g(x) = [Log_{g_1}(x_1), ..., Log_{g_k}(x_k)],   Exp_g(v) = [Exp_{g_1}(v_1), ..., Exp_{g_k}(v_k)],
+        d(a, b) = sqrt(sum_i d_i(a_i, b_i)^2)  (units mixed: for ordering only).
+
+    Args:
+        name: the name checkpoints record (must be unique among the manifolds a loader knows).
+        factors: (manifold, point shape) per factor, e.g. ((EuclideanSpace(), (3,)), (SPDNormalMatrices(), (3, 3))).
+    """
+
+    point_ndim = 1
+
+    def __init__(self, name: str, factors: tuple[tuple[Manifold, tuple[int, ...]], ...]):
+        if not factors:
+            raise RFlowError("a product manifold needs at least one factor")
+        self.name = name
+        self.factors = tuple((get_manifold(m), tuple(int(n) for n in shape)) for m, shape in factors)
+        sizes = [int(np.prod(shape)) for _, shape in self.factors]
+        dims = [m.tangent_dim(shape) for m, shape in self.factors]
+        self._points = np.concatenate([[0], np.cumsum(sizes)])
+        self._tangents = np.concatenate([[0], np.cumsum(dims)])
+
+    @property
+    def point_size(self) -> int:
+        """Numbers in one flat point."""
+        return int(self._points[-1])
+
+    def split(self, points: Array) -> list[Array]:
+        """The factors' points (..., *shape_i) of flat points (..., point_size)."""
+        return [points[..., a:b].reshape(tuple(points.shape[:-1]) + shape)
+                for (_, shape), a, b in zip(self.factors, self._points[:-1], self._points[1:])]
+
+    def join(self, parts: list[Array]) -> Array:
+        """Flat points (..., point_size) of the factors' points."""
+        flat = [x.reshape(tuple(x.shape[: x.ndim - len(shape)]) + (-1,)) for x, (_, shape) in zip(parts, self.factors)]
+        return concat(flat, flat[0])
+
+    def _tangent_parts(self, tangent: Array) -> list[Array]:
+        return [tangent[..., a:b] for a, b in zip(self._tangents[:-1], self._tangents[1:])]
+
+    def check_points(self, points: Array, name: str = "points") -> Array:
+        x = euclidean.check_points(points, name)
+        if x.shape[-1] != self.point_size:
+            raise RFlowError(f"{name} has shape {tuple(x.shape)}, expected (..., {self.point_size}) {self.name} points")
+        for (m, _), part in zip(self.factors, self.split(x)):
+            m.check_points(part, f"{name} {m.name} part")
+        return x
+
+    def tangent_dim(self, point_shape: tuple[int, ...]) -> int:
+        return int(self._tangents[-1])
+
+    def log(self, points: Array, goal: Array) -> Array:
+        x, g = self.check_points(points, "point"), self.check_points(goal, "goal")
+        return concat([m.log(a, b) for (m, _), a, b in zip(self.factors, self.split(x), self.split(g))], x)
+
+    def exp(self, tangent: Array, goal: Array) -> Array:
+        v = euclidean.check_points(tangent, "tangent")
+        if v.shape[-1] != self.tangent_dim(()):
+            raise RFlowError(f"tangent has shape {tuple(v.shape)}, expected (..., {self.tangent_dim(())})")
+        g = self.check_points(goal, "goal")
+        parts = [m.exp(t, b) for (m, _), t, b in zip(self.factors, self._tangent_parts(v), self.split(g))]
+        return self.join(parts)
+
+    def distance(self, a: Array, b: Array) -> Array:
+        a, b = self.check_points(a, "a"), self.check_points(b, "b")
+        sq = [m.distance(x, y) ** 2 for (m, _), x, y in zip(self.factors, self.split(a), self.split(b))]
+        return sum(sq[1:], sq[0]) ** 0.5
+
+    def prepare(self, trajectories: Array) -> Array:
+        """Each factor's own preprocessing (e.g. quaternion hemisphere continuity) on its part."""
+        x = np.array(self.check_points(trajectories, "demos"), dtype=np.float64)
+        parts = [np.asarray(m.prepare(part)) for (m, _), part in zip(self.factors, self.split(x))]
+        return self.join(parts)
+
+    def __repr__(self) -> str:
+        return f"ProductManifold({self.name!r}, {[m.name for m, _ in self.factors]})"
+
+
 MANIFOLDS: Mapping[str, Manifold] = MappingProxyType(
-    {m.name: m for m in (EuclideanSpace(), UnitQuaternions(), SPDMatrices())}
+    {m.name: m for m in (EuclideanSpace(), UnitQuaternions(), SPDMatrices(), SPDNormalMatrices())}
 )
 
 
@@ -156,6 +258,8 @@ __all__ = [
     "EuclideanSpace",
     "UnitQuaternions",
     "SPDMatrices",
+    "SPDNormalMatrices",
+    "ProductManifold",
     "MANIFOLDS",
     "get_manifold",
     "euclidean",

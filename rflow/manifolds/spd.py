@@ -113,6 +113,42 @@ def exp_map(v: Array, base: Array) -> Array:
     return 0.5 * (out + swap_last(out))
 
 
+def normal_log_map(p: Array, base: Array) -> Array:
+    """Log_G(P) in normal coordinates at G: G^-1/2 Log_G(P) G^-1/2 = logm(G^-1/2 P G^-1/2) (symmetric, (..., d, d)).
+
+    The affine-invariant metric at G is <U, V>_G = tr(G^-1 U G^-1 V), so the whitened tangent matrix has the
+    Euclidean (Frobenius) norm of the Riemannian distance d(G, P) and is dimensionless: a stiffness in N/m and
+    a position in m can then share one normalised tangent vector without one unit swamping the other.
+
+    Raises:
+        RFlowError: P or G not SPD, shapes differ in d, NaN.
+    """
+    p = check_spd(p, "SPD matrix")
+    base = check_spd(base, "base SPD matrix")
+    if p.shape[-1] != base.shape[-1]:
+        raise RFlowError(f"SPD matrix is {p.shape[-1]}x{p.shape[-1]} but base is {base.shape[-1]}x{base.shape[-1]}")
+    _, inv_half = _half_powers(base)
+    inner = inv_half @ p @ inv_half
+    return logm(0.5 * (inner + swap_last(inner)))
+
+
+def normal_exp_map(v: Array, base: Array) -> Array:
+    """Exp_G of a tangent matrix given in normal coordinates at G: G^1/2 expm(V) G^1/2 -> SPD (..., d, d).
+
+    The inverse of `normal_log_map`; SPD for every symmetric V (the exponential of a symmetric matrix is SPD).
+
+    Raises:
+        RFlowError: V not symmetric, G not SPD, shapes differ in d, NaN.
+    """
+    v = check_symmetric(v, "tangent matrix")
+    base = check_spd(base, "base SPD matrix")
+    if v.shape[-1] != base.shape[-1]:
+        raise RFlowError(f"tangent matrix is {v.shape[-1]}x{v.shape[-1]} but base is {base.shape[-1]}x{base.shape[-1]}")
+    half, _ = _half_powers(base)
+    out = half @ expm_sym(v) @ half
+    return 0.5 * (out + swap_last(out))
+
+
 def mandel_dim(d: int) -> int:
     """Length d(d+1)/2 of the Mandel vector of a d x d symmetric matrix."""
     return d * (d + 1) // 2

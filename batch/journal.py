@@ -1,0 +1,187 @@
+"""JSON Lines journal of a batch run, so an interrupted run can be resumed with identical results.
+
+File layout, one JSON object per line::
+
+    {"kind": "header", "run": {...}}                     what the run is (config, inputs' checksums)
+    {"kind": "unit", "key": "...", "record": {...}}      one line per finished unit, in finishing order
+
+Each line is written whole, flushed and fsynced before `append` returns, so a crash loses at most the line
+being written. Such a torn last line (no newline, or not JSON) is ignored on resume and cut off before the
+next append. A resumed run must describe the same run: its header's ``run`` must equal the new one (after
+a JSON round trip, so tuples and lists compare equal).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from types import TracebackType
+from typing import Any, TextIO
+
+from batch.errors import BatchError
+
+HEADER = "header"
+UNIT = "unit"
+
+
+def as_json(value: Any, what: str) -> Any:
+    """``value`` after a JSON round trip (tuples become lists, keys strings).
+
+    Raises:
+        BatchError: ``value`` is not JSON-serialisable.
+    """
+    try:
+        return json.loads(json.dumps(value))
+    except (TypeError, ValueError) as err:
+        raise BatchError(f"{what} is not JSON-serialisable: {err}") from None
+
+
+def _first_difference(old: dict[str, Any], new: dict[str, Any]) -> str:
+    """A short description of the first key where two run descriptions differ."""
+    for key in sorted(set(old) | set(new)):
+        if key not in old:
+            return f"{key!r} is new"
+        if key not in new:
+            return f"{key!r} is missing"
+        if old[key] != new[key]:
+            return f"{key!r} was {json.dumps(old[key])[:80]}, now {json.dumps(new[key])[:80]}"
+    return "none"
+
+
+class Journal:
+    """JSON Lines journal of a batch run: line 1 {"kind": "header", "run": {...}}; then one line
+    {"kind": "unit", "key": str, "record": {...}} per finished unit, flushed and fsynced as it ends."""
+
+    def __init__(self, path: Path, run: dict[str, Any], done: dict[str, dict[str, Any]], handle: TextIO):
+        """Use `Journal.open`."""
+        self.path = path
+        self.run = run
+        self._done = done
+        self._handle: TextIO | None = handle
+
+    @classmethod
+    def open(cls, path: str | os.PathLike[str], run: dict[str, Any], resume: bool = False,
+             overwrite: bool = False) -> Journal:
+        """Start a new journal at ``path`` or continue the one there.
+
+        Args:
+            path: the journal file.
+            run: JSON-ready description of the run (written in the header; must match on resume).
+            resume: continue the journal at ``path`` (it must exist and describe the same run).
+            overwrite: without ``resume``, replace an existing journal (only a file whose first line is a
+                journal header; anything else is never replaced).
+
+        Raises:
+            BatchError: the folder does not exist; ``path`` exists without resume (or is not a journal);
+                resume of a missing, corrupt or different run's journal.
+        """
+        out = Path(path)
+        header = as_json(run, "the run description")
+        if not isinstance(header, dict):
+            raise BatchError(f"the run description of journal {out} must be a JSON object")
+        parent = out.parent if str(out.parent) else Path(".")
+        if not parent.is_dir():
+            raise BatchError(f"cannot write journal {out}: folder {parent} does not exist")
+        if resume:
+            if not out.is_file():
+                raise BatchError(f"cannot resume: journal {out} does not exist")
+            old_run, done, good_bytes = _read(out)
+            if old_run != header:
+                raise BatchError(f"cannot resume from journal {out}: it records a different run "
+                                 f"(key {_first_difference(old_run, header)})")
+            handle = open(out, "r+", encoding="utf-8")
+            handle.truncate(good_bytes)  # drop a torn last line before appending
+            handle.seek(good_bytes)
+            return cls(out, header, done, handle)
+        if out.exists() or out.is_symlink():
+            if not overwrite:
+                raise BatchError(f"journal {out} already exists: use --resume or choose another path")
+            _read(out)  # raises unless it is a journal: never replace a file that is not ours
+        return cls(out, header, {}, _create(out, header))
+
+    def done(self) -> dict[str, dict[str, Any]]:
+        """key -> record of the units already finished (a copy)."""
+        return dict(self._done)
+
+    def append(self, key: str, record: dict[str, Any]) -> None:
+        """Write one finished unit, flushed and fsynced before returning.
+
+        Raises:
+            BatchError: the journal is closed or the record is not JSON-serialisable.
+        """
+        if self._handle is None:
+            raise BatchError(f"journal {self.path} is closed")
+        line = json.dumps({"kind": UNIT, "key": str(key), "record": as_json(record, f"record of unit {key!r}")})
+        self._handle.write(line + "\n")
+        self._handle.flush()
+        os.fsync(self._handle.fileno())
+        self._done[str(key)] = json.loads(line)["record"]
+
+    def close(self) -> None:
+        """Close the file (idempotent)."""
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+    def __enter__(self) -> Journal:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def _create(out: Path, header: dict[str, Any]) -> TextIO:
+    """Write the header to a temporary file beside ``out`` (mode per umask), rename it into place, open it."""
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent if str(out.parent) else ".")
+    tmp = Path(tmp_name)
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(json.dumps({"kind": HEADER, "run": header}) + "\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return open(out, "a", encoding="utf-8")
+
+
+def _read(path: Path) -> tuple[dict[str, Any], dict[str, dict[str, Any]], int]:
+    """(header run, key -> record, bytes up to the end of the last whole line) of a journal.
+
+    Raises:
+        BatchError: unreadable, no header, or a corrupt line before the last one.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise BatchError(f"cannot read journal {path}: {err.strerror or err}") from None
+    lines = data.split(b"\n")
+    # A file ending in "\n" splits into [..., b""]; anything after the last "\n" is a torn line.
+    whole, torn = lines[:-1], lines[-1]
+    good_bytes = len(data) - len(torn)
+    entries: list[dict[str, Any]] = []
+    for number, raw in enumerate(whole, start=1):
+        try:
+            entry = json.loads(raw.decode("utf-8"))
+            if not isinstance(entry, dict):
+                raise ValueError("not a JSON object")
+        except (UnicodeDecodeError, ValueError) as err:
+            if number == len(whole) and not torn:
+                good_bytes -= len(raw) + 1  # a torn last line that happens to end in a newline
+                break
+            raise BatchError(f"{path} line {number} is not a journal line ({err})") from None
+        entries.append(entry)
+    if not entries or entries[0].get("kind") != HEADER or not isinstance(entries[0].get("run"), dict):
+        raise BatchError(f"{path} is not a batch journal (no header line)")
+    done: dict[str, dict[str, Any]] = {}
+    for number, entry in enumerate(entries[1:], start=2):
+        if entry.get("kind") != UNIT or not isinstance(entry.get("key"), str) or not isinstance(entry.get("record"), dict):
+            raise BatchError(f"{path} line {number} is not a unit line")
+        done[entry["key"]] = entry["record"]
+    return entries[0]["run"], done, good_bytes

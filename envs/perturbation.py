@@ -1,0 +1,142 @@
+"""Per-episode task perturbations: a hole-pose error (a perception error) and a grasp offset.
+
+Hole-pose error. The real hole frame H' is the nominal hole frame H moved in its own frame,
+    T_H' = T_H T_err,   T_err = (t = [dx, dy, 0], R_err = R_axis(a_t, tilt) Rz(yaw)),
+with (dx, dy) uniform in the disk of radius R (r = R sqrt(u), polar angle uniform), yaw uniform in [-A, A]
+about the hole axis, and tilt uniform in [0, A] about a horizontal axis a_t = (cos phi, sin phi, 0) of H with
+phi uniform. The whole sorter moves rigidly with the target hole (T_S' = T_H T_err T_H^-1 T_S) while the skill
+keeps the demonstrated goal, so the peg meets the hole off by up to R and A.
+
+Grasp offset. The peg sits in the fingers shifted along its own axis by g uniform in [-G, G] (positive: the
+peg_tip sticks out farther from the hand); the skill still commands the nominal grasp.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from envs.errors import EnvError
+from envs.geometry import FloatArray, mat_to_quat, quat_to_mat
+
+MAX_HOLE_ERROR_M: float = 0.01
+MAX_HOLE_ERROR_DEG: float = 10.0
+MAX_GRASP_OFFSET_M: float = 0.01
+
+
+def _check_range(name: str, value: float, maximum: float) -> float:
+    if not (isinstance(value, (int, float)) and np.isfinite(value) and 0.0 <= value <= maximum):
+        raise EnvError(f"{name}={value!r} must be a number in [0, {maximum:g}]")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class PerturbationRanges:
+    """Ranges of the per-episode perturbations (all zero: the nominal task).
+
+    Attributes:
+        hole_error_m: radius R of the horizontal hole offset, in [0, 10 mm].
+        hole_error_deg: bound A of the yaw about the hole axis and of the tilt, in [0, 10 deg].
+        grasp_offset_m: bound G of the peg's shift along its axis in the grasp, in [0, 10 mm].
+
+    Raises:
+        EnvError: a negative, NaN or too large range (one line naming it).
+    """
+
+    hole_error_m: float = 0.0
+    hole_error_deg: float = 0.0
+    grasp_offset_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_range("hole_error_m", self.hole_error_m, MAX_HOLE_ERROR_M)
+        _check_range("hole_error_deg", self.hole_error_deg, MAX_HOLE_ERROR_DEG)
+        _check_range("grasp_offset_m", self.grasp_offset_m, MAX_GRASP_OFFSET_M)
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """One draw of the perturbations (see the module docstring).
+
+    Attributes:
+        hole_dx_m, hole_dy_m: horizontal offset of the hole in its own frame.
+        hole_yaw_deg: rotation about the hole axis.
+        hole_tilt_deg: tilt of the hole axis.
+        hole_tilt_dir_deg: direction phi of the tilt axis in the hole's x-y plane.
+        grasp_offset_m: shift of the peg along its axis in the grasp.
+    """
+
+    hole_dx_m: float = 0.0
+    hole_dy_m: float = 0.0
+    hole_yaw_deg: float = 0.0
+    hole_tilt_deg: float = 0.0
+    hole_tilt_dir_deg: float = 0.0
+    grasp_offset_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, value in asdict(self).items():
+            if not np.isfinite(value):
+                raise EnvError(f"Perturbation.{name}={value!r} must be finite")
+
+    @property
+    def hole_offset_m(self) -> float:
+        """|(dx, dy)|."""
+        return float(np.hypot(self.hole_dx_m, self.hole_dy_m))
+
+    def hole_transform(self) -> tuple[FloatArray, FloatArray]:
+        """(t (3,), R_err (3, 3)) of T_err in the hole frame."""
+        phi, tilt, yaw = np.deg2rad([self.hole_tilt_dir_deg, self.hole_tilt_deg, self.hole_yaw_deg])
+        axis = np.array([np.cos(phi), np.sin(phi), 0.0])
+        k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+        r_tilt = np.eye(3) + np.sin(tilt) * k + (1.0 - np.cos(tilt)) * (k @ k)  # Rodrigues
+        r_yaw = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+        return np.array([self.hole_dx_m, self.hole_dy_m, 0.0]), r_tilt @ r_yaw
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready fields plus the horizontal offset magnitude, in mm and deg."""
+        return {
+            "hole_dx_mm": self.hole_dx_m * 1e3,
+            "hole_dy_mm": self.hole_dy_m * 1e3,
+            "hole_offset_mm": self.hole_offset_m * 1e3,
+            "hole_yaw_deg": self.hole_yaw_deg,
+            "hole_tilt_deg": self.hole_tilt_deg,
+            "hole_tilt_dir_deg": self.hole_tilt_dir_deg,
+            "grasp_offset_mm": self.grasp_offset_m * 1e3,
+        }
+
+
+def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) -> Perturbation:
+    """One seeded draw within ``ranges`` (distributions in the module docstring).
+
+    Always consumes the same number of draws from ``rng`` (6), whatever the ranges.
+    """
+    u = rng.random(6)
+    radius = ranges.hole_error_m * np.sqrt(u[0])
+    angle = 2.0 * np.pi * u[1]
+    return Perturbation(
+        hole_dx_m=float(radius * np.cos(angle)),
+        hole_dy_m=float(radius * np.sin(angle)),
+        hole_yaw_deg=float(ranges.hole_error_deg * (2.0 * u[2] - 1.0)),
+        hole_tilt_deg=float(ranges.hole_error_deg * u[3]),
+        hole_tilt_dir_deg=float(360.0 * u[4]),
+        grasp_offset_m=float(ranges.grasp_offset_m * (2.0 * u[5] - 1.0)),
+    )
+
+
+def perturbed_frame(frame_pos: npt.ArrayLike, frame_quat: npt.ArrayLike, hole_pos: npt.ArrayLike,
+                    hole_quat: npt.ArrayLike, perturbation: Perturbation) -> tuple[FloatArray, FloatArray]:
+    """Pose of a frame F rigidly attached to the hole after the hole error: T_F' = T_H T_err T_H^-1 T_F.
+
+    Returns:
+        (position (3,), quaternion w, x, y, z (4,)).
+    """
+    r_h = quat_to_mat(hole_quat)
+    p_h = np.asarray(hole_pos, dtype=np.float64)
+    t_err, r_err = perturbation.hole_transform()
+    r_f = quat_to_mat(frame_quat)
+    p_f = np.asarray(frame_pos, dtype=np.float64)
+    rot = r_h @ r_err @ r_h.T
+    pos = p_h + r_h @ t_err + rot @ (p_f - p_h)
+    return pos, mat_to_quat(rot @ r_f)

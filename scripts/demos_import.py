@@ -1,0 +1,89 @@
+"""`pih demos --import`: convert demos recorded at another tool frame (e.g. a real Panda) into a demo file.
+
+    pih demos --import recorded.npz --tool-offset franka-tcp --dt 0.001 --out demos.npz [--snap-goal]
+    pih demos --import recorded.npz --tool-offset 0,0,0.1034,0.92388,0,0,-0.38268 --out demos.npz
+
+The file format and the conversion are documented in envs/demo_import.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from envs.demo_file import save_demos
+from envs.demo_import import ImportConfig, import_demos, load_recorded_demos, parse_tool_offset, resolve_dt
+from envs.errors import EnvError
+from envs.poses import Pose
+from envs.scene import nominal_flange_to_peg_tip
+from scripts.task_options import task_from_args
+
+
+def add_import_arguments(parser: argparse.ArgumentParser) -> None:
+    """The import options of `pih demos` (--out, --shape, --clearance-mm and --samples are shared)."""
+    group = parser.add_argument_group("importing demos recorded elsewhere (see envs/demo_import.py)")
+    group.add_argument("--import", dest="import_file", type=Path, metavar="FILE.npz",
+                       help="convert recorded tool-frame poses: pos (N, M, 3) + quat (N, M, 4) (w, x, y, z), or "
+                            "pos_0, quat_0, pos_1, ... for demos of different lengths; optional dt, shape, "
+                            "clearance_m. Resampled to --samples per demo")
+    group.add_argument("--tool-offset", metavar="X,Y,Z,QW,QX,QY,QZ",
+                       help="with --import: the recorded tool frame's pose in the flange frame (metres, quaternion "
+                            "w, x, y, z), or 'franka-tcp' (the Franka hand's TCP: 0,0,0.1034,0.92388,0,0,-0.38268, "
+                            "103.4 mm along z, -45 deg about z) or 'flange'; write --tool-offset=-0.01,... when the "
+                            "first number is negative")
+    group.add_argument("--dt", type=float, metavar="SECONDS",
+                       help="with --import: sampling time of the recording (required when the file has no dt)")
+    group.add_argument("--snap-goal", action="store_true",
+                       help="with --import: blend demos that end off their common goal onto it (minimum-jerk "
+                            "blend over the last 20 %% of each demo) instead of failing")
+    group.add_argument("--overwrite", action="store_true", help="with --import: replace an existing --out file")
+
+
+def run_import(args: argparse.Namespace) -> int:
+    """Validate every option, convert, write the demo file, print the per-demo goal jumps; exit status."""
+    if args.check is not None:
+        raise EnvError("--import and --check cannot be combined")
+    if args.out is None:
+        raise EnvError("--out FILE.npz is required with --import")
+    if not args.out.parent.is_dir():
+        raise EnvError(f"--out {args.out}: folder {args.out.parent} does not exist")
+    if args.out.exists() and args.out.resolve() == args.import_file.resolve():
+        raise EnvError(f"--out {args.out} is the --import file itself; choose another output")
+    if args.out.exists() and not args.overwrite:
+        raise EnvError(f"--out {args.out} already exists (pass --overwrite to replace it)")
+    if args.tool_offset is None:
+        raise EnvError("--tool-offset is required with --import (e.g. --tool-offset franka-tcp)")
+    tool_offset = parse_tool_offset(args.tool_offset)
+    if args.dt is not None and not (np.isfinite(args.dt) and args.dt > 0.0):
+        raise EnvError(f"--dt {args.dt} must be a positive finite number of seconds")
+    if args.samples < 2:
+        raise EnvError(f"--samples {args.samples}: need at least 2 samples per demo")
+    config = ImportConfig(num_samples=args.samples, snap_goal=args.snap_goal)
+    clearance_m = task_from_args(args).clearance_m
+    recorded = load_recorded_demos(args.import_file)
+    dt = resolve_dt(recorded.dt, args.dt, str(args.import_file))
+    if recorded.shape is not None and recorded.shape != args.shape:
+        raise EnvError(f"{args.import_file} is for shape {recorded.shape!r} but --shape is {args.shape!r}; pass "
+                       f"--shape {recorded.shape}")
+    if recorded.clearance_m is not None and abs(recorded.clearance_m - clearance_m) > 1e-9:
+        raise EnvError(f"{args.import_file} is for a {recorded.clearance_m * 1e3:g} mm clearance but --clearance-mm "
+                       f"is {clearance_m * 1e3:g}; pass --clearance-mm {recorded.clearance_m * 1e3:g}")
+    grasp_pos, grasp_quat = nominal_flange_to_peg_tip(args.shape)
+    result = import_demos(recorded, tool_offset, Pose(grasp_pos, grasp_quat), dt, args.shape, clearance_m, config,
+                          provenance={"source_file": str(args.import_file.resolve()),
+                                      "tool_offset_arg": args.tool_offset,
+                                      "dt_from": "flag" if args.dt is not None else "file"})
+    for n, (jump_m, jump_rad) in enumerate(zip(result.jump_m, result.jump_rad)):
+        print(f"demo {n}: {recorded.lengths[n]} samples, jump to the common goal {jump_m * 1e3:.4f} mm, "
+              f"{np.rad2deg(jump_rad):.4f} deg")
+    if result.snapped:
+        print(f"snapped onto the common goal: minimum-jerk blend over the last {100 * config.snap_fraction:g} % "
+              f"({result.snap_duration_s:.3f} s) of each demo")
+    path = save_demos(args.out, result.demos)
+    demos = result.demos
+    print(f"wrote {path}: {demos.num_demos} demos x {demos.num_samples} samples, dt {demos.dt * 1e3:.4f} ms, "
+          f"shape {demos.shape}, clearance {demos.clearance_m * 1e3:g} mm ({recorded.layout} layout, tool offset "
+          f"{args.tool_offset})")
+    return 0

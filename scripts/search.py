@@ -1,0 +1,106 @@
+"""`pih search`: Optuna hyperparameter search of RiemannianFlow on one Riemannian LASA shape (rflow.search).
+
+    pih search --shape NShape --manifold spd --trials 40 --out runs/search
+    pih search ... --storage postgresql+psycopg://user@host/db --study nshape   # many processes or machines
+
+Writes OUT/study.db (the SQLite storage, unless --storage names another), OUT/search.json (every trial of
+the study: number, state, validation DTW, parameters, epoch of pruning) and OUT/best.json, the best trial's
+training config, which `pih lasa --config` and `pih train --config` read. The objective is a validation
+DTW from held-out starts, never the benchmark's own numbers: run `pih lasa --config OUT/best.json` for those.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any
+
+from rflow.errors import RFlowError
+from rflow.lasa import LASA_POINTS, LASA_SHAPES
+from rflow.train import TrainConfig
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `pih search`."""
+    d = TrainConfig()
+    parser.add_argument("--shape", default="NShape", help=f"LASA shape (default NShape), one of: {', '.join(LASA_SHAPES)}")
+    parser.add_argument("--manifold", default="spd", help="spd or uq (default spd)")
+    parser.add_argument("--trials", type=int, default=40, help="trials this process runs (default 40)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder: study.db, search.json, best.json")
+    parser.add_argument("--storage", help="SQLAlchemy URL of the Optuna storage shared by all processes "
+                                          "(default sqlite:///OUT/study.db)")
+    parser.add_argument("--study", help="study name (default SHAPE-MANIFOLD-seedSEED); processes with the same "
+                                        "name and storage share one study")
+    parser.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs per trial (default {d.epochs})")
+    parser.add_argument("--report-every", type=int, default=10,
+                        help="epochs between validation DTW reports to the median pruner (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="training seed of every trial (default 0)")
+    parser.add_argument("--sampler-seed", type=int, default=0,
+                        help="TPE sampler seed (default 0); give each process sharing a study its own")
+    parser.add_argument("--n-points", type=int, default=LASA_POINTS,
+                        help=f"points per demo (default {LASA_POINTS}: the benchmark's)")
+
+
+def _storage_url(args: argparse.Namespace, out: Path) -> str:
+    """The storage URL, validated by SQLAlchemy's parser (no connection yet)."""
+    if args.storage is None:
+        return f"sqlite:///{(out / 'study.db').resolve()}"
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        make_url(args.storage)
+    except ArgumentError as err:
+        raise RFlowError(f"--storage {args.storage!r} is not an SQLAlchemy URL ({err})") from None
+    return args.storage
+
+
+def _trial_record(trial: Any) -> dict[str, Any]:
+    steps = sorted(trial.intermediate_values)
+    return {"number": trial.number, "state": trial.state.name, "value": trial.value, "params": trial.params,
+            "last_epoch": steps[-1] if steps else None,
+            "train_seconds": trial.user_attrs.get("train_seconds")}
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run `pih search`; returns the exit status."""
+    from rflow.config_file import save_train_config
+    from rflow.search import SearchConfig, best_config, run_search
+    from scripts.lasa import write_json
+
+    if args.epochs < 1 or args.n_points < 2 or args.n_points > LASA_POINTS:
+        raise RFlowError(f"need --epochs >= 1 and 2 <= --n-points <= {LASA_POINTS}, got {args.epochs}, {args.n_points}")
+    manifold = {"spd": "spd", "uq": "uq", "sphere": "uq"}.get(args.manifold)
+    if manifold is None:
+        raise RFlowError(f"unknown benchmark manifold {args.manifold!r}; expected 'spd' or 'uq'")
+    base = TrainConfig(epochs=args.epochs, seed=args.seed, threads=1)
+    config = SearchConfig(shape=args.shape, manifold=manifold, trials=args.trials, base=base,
+                          report_every=args.report_every, n_points=args.n_points, sampler_seed=args.sampler_seed)
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise RFlowError(f"--out {out} exists and is not a folder")
+    storage = _storage_url(args, out)
+    study_name = args.study or f"{config.shape}-{manifold}-seed{args.seed}"
+    if not study_name.strip():
+        raise RFlowError("--study must not be empty")
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    study = run_search(config, storage, study_name, on_trial=lambda line: print(line, flush=True))
+    trials = [_trial_record(t) for t in study.trials]
+    counts = {state: sum(t["state"] == state for t in trials) for state in ("COMPLETE", "PRUNED", "FAIL")}
+    best, value, number = best_config(study, base)
+    source = {"study": study_name, "storage": storage if args.storage is None else "(--storage)",
+              "trial": number, "validation_dtw": value, "shape": config.shape, "manifold": manifold,
+              "validation": "DTW from held-out starts (rflow.search.VALIDATION_START_FRACTIONS)"}
+    write_json(out / "search.json", {"study": study_name, "shape": config.shape, "manifold": manifold,
+                                     "counts": counts, "best": {"trial": number, "validation_dtw": value,
+                                                                "config": dataclasses.asdict(best)},
+                                     "trials": trials})
+    save_train_config(out / "best.json", best, source)
+    print(f"wrote {out / 'best.json'}, {out / 'search.json'}: study {study_name!r} has {len(trials)} trials "
+          f"({counts['COMPLETE']} complete, {counts['PRUNED']} pruned, {counts['FAIL']} failed); best trial {number}: "
+          f"validation DTW {value:.1f}, {best.model.layers} layers, {best.model.activation}, {best.optimizer}, "
+          f"lr {best.lr:.3g} ({time.perf_counter() - start:.0f} s)")
+    return 0

@@ -1,0 +1,43 @@
+"""Toy units for the batch tests: module-level functions that spawned workers and Ray actors can import.
+
+A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep"}; its record is computed from n and
+the worker context so that a correct batch gives the same records on any backend.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from typing import Any
+
+
+def init(setup: dict[str, Any]) -> dict[str, Any]:
+    """Worker context: the setup's offset (a failing init when asked)."""
+    if setup.get("fail_init"):
+        raise ValueError("init was told to fail")
+    return {"offset": setup["offset"]}
+
+
+def work(context: dict[str, Any], unit: dict[str, Any]) -> dict[str, Any]:
+    """Record {"n", "value": n^2 + offset}; or kill this process, exit, raise, or sleep first."""
+    action = unit.get("do", "ok")
+    if action == "kill":
+        os.kill(os.getpid(), signal.SIGKILL)
+    elif action == "exit":
+        os._exit(3)
+    elif action == "raise":
+        raise ZeroDivisionError("unit asked to raise")
+    elif action == "sleep":
+        time.sleep(unit.get("seconds", 60.0))
+    return {"n": unit["n"], "value": unit["n"] ** 2 + context["offset"], "reason": "ok", "tuple": (1, 2)}
+
+
+def failure(key: str, unit: dict[str, Any], reason: str) -> dict[str, Any]:
+    """Record of a unit that produced none."""
+    return {"n": unit["n"], "value": None, "reason": reason, "tuple": None}
+
+
+def units(n: int, special: dict[int, dict[str, Any]] | None = None) -> list[tuple[str, dict[str, Any]]]:
+    """n units keyed "u000".. with ``special`` payload changes by index."""
+    return [(f"u{i:03d}", {"n": i, **(special or {}).get(i, {})}) for i in range(n)]

@@ -1,0 +1,107 @@
+"""batch.journal: header, append, resume, torn last line, header mismatch, never replacing a foreign file."""
+
+from __future__ import annotations
+
+import json
+import stat
+
+import pytest
+
+from batch import BatchError, Journal
+
+RUN = {"model": "m", "episodes": 4, "range": (0.05, 15.0)}
+
+
+def test_records_survive_a_reopen(tmp_path):
+    path = tmp_path / "j.jsonl"
+    with Journal.open(path, RUN) as journal:
+        journal.append("a", {"x": 1})
+        journal.append("b", {"x": (2, 3)})
+    with Journal.open(path, RUN, resume=True) as journal:
+        assert journal.done() == {"a": {"x": 1}, "b": {"x": [2, 3]}}
+
+
+def test_first_line_is_the_header(tmp_path):
+    path = tmp_path / "j.jsonl"
+    Journal.open(path, RUN).close()
+    assert json.loads(path.read_text().splitlines()[0]) == {"kind": "header", "run": {**RUN, "range": [0.05, 15.0]}}
+
+
+def test_existing_journal_is_not_reused_without_resume(tmp_path):
+    path = tmp_path / "j.jsonl"
+    Journal.open(path, RUN).close()
+    with pytest.raises(BatchError, match="--resume"):
+        Journal.open(path, RUN)
+
+
+def test_resume_needs_an_existing_journal(tmp_path):
+    with pytest.raises(BatchError, match="does not exist"):
+        Journal.open(tmp_path / "missing.jsonl", RUN, resume=True)
+
+
+def test_resume_of_a_different_run_names_the_key(tmp_path):
+    path = tmp_path / "j.jsonl"
+    Journal.open(path, RUN).close()
+    with pytest.raises(BatchError, match="'episodes'"):
+        Journal.open(path, {**RUN, "episodes": 5}, resume=True)
+
+
+def test_torn_last_line_is_ignored_and_cut_before_appending(tmp_path):
+    path = tmp_path / "j.jsonl"
+    with Journal.open(path, RUN) as journal:
+        journal.append("a", {"x": 1})
+    with open(path, "a") as handle:
+        handle.write('{"kind": "unit", "key": "b", "rec')  # crash mid-write
+    with Journal.open(path, RUN, resume=True) as journal:
+        assert journal.done() == {"a": {"x": 1}}
+        journal.append("c", {"x": 3})
+    with Journal.open(path, RUN, resume=True) as journal:
+        assert journal.done() == {"a": {"x": 1}, "c": {"x": 3}}
+
+
+def test_corrupt_line_in_the_middle_is_an_error(tmp_path):
+    path = tmp_path / "j.jsonl"
+    with Journal.open(path, RUN) as journal:
+        journal.append("a", {"x": 1})
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([lines[0], "garbage", lines[1]]) + "\n")
+    with pytest.raises(BatchError, match="line 2"):
+        Journal.open(path, RUN, resume=True)
+
+
+def test_overwrite_never_replaces_a_file_that_is_not_a_journal(tmp_path):
+    path = tmp_path / "notes.txt"
+    path.write_text("someone's notes\n")
+    with pytest.raises(BatchError, match="not a batch journal"):
+        Journal.open(path, RUN, overwrite=True)
+    assert path.read_text() == "someone's notes\n"
+
+
+def test_overwrite_replaces_an_old_journal(tmp_path):
+    path = tmp_path / "j.jsonl"
+    with Journal.open(path, RUN) as journal:
+        journal.append("a", {"x": 1})
+    with Journal.open(path, RUN, overwrite=True) as journal:
+        assert journal.done() == {}
+
+
+def test_missing_folder_is_an_error(tmp_path):
+    with pytest.raises(BatchError, match="does not exist"):
+        Journal.open(tmp_path / "nope" / "j.jsonl", RUN)
+
+
+def test_file_mode_follows_the_umask(tmp_path):
+    path = tmp_path / "j.jsonl"
+    Journal.open(path, RUN).close()
+    import os
+
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
+
+
+def test_append_after_close_is_an_error(tmp_path):
+    journal = Journal.open(tmp_path / "j.jsonl", RUN)
+    journal.close()
+    with pytest.raises(BatchError, match="closed"):
+        journal.append("a", {})

@@ -1,0 +1,184 @@
+"""Evaluation as a batch (tiny skill, short episodes): a killed worker is one "worker_died" episode and the
+run still completes; Ctrl-C keeps the finished episodes and --resume gives the JSON of an uninterrupted
+run; every option is checked before any episode runs, and nothing is left behind on bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from batch import Journal
+from envs.execution.evaluate import EvaluationConfig, evaluate, journal_run
+from rflow.skill_io import save_skill
+from scripts.cli import main as pih
+from skill_fixtures import tiny_skill
+
+PIH = str(Path(sys.executable).with_name("pih"))
+FAST = ["--episodes", "4", "--time-limit", "0.05", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    return save_skill(tmp_path_factory.mktemp("ck") / "model", tiny_skill())
+
+
+def without_wall_times(data: dict) -> dict:
+    data = {k: v for k, v in data.items() if k != "wall_s"}
+    data["statistics"] = {k: v for k, v in data["statistics"].items() if "wall" not in k}
+    data["per_episode"] = [{k: v for k, v in r.items() if k != "wall_s"} for r in data["per_episode"]]
+    return data
+
+
+def test_resumed_evaluation_equals_an_uninterrupted_one(model, tmp_path):
+    config = EvaluationConfig(episodes=4, time_limit_s=0.05)
+    whole = evaluate(model, config, progress=False)
+    full_starts = None
+    with Journal.open(tmp_path / "j.jsonl", journal_run(model, config)) as journal:
+        from envs.execution.evaluate import sample_starts
+        from rflow.skill_io import load_skill
+
+        meta = load_skill(model).metadata["demo_starts"]
+        full_starts = sample_starts(meta["pos"], meta["quat"], 4, 0, 0.05, 15.0)
+        partial = evaluate(model, config, progress=False, starts=full_starts[:2], journal=journal)  # "interrupted"
+    assert len(partial.records) == 2
+    with Journal.open(tmp_path / "j.jsonl", journal_run(model, config), resume=True) as journal:
+        resumed = evaluate(model, EvaluationConfig(episodes=4, time_limit_s=0.05, workers=2), progress=False,
+                           journal=journal)
+    assert resumed.complete
+    a, b = without_wall_times(whole.to_dict()), without_wall_times(resumed.to_dict())
+    a["config"].pop("workers"), b["config"].pop("workers")
+    assert a == b
+
+
+def test_journal_of_another_model_is_refused(model, tmp_path):
+    config = EvaluationConfig(episodes=4)
+    other = save_skill(tmp_path / "other", tiny_skill(layout="joint"))
+    Journal.open(tmp_path / "j.jsonl", journal_run(model, config)).close()
+    with pytest.raises(Exception, match="different run"):
+        Journal.open(tmp_path / "j.jsonl", journal_run(other, config), resume=True)
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--camera", "ceiling", "not a camera of the scene"),
+    ("--video-episodes", "0,9", "must lie in 0..3"),
+    ("--video", "OUT/out.avi", "must end in .mp4"),
+    ("--figure", "OUT/missing/fig.png", "does not exist"),
+])
+def test_bad_video_options_fail_before_any_episode(model, tmp_path, capsys, option, value, message):
+    extra = [option, value.replace("OUT", str(tmp_path))]
+    if option != "--video":
+        extra += ["--video", str(tmp_path / "v.mp4")]
+    code = pih(["evaluate", "--model", str(model), *FAST, "--json", str(tmp_path / "e.json"), *extra])
+    assert code == 2 and message in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no JSON, no journal, no video
+
+
+def test_existing_json_needs_overwrite(model, tmp_path, capsys):
+    out = tmp_path / "e.json"
+    out.write_text("someone's results")
+    assert pih(["evaluate", "--model", str(model), *FAST, "--json", str(out)]) == 2
+    assert "--overwrite" in capsys.readouterr().err and out.read_text() == "someone's results"
+
+
+def test_existing_journal_needs_resume_or_overwrite(model, tmp_path, capsys):
+    args = ["evaluate", "--model", str(model), *FAST, "--json", str(tmp_path / "e.json")]
+    assert pih(args) == 0
+    assert pih(args + ["--overwrite"]) == 0
+    os.remove(tmp_path / "e.json")
+    assert pih(args) == 2 and "--resume" in capsys.readouterr().err
+    assert pih(args + ["--resume"]) == 0  # everything is in the journal: nothing runs, the JSON is rewritten
+    assert json.loads((tmp_path / "e.json").read_text())["complete"] is True
+
+
+def test_resume_without_a_journal_is_an_error(model, tmp_path, capsys):
+    assert pih(["evaluate", "--model", str(model), *FAST, "--resume"]) == 2
+    assert "--resume" in capsys.readouterr().err
+
+
+def test_failed_model_check_leaves_no_journal(tmp_path, capsys):
+    (tmp_path / "model").mkdir()
+    assert pih(["evaluate", "--model", str(tmp_path / "model"), *FAST, "--json", str(tmp_path / "e.json")]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]
+
+
+def _run(args: list[str], **kwargs) -> subprocess.Popen:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen([PIH, "evaluate", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env, start_new_session=True, **kwargs)
+
+
+def _wait_for_records(journal: Path, count: int, proc: subprocess.Popen, limit_s: float = 240.0) -> None:
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        if journal.is_file() and len(journal.read_text().splitlines()) >= 1 + count:
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"no {count} records in {journal} (exit {proc.poll()})")
+
+
+def _children(pid: int) -> list[int]:
+    kids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+                cmdline = (entry / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"spawn_main" in cmdline:
+                kids.append(int(entry.name))
+    return kids
+
+
+@pytest.mark.slow
+def test_sigkill_of_a_worker_is_recorded_and_the_run_completes(model, tmp_path):
+    out, journal = tmp_path / "e.json", tmp_path / "e.json.journal.jsonl"
+    proc = _run(["--model", str(model), "--episodes", "8", "--time-limit", "1.0", "--workers", "2", "--quiet",
+                 "--json", str(out)])
+    try:
+        _wait_for_records(journal, 1, proc)
+        victims = _children(proc.pid)
+        assert victims, "no worker process found"
+        os.kill(victims[0], signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, stderr
+    data = json.loads(out.read_text())
+    reasons = [r["reason"] for r in data["per_episode"]]
+    assert data["complete"] and len(reasons) == 8 and reasons.count("worker_died") == 1
+    assert data["statistics"]["failures_by_kind"].get("worker_died") == 1
+
+
+@pytest.mark.slow
+def test_ctrl_c_then_resume_gives_the_uninterrupted_json(model, tmp_path):
+    args = ["--model", str(model), "--episodes", "8", "--time-limit", "1.0", "--quiet"]
+    whole = _run(args + ["--json", str(tmp_path / "whole.json")])
+    assert whole.wait(300) == 0, whole.stderr.read()
+    out, journal = tmp_path / "e.json", tmp_path / "e.json.journal.jsonl"
+    proc = _run(args + ["--json", str(out), "--workers", "2"])
+    try:
+        _wait_for_records(journal, 1, proc)
+        os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C reaches the whole process group
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stderr
+    assert "--resume" in stderr and "Traceback" not in stderr
+    partial = json.loads(out.read_text())
+    assert partial["complete"] is False and 1 <= partial["episodes"] < 8
+    resumed = _run(args + ["--json", str(out), "--workers", "2", "--resume"])
+    assert resumed.wait(300) == 0, resumed.stderr.read()
+    a = without_wall_times(json.loads((tmp_path / "whole.json").read_text()))
+    b = without_wall_times(json.loads(out.read_text()))
+    assert b["config"].pop("workers") == 2 and a["config"].pop("workers") == 1
+    assert a == b

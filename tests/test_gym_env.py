@@ -1,0 +1,151 @@
+"""The Gymnasium environment pih/PegInHole-v0: registration, spaces, checker, determinism, ends and reward."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from envs.errors import EnvError
+from envs.gym_env import ENV_ID, STIFFNESS_RANGE_N_M, PegInHoleGymEnv
+from envs.poses import quat_angle_rad, quat_conj, quat_mul, quat_to_rotvec
+
+
+@pytest.fixture(scope="module")
+def env() -> PegInHoleGymEnv:
+    made = gymnasium.make(ENV_ID, time_limit_s=0.5)
+    yield made.unwrapped
+    made.close()
+
+
+def test_make_maps_options_onto_the_simulator_configs() -> None:
+    made = gymnasium.make(ENV_ID, shape="triangle", clearance_mm=0.5, time_limit_s=1.5, translational_stiffness=900.0,
+                          hole_error_mm=0.5)
+    sim = made.unwrapped.sim
+    assert sim.scene.config.shape == "triangle"
+    assert sim.scene.config.clearance_m == pytest.approx(0.0005)
+    assert sim.config.time_limit_s == 1.5
+    assert sim.config.perturbations.hole_error_m == pytest.approx(0.0005)
+    assert sim.controller.config.translational_stiffness == 900.0
+
+
+def test_unknown_option_is_an_error_naming_it() -> None:
+    with pytest.raises(EnvError, match="unknown option 'clearence_mm'"):
+        gymnasium.make(ENV_ID, clearence_mm=0.2)
+
+
+def test_make_with_the_module_prefix_registers_without_an_import() -> None:
+    code = ("import gymnasium, sys; env = gymnasium.make('envs.gym_env:pih/PegInHole-v0', shape='square', "
+            "clearance_mm=0.2); sys.stdout.write(type(env.unwrapped).__name__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout == "PegInHoleGymEnv"
+
+
+def test_env_checker_passes(env: PegInHoleGymEnv) -> None:
+    check_env(env)
+
+
+def test_observation_sizes_come_from_the_simulator(env: PegInHoleGymEnv) -> None:
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space["qpos"].shape == env.sim.observation.qpos.shape
+    assert env.observation_space["qvel"].shape == env.sim.observation.qvel.shape
+    np.testing.assert_allclose(obs["peg_tip_pos"], env.sim.observation.peg_tip.pos, atol=1e-6)
+    np.testing.assert_allclose(obs["tcp_pos"], env.sim.observation.tcp.pos, atol=1e-6)
+    np.testing.assert_allclose(obs["wrist_wrench"], env.sim.observation.wrist_wrench, rtol=1e-6, atol=1e-5)
+
+
+def test_reset_with_a_seed_is_deterministic_and_seeds_differ(env: PegInHoleGymEnv) -> None:
+    actions = np.random.default_rng(0).uniform(env.action_space.low, env.action_space.high, (5, 6))
+
+    def rollout(seed: int) -> list[np.ndarray]:
+        obs, _ = env.reset(seed=seed)
+        seen = [obs["peg_tip_pos"], obs["qpos"]]
+        for action in actions:
+            obs, reward, *_ = env.step(action.astype(np.float32))
+            seen += [obs["qpos"], obs["wrist_wrench"], obs["peg_tip_pos"], np.array([reward])]
+        return seen
+
+    first, again, other = rollout(7), rollout(7), rollout(8)
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    assert not np.allclose(first[0], other[0])
+
+
+def test_random_actions_run_until_the_time_limit_truncates(env: PegInHoleGymEnv) -> None:
+    env.action_space.seed(3)
+    obs, _ = env.reset(seed=3)
+    for steps in range(1, 1000):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert env.observation_space.contains(obs) and np.isfinite(reward)
+        if terminated or truncated:
+            break
+    assert truncated == (info["reason"] == "time_limit") and terminated != truncated
+    if truncated:
+        assert steps == round(0.5 / env.sim.control_period_s)
+
+
+def test_action_is_the_peg_tip_pose_relative_to_the_goal_orientation(env: PegInHoleGymEnv) -> None:
+    rotvec = np.array([0.0, 0.0, 0.2])
+    goal = env.sim.nominal_goal
+    pose, stiffness = env.command(np.concatenate([goal.pos, rotvec]))
+    np.testing.assert_allclose(pose.pos, goal.pos)
+    assert quat_angle_rad(pose.quat, goal.quat) == pytest.approx(0.2, abs=1e-12)
+    assert stiffness is None
+    clipped, _ = env.command(np.concatenate([goal.pos + 10.0, np.zeros(3)]))
+    np.testing.assert_allclose(clipped.pos, env.action_space.high[:3].astype(float))
+
+
+def test_stiffness_action_sets_the_translational_diagonal() -> None:
+    made = gymnasium.make(ENV_ID, stiffness_action=True, rotational_stiffness=70.0)
+    env = made.unwrapped
+    assert env.action_space.shape == (9,)
+    np.testing.assert_allclose(env.action_space.low[6:], STIFFNESS_RANGE_N_M[0])
+    _, stiffness = env.command(np.concatenate([env.sim.nominal_goal.pos, np.zeros(3), [300.0, 600.0, 900.0]]))
+    np.testing.assert_allclose(stiffness, np.diag([300.0, 600.0, 900.0, 70.0, 70.0, 70.0]))
+
+
+def test_reward_is_minus_the_distance_of_the_peg_to_the_true_goal(env: PegInHoleGymEnv) -> None:
+    goal = env.sim.nominal_goal
+    start = (goal.pos + np.array([0.0, 0.0, 0.1]), goal.quat)
+    obs, _ = env.reset(options={"start_pose": start})
+    _, reward, *_ = env.step(np.concatenate([start[0], np.zeros(3)]).astype(np.float32))
+    peg, true_goal = env.sim.observation.peg_tip, env.sim.goal
+    distance = np.linalg.norm(peg.pos - true_goal.pos)
+    angle = quat_angle_rad(peg.quat, true_goal.quat)
+    assert reward == pytest.approx(-(distance + 0.1 * angle), rel=1e-9)
+    assert 0.08 < -reward < 0.12
+
+
+def test_an_insertion_terminates_with_success_and_the_bonus() -> None:
+    """Slowly lowering the peg from 1 cm above the opening into the hole: the simulator declares success."""
+    made = gymnasium.make(ENV_ID, time_limit_s=5.0)
+    env = made.unwrapped
+    env.reset(seed=0)
+    hole, goal = env.sim.hole, env.sim.goal  # the true ones: this scripted test knows them
+    above = hole.pos + 0.01 * env.sim.hole_axis
+    env.reset(seed=0, options={"start_pose": (above, goal.quat)})
+    rotvec = quat_to_rotvec(quat_mul(goal.quat, quat_conj(env.sim.nominal_goal.quat)))
+    for k in range(500):
+        s = min(1.0, k / 300)
+        action = np.concatenate([above + s * (goal.pos - above), rotvec]).astype(np.float32)
+        obs, reward, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    assert terminated and not truncated and info["reason"] == "success" and info["is_success"]
+    assert reward > 90.0 and obs["inserted"] == 1
+
+
+def test_render_returns_an_rgb_frame() -> None:
+    made = gymnasium.make(ENV_ID, render_mode="rgb_array", width=160, height=120)
+    made.reset(seed=0)
+    try:
+        frame = made.render()
+    except EnvError as err:
+        pytest.skip(f"no OpenGL context here: {err}")
+    finally:
+        made.close()
+    assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8 and frame.std() > 0.0

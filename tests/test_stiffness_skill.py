@@ -1,0 +1,203 @@
+"""A pose + stiffness skill on R^3 x S^3 x SPD(3): SPD and bounded generation from 1000 starts, convergence to
+the goal stiffness, reproduction of the demonstrated stiffness, checkpoints, policies, `pih train --stiffness`."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from envs.errors import EnvError
+from envs.execution.policy import (ClosedLoopPolicy, OpenLoopPolicy, StiffnessSetting, full_stiffness,
+                                   generate_plan)
+from envs.poses import Pose
+from controllers.impedance import validate_stiffness
+from rflow.errors import RFlowError
+from rflow.generate import rollout
+from rflow.skill_io import POSE_STIFFNESS, fit_pose_skill, load_skill, save_skill, stiffness_reproduction
+from rflow.stiffness import StiffnessBounds, log_euclidean_mean, profile_distance
+from scripts.cli import main
+from skill_fixtures import TINY, tiny_skill
+from stiffness_fixtures import SCHEDULE, HOLE_AXIS, small_stiffness_skill, stiffness_demos, write_stiffness_demo_file
+
+STARTS = 1000
+
+
+@pytest.fixture(scope="module")
+def trained():
+    return small_stiffness_skill()
+
+
+def _random_starts(skill, demos, num, seed=0):
+    """Points whose tangent vectors are uniform in twice the demos' tangent box (per dimension, around its centre;
+    at least +-0.1 wide, so directions the demos never vary in, e.g. off-diagonal stiffness, are exercised too)."""
+    model = skill.models["joint"]
+    v = np.asarray(POSE_STIFFNESS.log(POSE_STIFFNESS.prepare(skill.joint_point(demos.pos, demos.quat, demos.stiffness)),
+                                      model.goal)).reshape(-1, 12)
+    centre, half = 0.5 * (v.max(0) + v.min(0)), np.maximum(v.max(0) - v.min(0), 0.1)
+    rng = np.random.default_rng(seed)
+    return np.asarray(POSE_STIFFNESS.exp(centre + rng.uniform(-1.0, 1.0, (num, 12)) * half, model.goal))
+
+
+def test_generated_stiffness_is_spd_bounded_and_converges_from_1000_starts(trained):
+    skill, demos = trained
+    model = skill.models["joint"]
+    starts = _random_starts(skill, demos, STARTS)
+    transient = rollout(model, starts, steps=200, xi=1e-12)  # 200 demo steps: 10 s
+    raw = skill.split_point(transient.points)[2]
+    assert np.linalg.eigvalsh(raw).min() > 0.0  # SPD by construction (Exp map), before any clip
+    bounded, clipped = skill.bound_stiffness(raw)
+    lam = np.linalg.eigvalsh(bounded)
+    assert lam.min() >= 100.0 * (1 - 1e-9) and lam.max() <= 3000.0 * (1 + 1e-9)
+    print(f"eigenvalue clip acted on {100 * clipped.mean():.2f} % of {clipped.size} generated samples "
+          f"({100 * clipped[:, 0].mean():.1f} % of the starts themselves)")
+    late = rollout(model, transient.points[:, -1], steps=100, xi=1e-12, dt=1.0)  # then 100 s more
+    final = skill.split_point(late.points[:, -1])[2]
+    goal = np.broadcast_to(skill.goal_stiffness, final.shape)
+    assert profile_distance(goal[:, None], final[:, None]).max() < 1e-3  # Log-Euclidean, dimensionless
+
+
+def test_goal_stiffness_is_the_demos_goal_and_inside_the_bounds(trained):
+    skill, demos = trained
+    assert np.allclose(skill.goal_stiffness, SCHEDULE.goal_stiffness(HOLE_AXIS))
+    assert not skill.bound_stiffness(skill.goal_stiffness)[1]
+
+
+def test_learned_stiffness_reproduces_the_demos_better_than_any_constant_profile(trained):
+    skill, demos = trained
+    rec = stiffness_reproduction(skill, demos.pos, demos.quat, demos.stiffness)
+    k = demos.stiffness
+    constants = {"start": skill.start_stiffness, "goal": skill.goal_stiffness,
+                 "Log-Euclidean mean": log_euclidean_mean(k.reshape(-1, 3, 3))}
+    best = min(float(profile_distance(k, np.broadcast_to(c, k.shape)).mean()) for c in constants.values())
+    print(f"mean Log-Euclidean distance {rec['log_euclidean_mean']:.3f} vs {best:.3f} for the best constant profile; "
+          f"clip fraction {rec['clip_fraction']:.4f}")
+    assert rec["log_euclidean_mean"] < best  # it learned how the stiffness varies, not one value
+
+
+def test_checkpoint_round_trip_keeps_the_stiffness_model(trained, tmp_path):
+    skill, _ = trained
+    loaded = load_skill(save_skill(tmp_path / "ck", skill))
+    assert loaded.has_stiffness and np.allclose(loaded.goal_stiffness, skill.goal_stiffness)
+    assert loaded.stiffness_bounds == StiffnessBounds()
+    x = skill.joint_point(skill.goal_pos + [0.0, 0.02, 0.1], skill.goal_quat, skill.start_stiffness)
+    assert np.allclose(rollout(loaded.models["joint"], x, 20).points, rollout(skill.models["joint"], x, 20).points)
+
+
+def test_pose_only_joint_skills_still_load_and_have_no_stiffness(tmp_path):
+    loaded = load_skill(save_skill(tmp_path / "ck", tiny_skill("joint")))
+    assert not loaded.has_stiffness and loaded.models["joint"].manifold.name == "pose"
+    with pytest.raises(RFlowError):
+        loaded.goal_stiffness
+
+
+def test_stiffness_needs_the_joint_layout_and_bounds_that_hold_it():
+    demos = stiffness_demos(n=3, m=20)
+    with pytest.raises(RFlowError, match="joint"):
+        fit_pose_skill(demos.pos, demos.quat, demos.dt, TINY, "separate", False, stiffness=demos.stiffness)
+    with pytest.raises(RFlowError, match="outside the bounds"):
+        fit_pose_skill(demos.pos, demos.quat, demos.dt, TINY, "joint", False, stiffness=demos.stiffness,
+                       bounds=StiffnessBounds(500.0, 3000.0))
+
+
+def test_open_loop_plan_carries_bounded_stiffness_ending_at_the_goal(trained):
+    skill, demos = trained
+    start = Pose(pos=demos.pos[0, 0], quat=demos.quat[0, 0])
+    plan = generate_plan(skill, start, 30.0, 0.05)
+    assert plan.stiffness.shape == (plan.pos.shape[0], 3, 3)
+    assert np.allclose(plan.stiffness[0], skill.start_stiffness)
+    assert np.allclose(plan.stiffness[-1], skill.goal_stiffness, rtol=1e-3)
+    policy = OpenLoopPolicy(skill, duration_s=2.0, stiffness=StiffnessSetting.parse("learned"))
+    policy.reset(start, 0.01)
+    assert np.allclose(policy.command(0, start).stiffness, policy.plan.stiffness[1])
+
+
+def test_closed_loop_integrates_the_stiffness_state_instead_of_measuring_it(trained):
+    skill, demos = trained
+    policy = ClosedLoopPolicy(skill, stiffness=StiffnessSetting.parse("learned"))
+    start = Pose(pos=demos.pos[0, 0], quat=demos.quat[0, 0])
+    policy.reset(start, 0.05)
+    first = policy.command(0, start).stiffness
+    assert np.allclose(first, skill.start_stiffness)
+    plan = generate_plan(skill, start, 0.5, 0.05)
+    for step in range(1, 10):  # the arm does not move, yet the stiffness follows the flow from that pose
+        cmd = policy.command(step, start)
+    assert not np.allclose(cmd.stiffness, first)
+    assert np.isfinite(cmd.stiffness).all() and policy.stiffness_clipped_steps == 0
+    assert plan.stiffness is not None
+
+
+def test_constant_stiffness_setting_and_full_matrix():
+    setting = StiffnessSetting.parse("constant:800")
+    assert setting.constant_n_m == 800.0
+    k = full_stiffness(800.0 * np.eye(3), 80.0)
+    assert np.allclose(k, np.diag([800.0] * 3 + [80.0] * 3))
+    validate_stiffness(k)
+    for bad in ("constant:0", "constant:-5", "constant:nan", "constant:", "stiff", "constant:abc"):
+        with pytest.raises(EnvError):
+            StiffnessSetting.parse(bad)
+    with pytest.raises(EnvError, match="learned"):
+        ClosedLoopPolicy(tiny_skill(), stiffness=StiffnessSetting.parse("learned"))
+
+
+TINY_ARGS = ["--epochs", "2", "--layers", "2", "--width", "16", "--subsample", "1", "--horizon", "5",
+             "--transitions-per-epoch", "256", "--threads", "1", "--quiet"]
+
+
+@pytest.mark.parametrize("source", ["expert", "variability"])
+def test_pih_train_stiffness_reports_the_log_euclidean_distance(tmp_path, capsys, source):
+    demos = write_stiffness_demo_file(tmp_path, n=3, m=30)
+    assert main(["train", "--demos", str(demos), "--out", str(tmp_path / "ck"), "--stiffness", source, *TINY_ARGS]) == 0
+    out = capsys.readouterr().out
+    assert "mean Log-Euclidean distance" in out
+    rec = json.loads((tmp_path / "ck" / "skill.json").read_text())["metadata"]["stiffness"]
+    assert rec["source"] == source and len(rec["log_euclidean_per_demo"]) == 3
+    assert load_skill(tmp_path / "ck").has_stiffness
+
+
+@pytest.mark.parametrize("args,words", [(["--stiffness", "expert", "--k-min", "-1"], "k_min"),
+                                        (["--stiffness", "expert", "--k-min", "500", "--k-max", "400"], "k_min"),
+                                        (["--stiffness", "expert"], "no 'stiffness'")])
+def test_pih_train_stiffness_bad_input_exits_2(tmp_path, capsys, args, words):
+    from skill_fixtures import write_demo_file
+
+    demos = write_demo_file(tmp_path)  # no stiffness in this file
+    assert main(["train", "--demos", str(demos), "--out", str(tmp_path / "ck"), *args, *TINY_ARGS]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pih train: error:") and words in err and "\n" not in err
+    assert not (tmp_path / "ck").exists()
+
+
+class _RecordingController:
+    """Stands in for the impedance controller: records the stiffness the pose lead is computed with."""
+
+    class config:  # noqa: N801 - mimics ImpedanceConfig's attribute
+        rotational_stiffness = 80.0
+
+    def __init__(self):
+        self.stiffness = "not called"
+
+    def pose_lead(self, data, twist, accel=None, stiffness=None):
+        self.stiffness = stiffness
+        return np.zeros(6)
+
+
+class _FakeEnv:
+    def __init__(self):
+        self.controller = _RecordingController()
+        self.data = None
+
+
+def test_feedforward_lead_uses_the_commanded_stiffness():
+    from envs.execution.policy import Command, command_stiffness, feedforward_pose
+
+    pose = Pose(pos=np.zeros(3), quat=np.array([1.0, 0.0, 0.0, 0.0]))
+    env = _FakeEnv()
+    k = np.diag([300.0, 300.0, 1000.0])
+    command = Command(pose, np.full(6, 0.01), pose, stiffness=k)
+    feedforward_pose(env, command)
+    assert np.allclose(env.controller.stiffness, np.diag([300.0, 300.0, 1000.0, 80.0, 80.0, 80.0]))
+    assert np.allclose(command_stiffness(env, command), env.controller.stiffness)
+    feedforward_pose(env, Command(pose, np.full(6, 0.01), pose))
+    assert env.controller.stiffness is None  # no stiffness: the controller's default
