@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
-# Set up pih-rflow on a fresh Debian machine: system packages for headless rendering (Mesa EGL/OSMesa),
-# a virtual environment in .venv with the CPU build of torch, and the project with its test and cluster (Ray) extras.
+# Set up pih-rflow on a fresh Debian machine: system packages for headless rendering (Mesa EGL/OSMesa) and the
+# PostgreSQL server of the shared-study test, a virtual environment in .venv with the CPU build of torch, and
+# the project with its test, cluster (Ray) and search (Optuna) extras.
 set -euo pipefail
 cd "$(dirname "$0")"
 
 if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
     need=()
-    for pkg in libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libosmesa6 libglu1-mesa; do
+    for pkg in libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libosmesa6 libglu1-mesa postgresql; do
         dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
     done
     if [ "${#need[@]}" -gt 0 ]; then
@@ -21,5 +22,5 @@ PYTHON="${PYTHON:-python3}"
 .venv/bin/python -m pip install -q --upgrade pip
 # The CPU build first, pinned, so no resolver ever pulls CUDA wheels.
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[test,cluster]"
+.venv/bin/python -m pip install -q -e ".[test,cluster,search]"
 echo "setup.sh: ready -- activate with: source .venv/bin/activate"

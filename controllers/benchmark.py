@@ -1,4 +1,5 @@
-"""Throughput of the controllers for `pih bench`: closed-loop physics steps/s and mink IK solves/s.
+"""Throughput of the controllers for `pih bench`: closed-loop physics steps/s, mink IK solves/s and the nullspace
+reference's update per control step.
 
 Timings are medians over repeats on one core; run them on an otherwise idle machine for comparable figures.
 """
@@ -12,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controllers.errors import ControllerError
-from controllers.ik import solve_ik
+from controllers.ik import NullspaceReference, solve_ik
 from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
 from controllers.validation import site_id
 
@@ -122,3 +123,46 @@ def measure_ik_rate(
         times.append(time.perf_counter() - start)
     median = float(np.median(times))
     return {"ik_solves_per_s": 1.0 / median, "ik_ms_median": 1e3 * median}
+
+
+def measure_nullspace_update(
+    model: mujoco.MjModel,
+    site: int | str = "peg_mount",
+    n_updates: int = 1000,
+    amplitude_m: float = 0.02,
+) -> dict[str, float]:
+    """Time `NullspaceReference.update` (3 warm-started IK iterations, as every control step runs it) along a target
+    circling the home pose of the site at 1 Hz, sampled at 100 Hz.
+
+    Args:
+        model: the arm or a scene containing it.
+        site: the controlled site.
+        n_updates: timed updates (the median is reported).
+        amplitude_m: radius of the circle.
+
+    Returns:
+        {"nullspace_update_us_median": median time per update in us}.
+
+    Raises:
+        ControllerError: n_updates < 1, or a model the reference cannot run on.
+    """
+    if n_updates < 1:
+        raise ControllerError(f"n_updates={n_updates} must be >= 1")
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    q_home = model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
+    data = mujoco.MjData(model)
+    data.qpos[:] = q_home
+    mujoco.mj_kinematics(model, data)
+    target_site = site_id(model, site)
+    centre = data.site_xpos[target_site].copy()
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[target_site])
+    reference = NullspaceReference(model, site, q_home)
+    times = []
+    for k in range(n_updates):
+        phase = 2.0 * np.pi * k / 100.0
+        pos = centre + amplitude_m * np.array([np.cos(phase) - 1.0, np.sin(phase), 0.0])
+        start = time.perf_counter()
+        reference.update(pos, quat)
+        times.append(time.perf_counter() - start)
+    return {"nullspace_update_us_median": 1e6 * float(np.median(times))}

@@ -21,8 +21,9 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from controllers import ik_kernel
 from controllers.errors import ControllerError
-from controllers.validation import as_unit_quaternion, as_vector, site_name
+from controllers.validation import as_unit_quaternion, as_vector, site_id, site_name
 
 _SOLVER = "daqp"
 
@@ -191,10 +192,15 @@ def _within(residual: tuple[float, float], config: IKConfig) -> bool:
 class NullspaceReference:
     """Joint reference for the impedance controller's nullspace that follows the commanded pose.
 
-    Every `update` runs a few warm-started mink iterations (frame task + posture task toward q_nominal, joint
-    limits) from the previous reference, so the reference tracks a moving target at the command rate (100 Hz)
-    without solving to convergence.
+    Every `update` runs a few warm-started differential-IK iterations (frame task + posture task toward q_nominal,
+    joint limits: the QP of the module docstring, as mink builds it) from the previous reference, so the reference
+    tracks a moving target at the command rate (100 Hz) without solving to convergence. The iterations run the
+    compiled step of `controllers.ik_kernel` (equal to mink's to ~1e-12 rad, tests/test_ik_kernel.py) because they
+    run every control step; `solve_ik` (once per episode) keeps mink.
     """
+
+    LIMIT_GAIN = 0.95  # mink.ConfigurationLimit's default: a step covers at most 95 % of the way to a limit
+    DAMPING = 1e-9  # mu_0, as passed to mink.solve_ik above
 
     def __init__(
         self,
@@ -205,32 +211,67 @@ class NullspaceReference:
         config: IKConfig = IKConfig(),
     ) -> None:
         """Args:
-            model: the arm or a scene containing it.
+            model: the arm or a scene containing it (hinge, slide and free joints).
             site: name or id of the controlled site.
             q_nominal: posture reference and initial reference (rad).
-            iterations: mink iterations per update (>= 1).
+            iterations: IK iterations per update (>= 1).
             config: posture cost and LM damping (tolerances unused).
 
         Raises:
-            ControllerError: bad site, q_nominal or iterations.
+            ControllerError: bad site, q_nominal or iterations, or a model with ball joints.
         """
         if int(iterations) < 1:
             raise ControllerError(f"iterations={iterations!r} must be >= 1")
-        self._problem = _MinkProblem(model, site, config)
+        if np.any(model.jnt_type == mujoco.mjtJoint.mjJNT_BALL):
+            raise ControllerError("NullspaceReference supports hinge, slide and free joints, not ball joints")
+        self.model = model
+        self.site_id = site_id(model, site)
         self._iterations = int(iterations)
-        self.q_nominal = self._problem.joints(q_nominal, "q_nominal")
-        self._problem.posture_task.set_target(self.q_nominal)
+        self._config = config
+        self._data = mujoco.MjData(model)
+        dof_qpos_adr = np.full(model.nv, -1, dtype=np.int64)
+        limited = np.zeros(model.nv)
+        q_min, q_max = np.zeros(model.nv), np.zeros(model.nv)
+        for joint in range(model.njnt):
+            if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_FREE:
+                continue
+            dof = int(model.jnt_dofadr[joint])
+            dof_qpos_adr[dof] = int(model.jnt_qposadr[joint])
+            limited[dof] = float(bool(model.jnt_limited[joint]))
+            q_min[dof], q_max[dof] = model.jnt_range[joint]
+        self._dof_qpos_adr, self._limited, self._q_min, self._q_max = dof_qpos_adr, limited, q_min, q_max
+        self._lower, self._upper = model.jnt_range[:, 0], model.jnt_range[:, 1]
+        self._jac = np.zeros((6, model.nv))
+        self._dq = np.zeros(model.nv)
+        self._target_pos = np.zeros(3)
+        self._target_mat = np.zeros(9)
+        self._scratch = np.zeros((12, 3, 3))
+        self.q_nominal = self._joints(q_nominal, "q_nominal")
         self.reset()
+
+    def _joints(self, value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:
+        """A joint vector of the model's size, hinge and slide joints clipped into their limits."""
+        q = as_vector(value, self.model.nq, name)
+        for joint in range(self.model.njnt):
+            if self.model.jnt_limited[joint] and self.model.jnt_type[joint] != mujoco.mjtJoint.mjJNT_FREE:
+                adr = self.model.jnt_qposadr[joint]
+                q[adr] = np.clip(q[adr], self._lower[joint], self._upper[joint])
+        return q
 
     def reset(self, q: npt.ArrayLike | None = None) -> None:
         """Restart the reference from q (rad), or from q_nominal when None."""
-        start = self.q_nominal if q is None else self._problem.joints(q, "q")
-        self._problem.configuration.update(start.copy())
+        start = self.q_nominal if q is None else self._joints(q, "q")
+        self._data.qpos[:] = start
+        self._kinematics()
+
+    def _kinematics(self) -> None:
+        mujoco.mj_kinematics(self.model, self._data)
+        mujoco.mj_comPos(self.model, self._data)
 
     @property
     def q(self) -> npt.NDArray[np.float64]:
         """Copy of the current joint reference (rad)."""
-        return self._problem.configuration.q.copy()
+        return self._data.qpos.copy()
 
     def update(self, target_pos: npt.ArrayLike, target_quat: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Advance the reference toward the pose and return it.
@@ -245,9 +286,18 @@ class NullspaceReference:
         Raises:
             ControllerError: bad target or a failed QP.
         """
-        pos = as_vector(target_pos, 3, "target_pos")
-        quat = as_unit_quaternion(target_quat, "target_quat")
-        self._problem.set_target(pos, quat)
+        self._target_pos[:] = as_vector(target_pos, 3, "target_pos")
+        mujoco.mju_quat2Mat(self._target_mat, as_unit_quaternion(target_quat, "target_quat"))
+        model, data, site = self.model, self._data, self.site_id
+        config = self._config
         for _ in range(self._iterations):
-            self._problem.iterate()
+            mujoco.mj_jacSite(model, data, self._jac[:3], self._jac[3:], site)
+            ok = ik_kernel.ik_step(self._jac, data.site_xpos[site], data.site_xmat[site], self._target_pos,
+                                   self._target_mat, data.qpos, self.q_nominal, self._dof_qpos_adr,
+                                   config.posture_cost, config.lm_damping, self.DAMPING, self._limited,
+                                   self._q_min, self._q_max, self.LIMIT_GAIN, self._dq, self._scratch)
+            if not ok:
+                raise ControllerError(f"IK step failed for site {site_name(model, site)!r} (QP not solved)")
+            mujoco.mj_integratePos(model, data.qpos, self._dq, 1.0)
+            self._kinematics()
         return self.q

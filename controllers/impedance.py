@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -338,16 +339,24 @@ class CartesianImpedanceController:
         stiffness: npt.ArrayLike | None = None,
         q_nullspace: npt.ArrayLike | None = None,
         n_substeps: int = 1,
-    ) -> None:
+        before_substep: Callable[[], None] | None = None,
+        after_substep: Callable[[], bool] | None = None,
+    ) -> int:
         """Advance the simulation n_substeps physics steps under impedance control toward a fixed target.
 
-        Each substep: mj_step1 (positions, velocities, mass matrix, bias), torque into data.ctrl, mj_step2.
-        Inputs are validated once per call, not per substep.
+        Each substep: before_substep(), mj_step1 (positions, velocities, mass matrix, bias), torque into data.ctrl,
+        mj_step2, after_substep(). Inputs are validated once per call, not per substep, so a caller that must act
+        between physics steps (apply a load, read a sensor) passes hooks instead of calling with n_substeps=1.
 
         Args:
             data: MuJoCo data of `self.model`.
             target_pos, target_quat, stiffness, q_nullspace: as in `compute_torque`.
             n_substeps: number of physics steps (e.g. 10 for a 100 Hz command at 1 kHz physics).
+            before_substep: called before each physics step (e.g. to set data.qfrc_applied).
+            after_substep: called after each physics step; returning True stops early (e.g. a force limit).
+
+        Returns:
+            The number of physics steps taken (n_substeps unless after_substep stopped the loop).
 
         Raises:
             ControllerError: bad inputs, n_substeps < 1, or a singular Cartesian inertia (the state is then
@@ -358,10 +367,15 @@ class CartesianImpedanceController:
         k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
         views = self._data_views(data)
         model, step1, step2, torque = self.model, mujoco.mj_step1, mujoco.mj_step2, self._torque
-        for _ in range(int(n_substeps)):
+        for substep in range(int(n_substeps)):
+            if before_substep is not None:
+                before_substep()
             step1(model, data)
             torque(data, k, views)
             step2(model, data)
+            if after_substep is not None and after_substep():
+                return substep + 1
+        return int(n_substeps)
 
     def _validate(
         self,

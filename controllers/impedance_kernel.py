@@ -158,7 +158,7 @@ def inertia_inverse_into(jac: np.ndarray, jac_minv: np.ndarray, regularisation: 
 
 
 @_jit
-def _mat_to_quat(mat: np.ndarray, quat: np.ndarray) -> None:
+def mat_to_quat(mat: np.ndarray, quat: np.ndarray) -> None:
     """Unit quaternion (w, x, y, z) of a row-major 3x3 rotation matrix (9,), by its largest component."""
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = mat[0], mat[1], mat[2], mat[3], mat[4], mat[5], mat[6], mat[7], mat[8]
     trace = m00 + m11 + m22
@@ -192,7 +192,7 @@ def pose_error_into(pos: np.ndarray, quat: np.ndarray, site_pos: np.ndarray, sit
     """
     for i in range(3):
         error[i] = pos[i] - site_pos[i]
-    _mat_to_quat(site_mat, scratch)
+    mat_to_quat(site_mat, scratch)
     w1, x1, y1, z1 = quat[0], quat[1], quat[2], quat[3]
     w2, x2, y2, z2 = scratch[0], -scratch[1], -scratch[2], -scratch[3]
     w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2

@@ -5,11 +5,13 @@ perturbations (hole-pose error, grasp offset) and the force limit. The success c
 envs.success.SuccessConfig (seated within 1 mm, inside the walls, at rest).
 
 Presets:
-  - "contact" (default): the peg grasped with 70 N, a 0.2 mm clearance, 1 mm chamfers, the real hole off by up
-    to 1 mm horizontally and 1 deg (yaw and tilt), a 40 N wrist force limit. The peg meets the walls in most
+  - "contact" (default): the peg grasped with 70 N, a 0.2 mm clearance, 1 mm chamfers, holes exactly as deep
+    as the insertion (seated = on the hole's floor, as in Factory), the real hole off by up to 1 mm
+    horizontally and 1 deg (yaw and tilt), a 40 N wrist force limit. The peg meets the walls in most
     episodes, so the impedance controller's compliance is part of the task. (NVIDIA Factory's peg task: 0.11 mm
     clearance, 1 mm hole-position noise, success within 1 mm of seated.)
-  - "paper": the paper's toy setting: 1 mm clearance, no chamfer, the hole exactly where the demos ended.
+  - "paper": the paper's toy setting: 1 mm clearance, no chamfer, 40 mm deep holes (the goal 30 mm down), the
+    hole exactly where the demos ended.
   - "factory": Factory's tolerances on our 30 mm square peg: 0.1 mm clearance (the smallest we build), 1 mm
     hole error, a 3 mm grasp offset along the peg axis, 0.5 mm chamfers.
 """
@@ -25,7 +27,7 @@ import numpy as np
 from envs.errors import EnvError
 from envs.perturbation import PerturbationRanges
 from envs.scene import FRANKA_GRASP_FORCE_N, PEG_MODES, SceneConfig
-from envs.sorter import check_chamfer, check_clearance
+from envs.sorter import check_chamfer, check_clearance, check_hole_depth
 
 TASK_PEG_MODES: tuple[str, ...] = tuple(m for m in PEG_MODES if m != "free")
 
@@ -39,6 +41,7 @@ class TaskConfig:
         clearance_m: hole-minus-peg clearance, in [0.1 mm, 5 mm].
         chamfer_m: 45 deg chamfer at the hole mouths, in [0, 3 mm].
         grasp_force_n: force closing each finger (grasped peg).
+        hole_depth_m: depth of the blind holes (the goal is 30 mm below the opening; equal: seated on the floor).
         perturbations: per-episode hole-pose error and grasp offset ranges.
         force_limit_n: an episode whose wrist force stays above this for 5 ms fails "force_limit" (inf: none).
 
@@ -50,6 +53,7 @@ class TaskConfig:
     clearance_m: float = 0.0002
     chamfer_m: float = 0.001
     grasp_force_n: float = FRANKA_GRASP_FORCE_N
+    hole_depth_m: float = 0.03
     perturbations: PerturbationRanges = field(
         default_factory=lambda: PerturbationRanges(hole_error_m=0.001, hole_error_deg=1.0))
     force_limit_n: float = 40.0
@@ -59,6 +63,7 @@ class TaskConfig:
             raise EnvError(f"peg mount {self.peg_mode!r} must be one of {', '.join(TASK_PEG_MODES)}")
         check_clearance(self.clearance_m)
         check_chamfer(self.chamfer_m)
+        check_hole_depth(self.hole_depth_m)
         if not (isinstance(self.force_limit_n, (int, float)) and not np.isnan(self.force_limit_n)
                 and self.force_limit_n > 0.0):
             raise EnvError(f"force limit {self.force_limit_n!r} N must be > 0 (inf: no limit)")
@@ -68,7 +73,7 @@ class TaskConfig:
     def scene_fields(self) -> dict[str, Any]:
         """The SceneConfig fields this task sets."""
         return {"peg_mode": self.peg_mode, "clearance_m": self.clearance_m, "chamfer_m": self.chamfer_m,
-                "grasp_force_n": self.grasp_force_n}
+                "grasp_force_n": self.grasp_force_n, "hole_depth_m": self.hole_depth_m}
 
     def scene_config(self, **overrides: Any) -> SceneConfig:
         """A SceneConfig with this task's fields (plus ``overrides``, e.g. shape or goal)."""
@@ -77,7 +82,7 @@ class TaskConfig:
 
 PRESETS: Mapping[str, TaskConfig] = MappingProxyType({
     "contact": TaskConfig(),
-    "paper": TaskConfig(clearance_m=0.001, chamfer_m=0.0, perturbations=PerturbationRanges()),
+    "paper": TaskConfig(clearance_m=0.001, chamfer_m=0.0, hole_depth_m=0.04, perturbations=PerturbationRanges()),
     "factory": TaskConfig(clearance_m=0.0001, chamfer_m=0.0005,
                           perturbations=PerturbationRanges(hole_error_m=0.001, hole_error_deg=0.0,
                                                            grasp_offset_m=0.003)),

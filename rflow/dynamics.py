@@ -66,18 +66,25 @@ class StableLinearDynamics(nn.Module):
         return torch.exp(self.log_noise)
 
     def transition(self, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Exact transition over times ``tau`` (K,) in seconds: Phi (K, D, D) and Sigma (K, D, D)."""
+        """Exact transition over times ``tau`` (K,) in seconds: Phi (K, D, D) and Sigma (K, D, D), in the
+        parameters' dtype.
+
+        Computed in float64 whatever the parameters' dtype: the block exponential holds expm(-V tau), which
+        grows like exp(rate tau), and Sigma = Phi X cancels it; in float32 a latent rate of 3/s over a 9 s
+        horizon (e^27) already left Sigma indefinite (a 12-D pose + stiffness model, rflow.skill_io).
+        """
         v = self.drift_matrix()
         d = self.dim
-        q = torch.diag(self.noise_std() ** 2)
-        block = v.new_zeros(2 * d, 2 * d)
-        block[:d, :d] = -v
+        v64 = v.double()
+        q = torch.diag(self.noise_std().double() ** 2)
+        block = v64.new_zeros(2 * d, 2 * d)
+        block[:d, :d] = -v64
         block[:d, d:] = q
-        block[d:, d:] = v.T
-        big = torch.linalg.matrix_exp(tau.reshape(-1, 1, 1).to(v.dtype) * block)
+        block[d:, d:] = v64.T
+        big = torch.linalg.matrix_exp(tau.reshape(-1, 1, 1).double() * block)
         phi = big[:, d:, d:].transpose(-1, -2)
         sigma = phi @ big[:, :d, d:]
-        return phi, 0.5 * (sigma + sigma.transpose(-1, -2))
+        return phi.to(v.dtype), (0.5 * (sigma + sigma.transpose(-1, -2))).to(v.dtype)
 
     def log_prob(self, q0: torch.Tensor, q1: torch.Tensor, phi: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
         """log N(q1; Phi q0, Sigma) for pairs (B, D) with per-pair Phi, Sigma (B, D, D) -> (B,)."""

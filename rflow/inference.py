@@ -36,6 +36,9 @@ class NumpyImitationFlow:
     """
 
     _MAX_CACHED_STEPS = 64  # step matrices kept per dt
+    PARALLEL_MIN_POINTS = 16384
+    """Batches of at least this many points run on all cores (flow_kernel.flow_pass_parallel), smaller ones on one:
+    a control loop or an evaluation worker's single rollout must not wake threads that compete with other workers."""
 
     def __init__(self, packed: PackedFlow, offset: np.ndarray, drift: np.ndarray, dt: float):
         self._packed = packed
@@ -128,14 +131,19 @@ class NumpyImitationFlow:
     def forward(self, q: npt.ArrayLike) -> np.ndarray:
         """p = b(q) = b_theta(q + c) for latent points (N, D) -> (N, D)."""
         x = self._rows(q)
-        flow_kernel.flow_pass_blocks(x, 1.0, self.offset, self._zero, *self._weights)
+        self._pass(x, 1.0, self.offset, self._zero)
         return x
 
     def inverse(self, p: npt.ArrayLike) -> np.ndarray:
         """q = b^-1(p) = b_theta^-1(p) - c for normalised tangent vectors (N, D) -> (N, D)."""
         x = self._rows(p)
-        flow_kernel.flow_pass_blocks(x, -1.0, self._zero, self._minus_offset, *self._weights)
+        self._pass(x, -1.0, self._zero, self._minus_offset)
         return x
+
+    def _pass(self, x: np.ndarray, sign: float, before: np.ndarray, after: np.ndarray) -> None:
+        """x <- pass(x + before) + after in place: all layers (sign +1) or all inverses (sign -1)."""
+        run = flow_kernel.flow_pass_parallel if x.shape[0] >= self.PARALLEL_MIN_POINTS else flow_kernel.flow_pass
+        run(x, sign, before, after, *self._weights)
 
     def step(self, p: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
         """One exact latent step in normalised tangent space: b(Phi(dt) b^-1(p)), (N, D)."""

@@ -18,6 +18,8 @@ study name at the same URL share it (`load_if_exists`), each running its own tri
 from __future__ import annotations
 
 import dataclasses
+import os
+import socket
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -150,6 +152,7 @@ def make_objective(config: SearchConfig, data: RiemannianLasa,
             "lr": trial.suggest_float("lr", *space.lr, log=True),
         }
         train = trial_config(params, config.base)
+        trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")  # who ran it, in a shared study
         start = time.perf_counter()
 
         def report(epoch: int, model: RiemannianFlow, history: TrainHistory) -> None:

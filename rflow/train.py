@@ -52,7 +52,8 @@ class TrainConfig:
         prior_weight: lambda of the off-data identity prior (0: off, the paper's plain likelihood). The loss
             becomes NLL + lambda * mean ||b^-1(z) - (z - z_g)||^2 / D over ``batch_size`` points z drawn
             uniformly from the box [-r, r] per dimension, r = ``prior_radius`` x the largest |z| of the
-            normalised demos in that dimension: away from the demos the latent coordinates stay the
+            normalised demos in that dimension (at least 1, i.e. one std, for dimensions the demos never
+            vary in): away from the demos the latent coordinates stay the
             (goal-centred) tangent coordinates, so starts outside the demos converge like the latent
             linear system instead of wherever an unconstrained ReLU flow extrapolates.
         prior_radius: half-width of that box, in multiples of the demos' extent per dimension (> 0).
@@ -268,7 +269,8 @@ def fit(
         opt, lambda k: final + (1 - final) * 0.5 * (1 + math.cos(math.pi * min(k, total) / total))
     )
     z_t = torch.as_tensor(z, dtype=torch.float32)
-    prior_box = torch.as_tensor(config.prior_radius * np.abs(z).max(axis=0), dtype=torch.float32)
+    # at least prior_radius std wide: a dimension the demos never vary in (z = 0 throughout) still gets the prior
+    prior_box = torch.as_tensor(config.prior_radius * np.maximum(np.abs(z).max(axis=0), 1.0), dtype=torch.float32)
     held_out = _split_starts(n, m, config.val_fraction, rng)
     val_s, val_h = _sample(held_out, n, m, 16, 128, config.horizon, config.horizon_groups, rng)
     has_val = held_out.any() and val_s.size > 0

@@ -50,7 +50,7 @@ def bench_control(quick: bool) -> dict[str, Any]:
     from controllers.benchmark import measure_control_rate
 
     scene = build_scene(SceneConfig())
-    rates = measure_control_rate(scene.model, site="peg/peg_tip", n_steps=1000 if quick else 2000,
+    rates = measure_control_rate(scene.model, site=scene.ids.tcp_site, n_steps=1000 if quick else 2000,
                                  repeats=3 if quick else 7)
     rates["bar_steps_per_s"] = CONTROL_RATE_BAR_STEPS_PER_S
     rates["meets_bar"] = rates["closed_loop_steps_per_s"] >= CONTROL_RATE_BAR_STEPS_PER_S
@@ -84,13 +84,12 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         extra: dict[str, Any] = {"flow_in_loop": False}
     else:
         from envs.execution.episode import run_episode
-        from envs.execution.evaluate import EvaluationConfig, build_setup, sample_starts
+        from envs.execution.evaluate import EvaluationConfig, build_setup, evaluation_starts
 
         config = EvaluationConfig(episodes=2 if quick else 5)
         skill, env, policy = build_setup(model, config)
         demo = skill.metadata["demo_starts"]
-        starts = sample_starts(demo["pos"], demo["quat"], config.episodes, config.seed, config.pos_range_m,
-                               config.rot_range_deg, config.around)
+        starts = evaluation_starts(demo, config)
         rates, successes = [], 0
         for start in starts:
             record, _ = run_episode(env, policy, start, feedforward_gain=config.feedforward_gain)
@@ -154,11 +153,14 @@ def bench_render(quick: bool) -> dict[str, Any]:
 
 
 def bench_ik(quick: bool) -> dict[str, Any]:
-    """mink IK solves (peg_tip site, from the home posture) per second."""
-    from controllers.benchmark import measure_ik_rate
+    """mink IK solves of the tcp on the arm model (from the home posture) per second, and the nullspace reference's
+    per-control-step update."""
+    from controllers.benchmark import measure_ik_rate, measure_nullspace_update
 
     scene = build_scene(SceneConfig())
-    return measure_ik_rate(scene.model, site="peg/peg_tip", n_solves=10 if quick else 30)
+    figures = measure_ik_rate(scene.arm_model, site="tcp", n_solves=10 if quick else 30)
+    figures.update(measure_nullspace_update(scene.arm_model, site="tcp", n_updates=200 if quick else 1000))
+    return figures
 
 
 BENCHMARKS: list[Benchmark] = [
@@ -180,13 +182,21 @@ RATE_FIGURES: dict[str, str] = {
     "flow.closed_loop_rate_hz": "flow.closed_loop_steps_per_bare_step",
 }
 """Rates reported as rate / bare mj_step rate."""
-TIME_FIGURES_MS: tuple[str, ...] = ("flow.flow_step_ms", "flow.closed_loop_step_ms", "flow.rollout_1000_ms",
-                                    "flow.rollouts_100x1000_ms", "render.render_ms_per_frame")
-"""Times reported as the number of bare mj_steps that take as long."""
+TIME_FIGURES_S: dict[str, float] = {
+    "flow.flow_step_ms": 1e-3,
+    "flow.closed_loop_step_ms": 1e-3,
+    "flow.rollout_1000_ms": 1e-3,
+    "flow.rollouts_100x1000_ms": 1e-3,
+    "render.render_ms_per_frame": 1e-3,
+    "ik.ik_ms_median": 1e-3,
+    "ik.nullspace_update_us_median": 1e-6,
+    "control.controller_us_per_step": 1e-6,
+}
+"""Times (with their unit in seconds) reported as the number of bare mj_steps that take as long."""
 
 
 def relative_to_bare(results: dict[str, Any]) -> dict[str, float]:
-    """Every figure of RATE_FIGURES and TIME_FIGURES_MS present in `results`, relative to the bare mj_step rate of
+    """Every figure of RATE_FIGURES and TIME_FIGURES_S present in `results`, relative to the bare mj_step rate of
     the same run (results["control"]["bare_steps_per_s"]); empty without the control benchmark."""
     bare = results.get("control", {}).get("bare_steps_per_s")
     if not bare:
@@ -197,11 +207,11 @@ def relative_to_bare(results: dict[str, Any]) -> dict[str, float]:
         value = results.get(section, {}).get(key)
         if isinstance(value, (int, float)):
             out[name] = float(value) / bare
-    for figure in TIME_FIGURES_MS:
+    for figure, unit_s in TIME_FIGURES_S.items():
         section, key = figure.split(".")
         value = results.get(section, {}).get(key)
         if isinstance(value, (int, float)):
-            out[f"{section}.{key[:-3]}_in_bare_steps"] = float(value) * 1e-3 * bare
+            out[f"{figure}_in_bare_steps"] = float(value) * unit_s * bare
     return out
 
 

@@ -84,6 +84,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--unit-timeout", type=float, default=d.unit_timeout_s,
                         help=f"wall-clock seconds per episode before its worker is killed and the episode "
                              f"recorded 'wall_timeout'; 0 = no limit (default {d.unit_timeout_s:g})")
+    parser.add_argument("--stiffness",
+                        help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`) or "
+                             "'constant:K' (K I, K > 0 in N/m); default: the controller's")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_task_arguments(parser)
 
@@ -106,7 +109,7 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
         time_limit_s=args.time_limit, **evaluation_task_fields(args),
         shape=args.shape, hole_at_goal=args.hole_at_goal, workers=args.workers,
         unit_timeout_s=None if args.unit_timeout == 0 else args.unit_timeout, backend=args.backend,
-        ray_address=args.ray_address)
+        ray_address=args.ray_address, stiffness=args.stiffness)
 
 
 def journal_path(args: argparse.Namespace) -> Path | None:
@@ -172,6 +175,12 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
     config = config_from_args(args)
     if not args.model.is_dir():
         raise EnvError(f"--model {args.model}: checkpoint folder not found")
+    if config.stiffness == "learned":
+        from rflow.skill_io import load_skill
+
+        if not load_skill(args.model).has_stiffness:
+            raise EnvError(f"--stiffness learned: {args.model} has no stiffness model (train it with `pih train "
+                           "--stiffness expert|variability`)")
     if args.resume and args.overwrite:
         raise EnvError("--resume continues an earlier run and --overwrite replaces it: choose one")
     check_output("--json", args.json, ".json", args.overwrite or args.resume)
@@ -246,7 +255,7 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     Returns:
         {"video": path or None, "figure": path or None, "replayed": [...]} for the summary.
     """
-    from envs.execution.evaluate import replay_episodes, sample_starts
+    from envs.execution.evaluate import evaluation_starts, replay_episodes
     from envs.execution.policy import generate_plan
     from envs.video import EpisodeVideo, VideoConfig
     from rflow.skill_io import load_skill
@@ -256,8 +265,7 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         return out
     skill = load_skill(model_dir)
     meta = skill.metadata["demo_starts"]
-    starts_all = sample_starts(meta["pos"], meta["quat"], config.episodes, config.seed, config.pos_range_m,
-                               config.rot_range_deg, config.around)
+    starts_all = evaluation_starts(meta, config)
     starts = [starts_all[i] for i in episodes]
     holder: dict[str, Any] = {}
 

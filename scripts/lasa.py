@@ -53,7 +53,8 @@ _HYPERPARAMETERS = ("epochs", "layers", "lr", "batch_size")  # the options --con
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih lasa`."""
     parser.add_argument("--shape", help=f"LASA shape, one of: {', '.join(LASA_SHAPES)}")
-    parser.add_argument("--manifold", default="spd", help="spd (2x2 SPD matrices) or uq (unit quaternions); default spd")
+    parser.add_argument("--manifold", default="spd",
+                        help="spd (2x2 SPD matrices) or uq (unit quaternions); default spd")
     parser.add_argument("--method", default="rflow", help=f"one of {', '.join(METHODS)}; default rflow")
     parser.add_argument("--json", type=Path, help="write the result of --shape as JSON")
     parser.add_argument("--save-trajectories", type=Path, metavar="FILE.npz",
@@ -280,6 +281,8 @@ def run_all(args: argparse.Namespace) -> int:
         raise RFlowError(f"--out {out} exists and is not a folder")
     if not args.resume and (out / JOURNAL).exists():
         raise RFlowError(f"--out {out} holds a run already ({JOURNAL}): add --resume, or choose another folder")
+    if args.resume and not (out / JOURNAL).is_file():
+        raise RFlowError(f"--resume: there is no run to continue in {out} (no {JOURNAL})")
     units = [(unit_key(s, a, m), (s, a, m)) for s in shapes for a in manifolds for m in methods]
     run = {"command": "lasa", "shapes": shapes, "manifolds": manifolds, "methods": methods,
            "n_points": args.n_points, "config": dataclasses.asdict(config)}
@@ -339,6 +342,11 @@ def run_one(args: argparse.Namespace) -> int:
     """Train and evaluate one shape, manifold and method; print one summary line."""
     if args.shape is None:
         raise RFlowError("give --shape NAME (or --all)")
+    batch_only = [name for name, given in (("--resume", args.resume), ("--backend", args.backend != "process"),
+                                           ("--ray-address", args.ray_address is not None),
+                                           ("--unit-timeout", args.unit_timeout is not None)) if given]
+    if batch_only:
+        raise RFlowError(f"{batch_only[0]} applies to --all only")
     shape = check_shape(args.shape)
     manifold = _manifold_name(args.manifold)
     method = _check_method(args.method)

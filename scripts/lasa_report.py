@@ -97,7 +97,8 @@ def _summary_table(stats: dict[str, dict[str, Any]]) -> list[str]:
              "|---|---|---|---|---|---|---|"]
     for manifold, methods in stats.items():
         for method, s in methods.items():
-            lines.append(f"| {MANIFOLD_LABELS[manifold]} | {METHOD_LABELS[method]} | {s['runs'] - s['failed']}/{s['runs']} "
+            ok = f"{s['runs'] - s['failed']}/{s['runs']}"
+            lines.append(f"| {MANIFOLD_LABELS[manifold]} | {METHOD_LABELS[method]} | {ok} "
                          f"| {_fmt(s['dtw_mean'], 1)} | {_fmt(s['dtw_std'], 1)} | {_fmt(s['distance_mean'], 4)} "
                          f"| {_fmt(s['distance_std'], 4)} |")
     return lines

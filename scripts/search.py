@@ -25,7 +25,8 @@ from rflow.train import TrainConfig
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih search`."""
     d = TrainConfig()
-    parser.add_argument("--shape", default="NShape", help=f"LASA shape (default NShape), one of: {', '.join(LASA_SHAPES)}")
+    parser.add_argument("--shape", default="NShape",
+                        help=f"LASA shape (default NShape), one of: {', '.join(LASA_SHAPES)}")
     parser.add_argument("--manifold", default="spd", help="spd or uq (default spd)")
     parser.add_argument("--trials", type=int, default=40, help="trials this process runs (default 40)")
     parser.add_argument("--out", type=Path, required=True, help="output folder: study.db, search.json, best.json")

@@ -72,6 +72,6 @@ def scene_given(args: argparse.Namespace) -> dict[str, Any]:
     if getattr(args, "preset", None):
         return task.scene_fields()
     names = {"peg_mount": "peg_mode", "clearance_mm": "clearance_m", "chamfer_mm": "chamfer_m",
-             "grasp_force": "grasp_force_n"}
+             "grasp_force": "grasp_force_n"}  # hole depth: only through --preset
     fields = task.scene_fields()
     return {names[o]: fields[names[o]] for o in SCENE_OPTIONS if getattr(args, o, None) is not None}

@@ -37,6 +37,11 @@ STIFFNESS_SOURCES = ("expert", "variability")
 DEFAULT_BOUNDS = StiffnessBounds()
 
 
+SCENE_METADATA: tuple[str, ...] = ("goal_pos", "goal_yaw_deg", "hole_depth_m", "insertion_depth_m", "chamfer_m",
+                                   "peg_mode", "grasp_force_n")
+"""The demos' scene settings a checkpoint keeps, so `pih evaluate` rebuilds the scene the skill was taught in."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the options of `pih train`."""
     from rflow.train import TrainConfig
@@ -190,8 +195,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
         "goal_pos": demos.goal_pos.tolist(),
         "goal_quat": demos.goal_quat.tolist(),
         "demo_starts": {"pos": demos.pos[:, 0].tolist(), "quat": demos.quat[:, 0].tolist()},
-        "scene": {k: scene[k] for k in ("goal_pos", "goal_yaw_deg", "hole_depth_m", "insertion_depth_m")
-                  if k in scene} if scene else None,
+        "scene": {k: scene[k] for k in SCENE_METADATA if k in scene} if scene else None,
         "train_seconds": train_s,
     }
     step = max(1, demos.num_samples // PREVIEW_SAMPLES)

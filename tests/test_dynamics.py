@@ -57,3 +57,19 @@ def test_log_prob_is_the_gaussian_density():
     got = dyn.log_prob(q0, q1, phi, sigma).item()
     mean = (phi[0] @ q0[0]).detach().numpy()
     assert np.isclose(got, scipy.stats.multivariate_normal(mean, sigma[0].detach().numpy()).logpdf(q1[0].numpy()))
+
+
+def test_float32_transitions_stay_positive_definite_over_long_horizons():
+    # rates of 3-5 /s over 9 s: expm(-V tau) ~ e^40 inside the block exponential; float32 arithmetic there gave
+    # an indefinite Sigma (min eigenvalue -3.7) and a failed Cholesky in training
+    torch.manual_seed(0)
+    dyn = StableLinearDynamics(12, 0.05, 3.0, 0.3)
+    with torch.no_grad():
+        dyn.skew.normal_(0.0, 0.5)
+        dyn.tril.add_(0.3 * torch.randn_like(dyn.tril))
+    dyn = dyn.float()
+    phi, sigma = dyn.transition(torch.linspace(0.1, 9.0, 30))
+    assert sigma.dtype == torch.float32 and phi.dtype == torch.float32
+    torch.linalg.cholesky(sigma)  # raises if not positive definite
+    reference = dyn.double().transition(torch.linspace(0.1, 9.0, 30, dtype=torch.float64))[1]
+    assert torch.allclose(sigma.double(), reference, rtol=1e-4, atol=1e-6)

@@ -49,3 +49,11 @@ def test_single_step_equals_batch_step(model):
     batch = model.inference.step(x, 0.05)
     single = np.array([model.inference.step_single(row, 0.05) for row in x])
     np.testing.assert_allclose(single, batch, rtol=1e-10, atol=1e-10)
+
+
+def test_parallel_pass_of_a_large_batch_equals_the_serial_pass(model):
+    net = model.inference
+    x = np.random.default_rng(3).normal(size=(net.PARALLEL_MIN_POINTS + 37, 4))
+    whole = net.forward(x)  # all cores
+    halves = np.vstack([net.forward(x[: x.shape[0] // 2]), net.forward(x[x.shape[0] // 2 :])])  # one core each
+    np.testing.assert_array_equal(whole, halves)

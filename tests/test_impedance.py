@@ -253,3 +253,20 @@ def test_pose_lead_damping_squares_to_four_zeta_squared_lambda_inv_k(model):
     zeta = controller.config.damping_ratio
     np.testing.assert_allclose(np.linalg.matrix_power(lam_inv @ damping, 2), 4 * zeta**2 * lam_inv @ k,
                                rtol=1e-3, atol=1e-6 * np.abs(lam_inv @ k).max())
+
+
+def test_substep_hooks_run_around_every_physics_step(model):
+    data, controller, pos, quat = _start(model)
+    calls = []
+    taken = controller.step(data, pos, quat, n_substeps=4, before_substep=lambda: calls.append(("before", data.time)),
+                            after_substep=lambda: calls.append(("after", data.time)) is not None and False)
+    dt = model.opt.timestep
+    assert taken == 4
+    assert calls == [(kind, pytest.approx(dt * (k + (kind == "after")))) for k in range(4) for kind in ("before", "after")]
+
+
+def test_after_substep_returning_true_stops_the_loop(model):
+    data, controller, pos, quat = _start(model)
+    taken = controller.step(data, pos, quat, n_substeps=10, after_substep=lambda: data.time >= 3 * model.opt.timestep - 1e-12)
+    assert taken == 3
+    assert data.time == pytest.approx(3 * model.opt.timestep)

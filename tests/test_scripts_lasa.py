@@ -33,6 +33,8 @@ TINY = ["--n-points", "30", "--epochs", "1", "--layers", "2"]
         ["lasa", "--all", "--out", "unused", "--workers", "0"],
         ["lasa", "--all", "--out", "unused", "--ray-address", "nohost"],
         ["lasa", "--shape", "NShape", "--config", "missing.json"],
+        ["lasa", "--shape", "NShape", "--resume"],
+        ["lasa", "--all", "--out", "unused", "--resume"],
     ],
 )
 def test_bad_input_is_a_one_line_error_with_exit_2(argv: list[str], capsys: pytest.CaptureFixture, tmp_path) -> None:

@@ -201,3 +201,14 @@ def test_feedforward_lead_uses_the_commanded_stiffness():
     assert np.allclose(command_stiffness(env, command), env.controller.stiffness)
     feedforward_pose(env, Command(pose, np.full(6, 0.01), pose))
     assert env.controller.stiffness is None  # no stiffness: the controller's default
+
+
+@pytest.mark.parametrize("spec,words", [("constant:-5", "positive"), ("constant:0", "positive"), ("soft", "learned"),
+                                        ("learned", "no stiffness model")])
+def test_pih_evaluate_bad_stiffness_exits_2_before_any_episode(tmp_path, capsys, spec, words):
+    model = save_skill(tmp_path / "ck", tiny_skill())  # a pose skill without stiffness
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", "--model", str(model), "--episodes", "1", "--json", str(out), "--stiffness", spec]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pih evaluate: error:") and words in err and "\n" not in err
+    assert not out.exists()

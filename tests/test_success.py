@@ -1,10 +1,11 @@
-"""Tests of envs.success: insertion state in the hole frame, criteria, wrong hole, hold time."""
+"""Tests of envs.success: insertion state in the hole frame, seated inside the walls at rest, wrong hole, hold."""
 
 import numpy as np
 import pytest
 
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, mat_to_quat, quat_to_mat, rot_z
+from envs.shapes import hole_inradius_m, hole_polygon, peg_cross_section
 from envs.success import (
     HoleSpec,
     SuccessConfig,
@@ -17,10 +18,15 @@ from envs.success import (
 YAW = np.deg2rad(-14.4)
 HOLE_QUAT = tuple(mat_to_quat(rot_z(YAW)))
 TARGET_DEPTH_M = 0.03
+CLEARANCE_M = 0.001
+SQUARE = peg_cross_section("square")
+CONFIG = SuccessConfig()
 
 
-def hole(shape="square", pos=(0.675, -0.051, 0.233), order=4, clearance_m=0.001):
-    return HoleSpec(shape, pos, HOLE_QUAT, order, 0.0155, 0.04, clearance_m)
+def hole(shape="square", pos=(0.675, -0.051, 0.233), order=4, clearance_m=CLEARANCE_M, chamfer_m=0.0):
+    polygon = hole_polygon(shape, clearance_m)
+    return HoleSpec(shape, pos, HOLE_QUAT, order, hole_inradius_m(shape, clearance_m), 0.04, clearance_m,
+                    tuple(map(tuple, polygon)), chamfer_m)
 
 
 HOLES = {"square": hole(), "triangle": hole("triangle", (0.675 + 0.2, -0.051, 0.233), 3)}
@@ -35,8 +41,8 @@ def peg_tip(hole_spec, offset_in_hole=(0.0, 0.0, -TARGET_DEPTH_M), tilt_deg=0.0,
     return np.asarray(hole_spec.pos) + rot_hole @ np.asarray(offset_in_hole), mat_to_quat(rot)
 
 
-def assess(pos_quat, target="square"):
-    return assess_insertion(*pos_quat, HOLES, target, TARGET_DEPTH_M)
+def assess(pos_quat, target="square", speed=0.0, peg=SQUARE):
+    return assess_insertion(*pos_quat, HOLES, target, TARGET_DEPTH_M, CONFIG, peg, speed)
 
 
 def test_goal_pose_has_target_depth_and_no_error():
@@ -62,17 +68,28 @@ def test_beside_the_hole_is_not_in_it():
     assert assess(peg_tip(HOLES["square"], (0.05, 0.0, -TARGET_DEPTH_M))).hole is None
 
 
-def test_lateral_offset_beyond_tolerance_is_not_inserted():
-    result = assess(peg_tip(HOLES["square"], (0.0012, 0.0, -TARGET_DEPTH_M)))
+def test_lateral_offset_the_walls_allow_is_inserted():
+    assert assess(peg_tip(HOLES["square"], (0.0, 0.00049, -TARGET_DEPTH_M))).inserted
+
+
+def test_lateral_offset_that_needs_wall_penetration_is_not_inserted():
+    """0.9 mm off the axis in a 1 mm clearance: the peg would sit 0.4 mm inside a wall."""
+    result = assess(peg_tip(HOLES["square"], (0.0009, 0.0, -TARGET_DEPTH_M)))
     assert result.hole == "square" and not result.inserted
+    assert result.state.wall_penetration_m == pytest.approx(0.0009 - CLEARANCE_M / 2, abs=1e-9)
 
 
-def test_lateral_offset_within_half_clearance_is_inserted():
-    assert assess(peg_tip(HOLES["square"], (0.0, 0.0005, -TARGET_DEPTH_M))).inserted
+def test_tilt_the_walls_allow_is_inserted():
+    """A 0.5 deg tilt about the tip moves the peg's edge at the opening by 30 mm x tan(0.5 deg) = 0.26 mm."""
+    assert assess(peg_tip(HOLES["square"], tilt_deg=0.5)).inserted
 
 
-def test_tilted_peg_is_not_inserted():
-    assert not assess(peg_tip(HOLES["square"], tilt_deg=10.0)).inserted
+def test_tilt_that_needs_wall_penetration_is_not_inserted():
+    """2.5 deg in a 1 mm clearance: the side at the opening would be 1.3 mm off, 0.8 mm into the wall."""
+    state = assess(peg_tip(HOLES["square"], tilt_deg=2.5)).state
+    assert not assess(peg_tip(HOLES["square"], tilt_deg=2.5)).inserted
+    expected = (np.cos(np.deg2rad(2.5)) - 1) * 0.015 + TARGET_DEPTH_M * np.tan(np.deg2rad(2.5)) - CLEARANCE_M / 2
+    assert state.wall_penetration_m > 0.0005 and state.wall_penetration_m == pytest.approx(expected, rel=0.1)
 
 
 def test_tilt_is_measured_against_the_hole_axis():
@@ -80,12 +97,45 @@ def test_tilt_is_measured_against_the_hole_axis():
     assert np.isclose(state.tilt_deg, 10.0)
 
 
-def test_yaw_error_is_not_inserted():
-    assert not assess(peg_tip(HOLES["square"], yaw_deg=20.0)).inserted
+def test_yaw_the_walls_forbid_is_not_inserted():
+    """A square turned 3 deg reaches 15 mm (cos 3 + sin 3) = 15.77 mm, past the hole's 15.5 mm."""
+    assert not assess(peg_tip(HOLES["square"], yaw_deg=3.0)).inserted
 
 
 def test_quarter_turn_of_a_square_peg_is_inserted():
     assert assess(peg_tip(HOLES["square"], yaw_deg=90.0)).inserted
+
+
+def test_seated_within_a_millimetre_is_inserted():
+    assert assess(peg_tip(HOLES["square"], (0.0, 0.0, -(TARGET_DEPTH_M - 0.0009)))).inserted
+
+
+def test_still_descending_is_not_inserted():
+    """27.4 mm of a 30 mm target (what the old criterion accepted) is not seated."""
+    assert not assess(peg_tip(HOLES["square"], (0.0, 0.0, -0.0274))).inserted
+
+
+def test_a_moving_peg_is_not_at_rest():
+    assert not assess(peg_tip(HOLES["square"]), speed=0.02).inserted
+    assert not assess(peg_tip(HOLES["square"]), speed=float("nan")).inserted
+
+
+def test_round_peg_penetration_uses_its_radius():
+    round_hole = hole("circle", order=0)
+    circle = peg_cross_section("circle")
+    inside = insertion_state(*peg_tip(round_hole, (0.0004, 0.0, -TARGET_DEPTH_M)), round_hole, circle, 0.0)
+    outside = insertion_state(*peg_tip(round_hole, (0.0007, 0.0, -TARGET_DEPTH_M)), round_hole, circle, 0.0)
+    assert inside.wall_penetration_m < 0.0 < outside.wall_penetration_m
+
+
+def test_chamfer_moves_the_wall_check_below_the_bevel():
+    """A 1.02 deg tilt puts the peg's side 30 mm x tan(1.02 deg) = 0.534 mm off at the opening (past the 0.5 mm
+    gap) but 27 mm x tan(1.02 deg) = 0.481 mm off where 3 mm bevels end: allowed with them, not without."""
+    chamfered = hole(chamfer_m=0.003)
+    pose = peg_tip(chamfered, tilt_deg=1.02)
+    plain = insertion_state(*pose, hole(), SQUARE, 0.0).wall_penetration_m
+    bevelled = insertion_state(*pose, chamfered, SQUARE, 0.0).wall_penetration_m
+    assert bevelled < plain and bevelled < CONFIG.penetration_tolerance_m < plain
 
 
 def test_round_hole_ignores_yaw():
@@ -149,6 +199,9 @@ def test_tracker_rejects_time_running_backwards():
         tracker.update(0.5, False)
 
 
-def test_bad_success_config_is_rejected():
-    with pytest.raises(EnvError, match="depth_fraction"):
-        SuccessConfig(depth_fraction=1.5)
+@pytest.mark.parametrize("field", ["seat_tolerance_m", "penetration_tolerance_m", "max_speed_m_s", "hold_s"])
+def test_bad_success_config_is_rejected(field):
+    with pytest.raises(EnvError, match=field):
+        SuccessConfig(**{field: -1.0})
+    with pytest.raises(EnvError, match=field):
+        SuccessConfig(**{field: float("nan")})

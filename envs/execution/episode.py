@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.execution.policy import feedforward_pose
+from envs.execution.policy import command_stiffness, feedforward_pose
 from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
 
@@ -162,7 +162,7 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
         while not env.done:
             command = policy.command(step, env.observation.tcp)
             target = feedforward_pose(env, command, feedforward_gain)
-            result = env.step(target)
+            result = env.step(target, command_stiffness(env, command))
             step += 1
             if record_trace:
                 o = result.obs

@@ -44,7 +44,7 @@ from envs.poses import Pose, StartRegion, format_pose, mean_quat, sample_start_p
 from envs.sorter import check_chamfer, check_clearance
 from envs.task import DEFAULT_PRESET, PRESETS
 from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose, run_episode
-from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES, make_policy
+from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting, make_policy
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -98,6 +98,8 @@ class EvaluationConfig:
             recorded "wall_timeout" (None: no limit).
         backend: "process" (local processes) or "ray".
         ray_address: HOST:PORT of a Ray cluster (None: a local Ray instance on all cores).
+        stiffness: the translational stiffness commanded ("learned": the skill's, "constant:K": K I in N/m;
+            None: the controller's default), see envs.execution.policy.StiffnessSetting.
     """
 
     episodes: int = 100
@@ -122,10 +124,13 @@ class EvaluationConfig:
     unit_timeout_s: float | None = 300.0
     backend: str = "process"
     ray_address: str | None = None
+    stiffness: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.episodes, int) or self.episodes < 1:
             raise EnvError(f"episodes={self.episodes!r} must be an integer >= 1")
+        if self.stiffness is not None:
+            StiffnessSetting.parse(self.stiffness)
         if self.mode not in MODES:
             raise EnvError(f"mode={self.mode!r} must be one of {', '.join(MODES)}")
         for name in ("pos_range_m", "rot_range_deg"):
@@ -206,6 +211,17 @@ def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike,
         starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0],
                                 sample_perturbation(perturbations, task_rng)))
     return starts
+
+
+def evaluation_starts(demo_starts: dict[str, Any], config: EvaluationConfig) -> list[StartPose]:
+    """The ``config.episodes`` starts (and perturbations) of an evaluation around the demos' starts
+    ({"pos": (N, 3), "quat": (N, 4)}, the checkpoint's metadata "demo_starts").
+
+    Raises:
+        EnvError: malformed demo starts.
+    """
+    return sample_starts(demo_starts["pos"], demo_starts["quat"], config.episodes, config.seed, config.pos_range_m,
+                         config.rot_range_deg, config.around, config.perturbations)
 
 
 def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: Pose) -> Any:
@@ -412,7 +428,8 @@ def build_setup(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
                                                                   force_limit_n=config.force_limit_n))
     if config.hole_at_goal:
         check_goal_reachable(env)
-    policy = make_policy(skill, config.mode, config.lookahead_s, config.time_limit_s, config.speed)
+    stiffness = None if config.stiffness is None else StiffnessSetting.parse(config.stiffness)
+    policy = make_policy(skill, config.mode, config.lookahead_s, config.time_limit_s, config.speed, stiffness)
     return skill, env, policy
 
 
@@ -501,8 +518,7 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
         meta_starts = skill.metadata.get("demo_starts")
         if not isinstance(meta_starts, dict) or "pos" not in meta_starts or "quat" not in meta_starts:
             raise EnvError(f"checkpoint {model_dir} has no demo start poses (metadata 'demo_starts')")
-        starts = sample_starts(meta_starts["pos"], meta_starts["quat"], config.episodes, config.seed,
-                               config.pos_range_m, config.rot_range_deg, config.around)
+        starts = evaluation_starts(meta_starts, config)
     batch = config.batch_config()
     in_process = batch.backend == "process" and batch.workers == 1
     here = {"env": env, "policy": policy, "gain": config.feedforward_gain}
@@ -576,6 +592,7 @@ __all__ = [
     "record_from_dict",
     "replay_episodes",
     "run_episode",
+    "evaluation_starts",
     "sample_starts",
     "scene_config_for",
     "wilson_interval",

@@ -5,6 +5,7 @@
   the tangent space at the goal, Log_g(q) (3 components) against time; demonstrations thin grey,
   generated plans dashed black, executed (measured) trajectories thick red.
 - `plot_outcomes`: final position / angle errors of every episode, successes and failures apart.
+- `plot_success_map`: success rate over two sweep axes (`pih sweep`).
 """
 
 from __future__ import annotations
@@ -158,4 +159,68 @@ def plot_outcomes(records: Sequence[Mapping[str, Any]], path: str | os.PathLike[
     if title:
         ax.set_title(title)
     fig.tight_layout()
+    return _save(fig, path)
+
+
+AXIS_LABELS: Mapping[str, tuple[str, float]] = {
+    "clearance_m": ("clearance (mm)", 1e3),
+    "hole_error_m": ("hole-pose error (mm)", 1e3),
+    "chamfer_m": ("chamfer (mm)", 1e3),
+    "hole_error_deg": ("hole-pose error (deg)", 1.0),
+    "pos_range_m": ("start range (cm)", 1e2),
+}
+
+
+def plot_success_map(cells: Sequence[Mapping[str, Any]], rows: str, columns: str, path: str | os.PathLike[str],
+                     title: str = "") -> Path:
+    """Heat map of the success rate over two sweep axes, one panel per combination of any other axes.
+
+    Each square shows the rate in % with its 95 % Wilson interval and the median peak wrist force of the
+    successes.
+
+    Args:
+        cells: sweep cell summaries (``settings``, ``success_rate``, ``success_rate_ci95``,
+            ``median_peak_wrist_force_n``).
+        rows, columns: the axes on the map's rows and columns (keys of ``settings``).
+        path: PNG to write.
+        title: figure title.
+
+    Raises:
+        EnvError: an axis missing from the cells' settings, or an unwritable path.
+    """
+    if not cells or any(rows not in c["settings"] or columns not in c["settings"] for c in cells):
+        raise EnvError(f"every cell needs settings {rows!r} and {columns!r}")
+    others = sorted({k for c in cells for k in c["settings"]} - {rows, columns})
+    panels = sorted({tuple(c["settings"][k] for k in others) for c in cells})
+    row_values = sorted({c["settings"][rows] for c in cells}, reverse=True)
+    col_values = sorted({c["settings"][columns] for c in cells})
+    fig, axes = plt.subplots(1, len(panels), figsize=(1.4 * len(col_values) * len(panels) + 2.5,
+                                                      1.0 * len(row_values) + 1.8), squeeze=False)
+    (row_label, row_scale), (col_label, col_scale) = AXIS_LABELS[rows], AXIS_LABELS[columns]
+    image = None
+    for ax, panel in zip(axes[0], panels):
+        grid = np.full((len(row_values), len(col_values)), np.nan)
+        for c in cells:
+            if tuple(c["settings"][k] for k in others) != panel:
+                continue
+            i, j = row_values.index(c["settings"][rows]), col_values.index(c["settings"][columns])
+            grid[i, j] = 100.0 * c["success_rate"]
+            low, high = c["success_rate_ci95"]
+            force = c.get("median_peak_wrist_force_n")
+            text = f"{grid[i, j]:.0f}%\n[{100 * low:.0f}, {100 * high:.0f}]"
+            if force is not None:
+                text += f"\n{force:.1f} N"
+            ax.text(j, i, text, ha="center", va="center", fontsize=7,
+                    color="white" if grid[i, j] < 50 else "black")
+        image = ax.imshow(grid, vmin=0.0, vmax=100.0, cmap="viridis", aspect="auto")
+        ax.set_xticks(range(len(col_values)), [f"{v * col_scale:g}" for v in col_values])
+        ax.set_yticks(range(len(row_values)), [f"{v * row_scale:g}" for v in row_values])
+        ax.set_xlabel(col_label)
+        ax.set_ylabel(row_label)
+        if others:
+            ax.set_title(", ".join(f"{AXIS_LABELS[k][0]} {v * AXIS_LABELS[k][1]:g}" for k, v in zip(others, panel)),
+                         fontsize=9)
+    if image is not None:
+        fig.colorbar(image, ax=axes[0].tolist(), label="seated (%)", shrink=0.9)
+    fig.suptitle(title or "success rate (95 % Wilson interval, median peak wrist force of successes)", fontsize=10)
     return _save(fig, path)

@@ -51,6 +51,12 @@ from rflow.skill_io import PoseSkill
 FloatArray = npt.NDArray[np.float64]
 
 MODES: tuple[str, ...] = ("closed-loop", "open-loop")
+DEFAULT_PUSH_LIMIT_M: float = 0.01
+"""Closed loop: largest integral push offset (15 N at the default 1500 N/m; see ClosedLoopPolicy)."""
+DEFAULT_PUSH_LIMIT_RAD: float = 0.0
+"""Closed loop: largest integral push rotation (off; see ClosedLoopPolicy)."""
+DEFAULT_PUSH_LEAK_S: float = 1.0
+"""Closed loop: leak time constant tau of the integral push."""
 DEFAULT_LOOKAHEAD_S: float = 0.05
 """Closed-loop lookahead along the learned flow (tuned on the default scene, see envs/execution/evaluate.py)."""
 
@@ -67,6 +73,8 @@ class Command:
         accel: (6,) [a (m/s^2); alpha (rad/s^2)] of the skill there, for inertia feed-forward.
         stiffness: (3, 3) translational stiffness to command (N/m, world frame, SPD), or None for the
             controller's default; pass ``full_stiffness(stiffness, k_rot)`` to env.step.
+        push: (6,) [m; rad] world-frame offset added to the anchor (closed loop: the integral of the velocity
+            error, see `ClosedLoopPolicy`), zero otherwise.
     """
 
     pose: Pose
@@ -74,6 +82,7 @@ class Command:
     anchor: Pose
     accel: FloatArray = field(default_factory=lambda: np.zeros(6))
     stiffness: FloatArray | None = None
+    push: FloatArray = field(default_factory=lambda: np.zeros(6))
 
 
 STIFFNESS_KINDS: tuple[str, ...] = ("learned", "constant")
@@ -262,14 +271,37 @@ def _commanded_stiffness(setting: StiffnessSetting | None, learned: FloatArray |
 class ClosedLoopPolicy:
     """Command the flow's pose ``lookahead_s`` ahead of the measured peg_tip pose (module docstring).
 
+    Integral push. Anchored at the measured pose, the feed-forward makes the impedance force D (xi_d - v): when
+    the walls stop the peg (v = 0) it pushes with only D xi_d (~1 N here), which static friction in a tight hole
+    holds. The policy therefore also integrates the velocity error into a push offset, with a leak so that it
+    winds down once the peg moves again (no overshoot past the goal):
+        e_{k+1} = sat((1 - T / tau) e_k + (xi_d - v) T),   |e_p| <= ``push_limit_m``, |e_r| <= ``push_limit_rad``,
+    added to the anchor: a virtual reference that keeps moving at the flow's twist while the peg is held, so the
+    force grows toward K tau xi_d (at most K push_limit); in free space v ~ xi_d and e stays near 0. It is a
+    leaky-PI velocity loop on the learned flow; the flow is still queried at the measured pose every step. The
+    rotational part is off by default (``push_limit_rad`` = 0): a hole turned or tilted against the demos needs
+    the peg to yield to the walls in rotation, which a push toward the demonstrated orientation would fight.
+
     For a stiffness skill the stiffness state K is integrated alongside (module docstring) whatever
     ``stiffness`` commands, since the joint model's pose part is conditioned on it.
     """
 
     def __init__(self, skill: PoseSkill, lookahead_s: float = DEFAULT_LOOKAHEAD_S, speed: float = 1.0,
-                 stiffness: StiffnessSetting | None = None):
+                 stiffness: StiffnessSetting | None = None, push_limit_m: float = DEFAULT_PUSH_LIMIT_M,
+                 push_limit_rad: float = DEFAULT_PUSH_LIMIT_RAD, push_leak_s: float = DEFAULT_PUSH_LEAK_S):
         if not (np.isfinite(lookahead_s) and lookahead_s > 0.0):
             raise EnvError(f"lookahead {lookahead_s} s must be > 0")
+        for name, value in (("push limit (m)", push_limit_m), ("push limit (rad)", push_limit_rad)):
+            if not (np.isfinite(value) and value >= 0.0):
+                raise EnvError(f"{name} {value} must be a finite number >= 0")
+        if not (np.isfinite(push_leak_s) and push_leak_s > 0.0):
+            raise EnvError(f"push leak time {push_leak_s} s must be > 0")
+        self.push_limit_m = float(push_limit_m)
+        self.push_limit_rad = float(push_limit_rad)
+        self.push_leak_s = float(push_leak_s)
+        self._push = np.zeros(6)
+        self._previous: Pose | None = None
+        self._period_s = 0.0
         if not (np.isfinite(speed) and speed > 0.0):
             raise EnvError(f"speed factor {speed} must be > 0")
         if stiffness is not None:
@@ -285,6 +317,9 @@ class ClosedLoopPolicy:
     def reset(self, start: Pose, period_s: float) -> None:
         """Start an episode: the stiffness state (stiffness skills) starts at the skill's start stiffness."""
         self._flow_period_s = float(period_s) * self.speed
+        self._period_s = float(period_s)
+        self._push = np.zeros(6)
+        self._previous = None
         self.stiffness_state = self.skill.start_stiffness if self.skill.has_stiffness else None
         self.stiffness_clipped_steps = 0
 
@@ -308,8 +343,22 @@ class ClosedLoopPolicy:
             learned, clipped = self.skill.bound_stiffness(k)
             self.stiffness_clipped_steps += int(clipped)
             self.stiffness_state = skill_state_step(self.skill, measured.pos, measured.quat, k, self._flow_period_s)[2]
+        self._integrate_push(here, self.speed * twist)
         return Command(Pose(pos=p1, quat=q1), self.speed * twist, here, self.speed**2 * accel,
-                       _commanded_stiffness(self.stiffness, learned))
+                       _commanded_stiffness(self.stiffness, learned), self._push.copy())
+
+    def _integrate_push(self, here: Pose, twist: FloatArray) -> None:
+        """e += (xi_d - v) T with v from the last two measured poses, then saturate (class docstring)."""
+        if self._previous is not None and (self.push_limit_m > 0.0 or self.push_limit_rad > 0.0):
+            velocity = pose_twist(self._previous.pos, self._previous.quat, here.pos,
+                                  on_goal_hemisphere(here.quat, self._previous.quat), self._period_s)
+            self._push *= max(0.0, 1.0 - self._period_s / self.push_leak_s)
+            self._push += (twist - velocity) * self._period_s
+            for part, limit in ((slice(0, 3), self.push_limit_m), (slice(3, 6), self.push_limit_rad)):
+                norm = float(np.linalg.norm(self._push[part]))
+                if norm > limit:
+                    self._push[part] *= limit / norm
+        self._previous = here
 
 
 class OpenLoopPolicy:
@@ -429,6 +478,6 @@ def feedforward_pose(env: Any, command: Command, gain: float = 1.0) -> Pose:
     twist = limit_twist(command.twist)
     scale = float(np.linalg.norm(twist) / np.linalg.norm(command.twist)) if np.any(command.twist) else 1.0
     accel = limit_accel(scale * command.accel)
-    lead = gain * impedance_damping_lead(env, twist, accel, command_stiffness(env, command))
+    lead = gain * impedance_damping_lead(env, twist, accel, command_stiffness(env, command)) + command.push
     quat = quat_mul(quat_from_rotvec(lead[3:]), command.anchor.quat)
     return Pose(pos=command.anchor.pos + lead[:3], quat=quat / np.linalg.norm(quat))

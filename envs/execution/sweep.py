@@ -1,0 +1,292 @@
+"""Success maps: one skill evaluated over a grid of task settings (clearance x hole-pose error x ...).
+
+Every cell of the grid (the Cartesian product of the axes) is an EvaluationConfig derived from a base one;
+all cells use the same K start poses and per-episode perturbation draws (common random numbers: the seeds
+do not depend on the cell, so cells differ only by their setting). The unit of work is one episode of one
+cell, run through `batch.run_batch` (processes or Ray, journal, resume), so a sweep survives dead workers and
+Ctrl-C like an evaluation. Per cell: the success rate with its 95 % Wilson interval, the median time to
+seat, the median and largest peak wrist force of the successes, the share of episodes touching a wall, and
+the failures by kind.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections import OrderedDict
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from envs.errors import EnvError
+from envs.execution.episode import StartPose, run_episode
+from envs.execution.evaluate import (
+    EvaluationConfig,
+    _failed_unit,
+    build_setup,
+    record_from_dict,
+    wilson_interval,
+)
+from envs.perturbation import PerturbationRanges
+
+AXES: tuple[str, ...] = ("clearance_m", "hole_error_m", "chamfer_m", "hole_error_deg", "pos_range_m")
+"""Sweepable settings, in the order cells are enumerated."""
+
+
+@dataclass(frozen=True)
+class SweepAxes:
+    """The values of each swept setting (an empty axis keeps the base config's value).
+
+    Attributes:
+        clearance_m, hole_error_m, chamfer_m, hole_error_deg, pos_range_m: values per axis.
+    """
+
+    clearance_m: tuple[float, ...] = ()
+    hole_error_m: tuple[float, ...] = ()
+    chamfer_m: tuple[float, ...] = ()
+    hole_error_deg: tuple[float, ...] = ()
+    pos_range_m: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in AXES:
+            values = getattr(self, name)
+            if len(set(values)) != len(values):
+                raise EnvError(f"sweep axis {name} repeats a value: {list(values)}")
+
+    def active(self) -> list[str]:
+        """Axes with at least one value."""
+        return [name for name in AXES if getattr(self, name)]
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One grid point: its index, its settings (axis -> value) and the evaluation it runs."""
+
+    index: int
+    settings: dict[str, float]
+    config: EvaluationConfig = field(repr=False)
+
+
+def cell_config(base: EvaluationConfig, settings: dict[str, float]) -> EvaluationConfig:
+    """``base`` with the cell's settings applied (validated by EvaluationConfig).
+
+    Raises:
+        EnvError: an invalid value (negative, NaN, out of range), naming it.
+    """
+    ranges = base.perturbations
+    ranges = PerturbationRanges(
+        hole_error_m=settings.get("hole_error_m", ranges.hole_error_m),
+        hole_error_deg=settings.get("hole_error_deg", ranges.hole_error_deg),
+        grasp_offset_m=ranges.grasp_offset_m,
+    )
+    scene = {k: settings[k] for k in ("clearance_m", "chamfer_m", "pos_range_m") if k in settings}
+    return replace(base, perturbations=ranges, **scene)
+
+
+def sweep_cells(base: EvaluationConfig, axes: SweepAxes) -> list[Cell]:
+    """All cells of the grid, the first axis slowest.
+
+    Raises:
+        EnvError: no axis given, or an invalid value in some cell.
+    """
+    names = axes.active()
+    if not names:
+        raise EnvError("a sweep needs at least one axis with values (e.g. --clearance-mm 1,0.5,0.2)")
+    cells = []
+    for index, values in enumerate(itertools.product(*(getattr(axes, n) for n in names))):
+        settings = dict(zip(names, (float(v) for v in values)))
+        cells.append(Cell(index, settings, cell_config(base, settings)))
+    return cells
+
+
+def unit_key(cell: int, episode: int) -> str:
+    """Journal key of one episode of one cell."""
+    return f"cell{cell}/ep{episode}"
+
+
+@dataclass(frozen=True)
+class SweepSetup:
+    """What a worker needs (picklable): the checkpoint and every cell's config."""
+
+    model_dir: str
+    configs: tuple[EvaluationConfig, ...]
+
+
+MAX_CACHED_CELLS: int = 2
+"""A worker keeps the environments of this many cells (units arrive cell by cell)."""
+
+
+def init_sweep_worker(setup: SweepSetup) -> dict[str, Any]:
+    """Worker context: a small cache of (env, policy) per cell, built on first use."""
+    import torch
+
+    torch.set_num_threads(1)
+    return {"setup": setup, "cache": OrderedDict()}
+
+
+def _cell_context(context: dict[str, Any], cell: int) -> tuple[Any, Any]:
+    cache: OrderedDict[int, tuple[Any, Any]] = context["cache"]
+    if cell not in cache:
+        setup: SweepSetup = context["setup"]
+        _, env, policy = build_setup(setup.model_dir, setup.configs[cell])
+        cache[cell] = (env, policy)
+        while len(cache) > MAX_CACHED_CELLS:
+            cache.popitem(last=False)
+    cache.move_to_end(cell)
+    return cache[cell]
+
+
+def run_sweep_unit(context: dict[str, Any], unit: tuple[int, StartPose]) -> dict[str, Any]:
+    """The record (dict) of one episode of one cell, tagged with the cell index."""
+    cell, start = unit
+    env, policy = _cell_context(context, cell)
+    gain = context["setup"].configs[cell].feedforward_gain
+    record = run_episode(env, policy, start, feedforward_gain=gain)[0].to_dict()
+    record["cell"] = cell
+    return record
+
+
+def failed_sweep_unit(key: str, unit: tuple[int, StartPose], reason: str) -> dict[str, Any]:
+    """The record of an episode whose worker died or overran."""
+    cell, start = unit
+    record = _failed_unit(key, start, reason)
+    record["cell"] = cell
+    return record
+
+
+def _median(values: Iterable[float | None]) -> float | None:
+    kept = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.median(kept)) if kept else None
+
+
+def _maximum(values: Iterable[float | None]) -> float | None:
+    kept = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.max(kept)) if kept else None
+
+
+def cell_summary(cell: Cell, records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Statistics of one cell (module docstring) from its episode records (dicts)."""
+    parsed = [record_from_dict(r) for r in records]
+    ok = [r for r in parsed if r.success]
+    low, high = wilson_interval(len(ok), len(parsed))
+    kinds: dict[str, int] = {}
+    for r in parsed:
+        if not r.success:
+            kind = r.reason.split(":")[0].split(" (")[0]
+            kinds[kind] = kinds.get(kind, 0) + 1
+    return {
+        "cell": cell.index,
+        "settings": cell.settings,
+        "episodes": len(parsed),
+        "successes": len(ok),
+        "success_rate": len(ok) / max(len(parsed), 1),
+        "success_rate_ci95": [low, high],
+        "median_time_to_insert_s": _median(r.time_to_insert_s for r in ok),
+        "median_peak_wrist_force_n": _median(r.peak_wrist_force_n for r in ok),
+        "max_peak_wrist_force_n": _maximum(r.peak_wrist_force_n for r in ok),
+        "median_peak_contact_force_n": _median(r.peak_contact_force_n for r in parsed),
+        "contact_rate": sum(r.touched for r in parsed) / max(len(parsed), 1),
+        "failures_by_kind": kinds,
+    }
+
+
+def sweep_run(model_dir: str, cells: Sequence[Cell], checksum: str) -> dict[str, Any]:
+    """What identifies a sweep for its journal (every setting that changes a record)."""
+    from envs.jsonable import to_jsonable
+
+    base = asdict(cells[0].config)
+    for volatile in ("workers", "backend", "ray_address", "unit_timeout_s"):
+        base.pop(volatile, None)
+    return to_jsonable({
+        "kind": "pih sweep",
+        "model": str(model_dir),
+        "skill_sha256": checksum,
+        "base": base,
+        "cells": [c.settings for c in cells],
+    })
+
+
+@dataclass
+class SweepResult:
+    """A finished (or interrupted) sweep: the cells, their statistics and every episode record."""
+
+    model_dir: str
+    cells: list[Cell]
+    summaries: list[dict[str, Any]]
+    records: dict[str, dict[str, Any]]
+    complete: bool
+    interrupted: bool
+    wall_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON record of the sweep (sweep.json)."""
+        from envs.jsonable import to_jsonable
+
+        base = asdict(self.cells[0].config) if self.cells else {}
+        return to_jsonable({
+            "model": self.model_dir,
+            "complete": self.complete,
+            "interrupted": self.interrupted,
+            "axes": sorted({k for c in self.cells for k in c.settings}, key=AXES.index),
+            "base_config": base,
+            "cells": self.summaries,
+            "wall_s": self.wall_s,
+            "per_episode": [self.records[k] for k in sorted(self.records, key=_key_order)],
+        })
+
+
+def _key_order(key: str) -> tuple[int, int]:
+    cell, episode = key.split("/")
+    return int(cell[4:]), int(episode[2:])
+
+
+def sweep_units(cells: Sequence[Cell], demo_starts: dict[str, Any]) -> list[tuple[str, tuple[int, StartPose]]]:
+    """Every (key, (cell, start)) unit; each cell's starts come from its own config (the same seeds in all)."""
+    from envs.execution.evaluate import evaluation_starts
+
+    units = []
+    for cell in cells:
+        for start in evaluation_starts(demo_starts, cell.config):
+            units.append((unit_key(cell.index, start.index), (cell.index, start)))
+    return units
+
+
+def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal: Any = None) -> SweepResult:
+    """Run every episode of every cell (module docstring) and summarise each cell.
+
+    Every cell's environment is built once here first, so a setting the scene rejects fails before any work.
+
+    Raises:
+        RFlowError / EnvError: bad checkpoint or a cell whose scene cannot be built.
+        BatchError: workers that cannot start.
+    """
+    import time
+
+    from tqdm import tqdm
+
+    from batch import run_batch
+
+    wall = time.perf_counter()
+    skill = None
+    for cell in cells:  # validate every cell's scene before any episode runs
+        skill, _, _ = build_setup(model_dir, cell.config)
+    meta = skill.metadata.get("demo_starts") if skill is not None else None
+    if not isinstance(meta, dict) or "pos" not in meta or "quat" not in meta:
+        raise EnvError(f"checkpoint {model_dir} has no demo start poses (metadata 'demo_starts')")
+    units = sweep_units(cells, meta)
+    done = journal.done() if journal is not None else {}
+    bar = tqdm(total=len(units), initial=sum(k in done for k, _ in units), desc="sweep", unit="ep",
+               disable=not progress, leave=False)
+    setup = SweepSetup(str(model_dir), tuple(c.config for c in cells))
+    try:
+        outcome = run_batch(units, setup, init_sweep_worker, run_sweep_unit, failed_sweep_unit,
+                            cells[0].config.batch_config(), journal, lambda key, record: bar.update(1))
+    finally:
+        bar.close()
+    by_cell: dict[int, list[dict[str, Any]]] = {c.index: [] for c in cells}
+    for key, record in outcome.records.items():
+        by_cell[int(record.get("cell", _key_order(key)[0]))].append(record)
+    summaries = [cell_summary(c, by_cell[c.index]) for c in cells]
+    return SweepResult(str(model_dir), list(cells), summaries, dict(outcome.records), outcome.complete,
+                       outcome.interrupted, time.perf_counter() - wall)
