@@ -1,6 +1,7 @@
-"""Inverse kinematics of a site with mink (daqp QP solver): one-shot poses and a nullspace joint reference.
+"""Inverse kinematics of a site: one-shot poses and a nullspace joint reference.
 
-Each mink iteration solves the differential IK quadratic program
+Each iteration solves the differential IK quadratic program of mink (tasks and limit as mink.FrameTask,
+mink.PostureTask and mink.ConfigurationLimit define them, solved exactly like daqp does)
 
     min_dq  || J dq + e(q) ||^2_W  +  c_post || dq - (q_nom - q) ||^2  +  mu || dq ||^2
     s.t.    q_min <= q + dq <= q_max        (ConfigurationLimit)
@@ -8,7 +9,9 @@ Each mink iteration solves the differential IK quadratic program
 with e the site pose error (a body twist, FrameTask) and a posture task toward the nominal joints, then
 integrates q <- q + dq. `solve_ik` first iterates with the posture task (to choose the redundant posture near
 q_nominal), then refines with a vanishing posture cost so the pose is met exactly (a posture cost biases the
-fixed point off the target by about c_post / (J J^T)).
+fixed point off the target by about c_post / (J J^T)). The step is compiled (`controllers.ik_kernel`, numba):
+`NullspaceReference` runs it every control step, where mink's Python cost ~0.25 ms per iteration; it equals mink +
+daqp to ~1e-9 rad (tests/test_ik_kernel.py, with mink as the reference).
 """
 
 from __future__ import annotations
@@ -16,7 +19,6 @@ from __future__ import annotations
 import numbers
 from dataclasses import dataclass
 
-import mink
 import mujoco
 import numpy as np
 import numpy.typing as npt
@@ -24,9 +26,6 @@ import numpy.typing as npt
 from controllers import ik_kernel
 from controllers.errors import ControllerError
 from controllers.validation import as_unit_quaternion, as_vector, site_id, site_name
-
-_SOLVER = "daqp"
-
 
 @dataclass(frozen=True)
 class IKConfig:
@@ -81,48 +80,81 @@ def pose_residual(
     return float(np.linalg.norm(target_pos - data.site_xpos[site_id])), float(np.degrees(np.linalg.norm(rotation)))
 
 
-class _MinkProblem:
-    """The mink configuration, tasks and limit for one site of one model."""
+class _DifferentialIK:
+    """The differential-IK problem of one site of one model (module docstring): its own configuration (MjData),
+    the frame target, the posture target and weight, and the compiled QP step (`controllers.ik_kernel`)."""
+
+    LIMIT_GAIN = 0.95  # a step covers at most 95 % of the way to a joint limit (mink.ConfigurationLimit's gain)
+    DAMPING = 1e-9  # mu_0 on every dof
 
     def __init__(self, model: mujoco.MjModel, site: int | str, config: IKConfig) -> None:
+        if np.any(model.jnt_type == mujoco.mjtJoint.mjJNT_BALL):
+            raise ControllerError("the IK supports hinge, slide and free joints, not ball joints")
         self.model = model
+        self.site_id = site_id(model, site)
         self.site_name = site_name(model, site)
-        self.site_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, self.site_name)
-        self.configuration = mink.Configuration(model)
-        self.frame_task = mink.FrameTask(
-            self.site_name, "site", position_cost=1.0, orientation_cost=1.0, lm_damping=config.lm_damping
-        )
-        self.posture_task = mink.PostureTask(model, cost=config.posture_cost)
-        self.limits = [mink.ConfigurationLimit(model)]
-        self.lower, self.upper = model.jnt_range[:, 0], model.jnt_range[:, 1]
+        self.lm_damping = config.lm_damping
+        self.posture_cost = config.posture_cost
+        self.data = mujoco.MjData(model)
+        self.q_posture = self.data.qpos.copy()
+        dof_qpos_adr = np.full(model.nv, -1, dtype=np.int64)
+        limited = np.zeros(model.nv)
+        q_min, q_max = np.zeros(model.nv), np.zeros(model.nv)
+        for joint in range(model.njnt):
+            if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_FREE:
+                continue
+            dof = int(model.jnt_dofadr[joint])
+            dof_qpos_adr[dof] = int(model.jnt_qposadr[joint])
+            limited[dof] = float(bool(model.jnt_limited[joint]))
+            q_min[dof], q_max[dof] = model.jnt_range[joint]
+        self._dof_qpos_adr, self._limited, self._q_min, self._q_max = dof_qpos_adr, limited, q_min, q_max
+        self._jac = np.zeros((6, model.nv))
+        self._dq = np.zeros(model.nv)
+        self._target_pos = np.zeros(3)
+        self._target_mat = np.zeros(9)
+        self._scratch = np.zeros((12, 3, 3))
 
     def joints(self, value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:
-        """A joint vector of the model's size, clipped into the joint limits."""
+        """A joint vector of the model's size, hinge and slide joints clipped into their limits."""
         q = as_vector(value, self.model.nq, name)
-        limited = self.model.jnt_limited.astype(bool)
-        q[limited] = np.clip(q[limited], self.lower[limited], self.upper[limited])
+        model = self.model
+        for joint in range(model.njnt):
+            if model.jnt_limited[joint] and model.jnt_type[joint] != mujoco.mjtJoint.mjJNT_FREE:
+                adr = model.jnt_qposadr[joint]
+                q[adr] = np.clip(q[adr], model.jnt_range[joint, 0], model.jnt_range[joint, 1])
         return q
 
+    @property
+    def q(self) -> npt.NDArray[np.float64]:
+        """The configuration (a view of its MjData's qpos)."""
+        return self.data.qpos
+
+    def set_configuration(self, q: npt.NDArray[np.float64]) -> None:
+        """Set the joints and run the kinematics the step needs (frames and the Jacobian's com positions)."""
+        self.data.qpos[:] = q
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)
+
     def set_target(self, target_pos: npt.NDArray, target_quat: npt.NDArray) -> None:
-        self.frame_task.set_target(mink.SE3(wxyz_xyz=np.concatenate([target_quat, target_pos])))
+        self._target_pos[:] = target_pos
+        mujoco.mju_quat2Mat(self._target_mat, target_quat)
 
     def iterate(self) -> None:
-        """One differential-IK QP step, integrated into the configuration (dt = 1: dq = v)."""
-        try:
-            velocity = mink.solve_ik(
-                self.configuration,
-                [self.frame_task, self.posture_task],
-                dt=1.0,
-                solver=_SOLVER,
-                damping=1e-9,
-                limits=self.limits,
-            )
-        except mink.MinkError as error:
-            raise ControllerError(f"mink IK step failed for site {self.site_name!r}: {error}") from error
-        self.configuration.integrate_inplace(velocity, 1.0)
+        """One differential-IK QP step, integrated into the configuration: q <- q (+) dq."""
+        model, data, site = self.model, self.data, self.site_id
+        mujoco.mj_jacSite(model, data, self._jac[:3], self._jac[3:], site)
+        ok = ik_kernel.ik_step(self._jac, data.site_xpos[site], data.site_xmat[site], self._target_pos,
+                               self._target_mat, data.qpos, self.q_posture, self._dof_qpos_adr, self.posture_cost,
+                               self.lm_damping, self.DAMPING, self._limited, self._q_min, self._q_max,
+                               self.LIMIT_GAIN, self._dq, self._scratch)
+        if not ok:
+            raise ControllerError(f"IK step failed for site {self.site_name!r}: the QP was not solved")
+        mujoco.mj_integratePos(model, data.qpos, self._dq, 1.0)
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
 
     def residual(self, target_pos: npt.NDArray, target_quat: npt.NDArray) -> tuple[float, float]:
-        return pose_residual(self.configuration.data, self.site_id, target_pos, target_quat)
+        return pose_residual(self.data, self.site_id, target_pos, target_quat)
 
 
 def solve_ik(
@@ -150,7 +182,7 @@ def solve_ik(
         ControllerError: bad inputs, a target below the floor, or a pose not reached to tolerance (the message
             names the pose and the residual in mm and deg).
     """
-    problem = _MinkProblem(model, site, config)
+    problem = _DifferentialIK(model, site, config)
     pos = as_vector(target_pos, 3, "target_pos")
     quat = as_unit_quaternion(target_quat, "target_quat")
     q_nom = problem.joints(q_nominal, "q_nominal")
@@ -159,17 +191,17 @@ def solve_ik(
         raise ControllerError(
             f"IK target {pose} for site {problem.site_name!r} is below the floor (z < {config.floor_height_m} m)"
         )
-    problem.configuration.update(q_nom)
-    problem.posture_task.set_target(q_nom)
+    problem.set_configuration(q_nom)
+    problem.q_posture = q_nom
     problem.set_target(pos, quat)
 
-    previous = problem.configuration.q.copy()
+    previous = problem.q.copy()
     for _ in range(config.max_iterations):  # choose the posture
         problem.iterate()
-        if np.max(np.abs(problem.configuration.q - previous)) < 1e-6:
+        if np.max(np.abs(problem.q - previous)) < 1e-6:
             break
-        previous = problem.configuration.q.copy()
-    problem.posture_task.set_cost(config.refine_posture_cost)
+        previous = problem.q.copy()
+    problem.posture_cost = config.refine_posture_cost
     residual = problem.residual(pos, quat)
     for _ in range(config.max_iterations):  # meet the pose to tolerance
         if _within(residual, config):
@@ -177,7 +209,7 @@ def solve_ik(
         problem.iterate()
         residual = problem.residual(pos, quat)
     if _within(residual, config):
-        return problem.configuration.q.copy()
+        return problem.q.copy()
     raise ControllerError(
         f"IK target {pose} for site {problem.site_name!r} is unreachable: residual {1e3 * residual[0]:.2f} mm, "
         f"{residual[1]:.3f} deg (tolerance {1e3 * config.position_tolerance_m:.2f} mm, "
@@ -193,14 +225,9 @@ class NullspaceReference:
     """Joint reference for the impedance controller's nullspace that follows the commanded pose.
 
     Every `update` runs a few warm-started differential-IK iterations (frame task + posture task toward q_nominal,
-    joint limits: the QP of the module docstring, as mink builds it) from the previous reference, so the reference
-    tracks a moving target at the command rate (100 Hz) without solving to convergence. The iterations run the
-    compiled step of `controllers.ik_kernel` (equal to mink's to ~1e-12 rad, tests/test_ik_kernel.py) because they
-    run every control step; `solve_ik` (once per episode) keeps mink.
+    joint limits) from the previous reference, so the reference tracks a moving target at the command rate (100 Hz)
+    without solving to convergence.
     """
-
-    LIMIT_GAIN = 0.95  # mink.ConfigurationLimit's default: a step covers at most 95 % of the way to a limit
-    DAMPING = 1e-9  # mu_0, as passed to mink.solve_ik above
 
     def __init__(
         self,
@@ -222,56 +249,20 @@ class NullspaceReference:
         """
         if int(iterations) < 1:
             raise ControllerError(f"iterations={iterations!r} must be >= 1")
-        if np.any(model.jnt_type == mujoco.mjtJoint.mjJNT_BALL):
-            raise ControllerError("NullspaceReference supports hinge, slide and free joints, not ball joints")
-        self.model = model
-        self.site_id = site_id(model, site)
+        self._problem = _DifferentialIK(model, site, config)
         self._iterations = int(iterations)
-        self._config = config
-        self._data = mujoco.MjData(model)
-        dof_qpos_adr = np.full(model.nv, -1, dtype=np.int64)
-        limited = np.zeros(model.nv)
-        q_min, q_max = np.zeros(model.nv), np.zeros(model.nv)
-        for joint in range(model.njnt):
-            if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_FREE:
-                continue
-            dof = int(model.jnt_dofadr[joint])
-            dof_qpos_adr[dof] = int(model.jnt_qposadr[joint])
-            limited[dof] = float(bool(model.jnt_limited[joint]))
-            q_min[dof], q_max[dof] = model.jnt_range[joint]
-        self._dof_qpos_adr, self._limited, self._q_min, self._q_max = dof_qpos_adr, limited, q_min, q_max
-        self._lower, self._upper = model.jnt_range[:, 0], model.jnt_range[:, 1]
-        self._jac = np.zeros((6, model.nv))
-        self._dq = np.zeros(model.nv)
-        self._target_pos = np.zeros(3)
-        self._target_mat = np.zeros(9)
-        self._scratch = np.zeros((12, 3, 3))
-        self.q_nominal = self._joints(q_nominal, "q_nominal")
+        self.q_nominal = self._problem.joints(q_nominal, "q_nominal")
+        self._problem.q_posture = self.q_nominal
         self.reset()
-
-    def _joints(self, value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:
-        """A joint vector of the model's size, hinge and slide joints clipped into their limits."""
-        q = as_vector(value, self.model.nq, name)
-        for joint in range(self.model.njnt):
-            if self.model.jnt_limited[joint] and self.model.jnt_type[joint] != mujoco.mjtJoint.mjJNT_FREE:
-                adr = self.model.jnt_qposadr[joint]
-                q[adr] = np.clip(q[adr], self._lower[joint], self._upper[joint])
-        return q
 
     def reset(self, q: npt.ArrayLike | None = None) -> None:
         """Restart the reference from q (rad), or from q_nominal when None."""
-        start = self.q_nominal if q is None else self._joints(q, "q")
-        self._data.qpos[:] = start
-        self._kinematics()
-
-    def _kinematics(self) -> None:
-        mujoco.mj_kinematics(self.model, self._data)
-        mujoco.mj_comPos(self.model, self._data)
+        self._problem.set_configuration(self.q_nominal if q is None else self._problem.joints(q, "q"))
 
     @property
     def q(self) -> npt.NDArray[np.float64]:
         """Copy of the current joint reference (rad)."""
-        return self._data.qpos.copy()
+        return self._problem.q.copy()
 
     def update(self, target_pos: npt.ArrayLike, target_quat: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Advance the reference toward the pose and return it.
@@ -286,18 +277,7 @@ class NullspaceReference:
         Raises:
             ControllerError: bad target or a failed QP.
         """
-        self._target_pos[:] = as_vector(target_pos, 3, "target_pos")
-        mujoco.mju_quat2Mat(self._target_mat, as_unit_quaternion(target_quat, "target_quat"))
-        model, data, site = self.model, self._data, self.site_id
-        config = self._config
+        self._problem.set_target(as_vector(target_pos, 3, "target_pos"), as_unit_quaternion(target_quat, "target_quat"))
         for _ in range(self._iterations):
-            mujoco.mj_jacSite(model, data, self._jac[:3], self._jac[3:], site)
-            ok = ik_kernel.ik_step(self._jac, data.site_xpos[site], data.site_xmat[site], self._target_pos,
-                                   self._target_mat, data.qpos, self.q_nominal, self._dof_qpos_adr,
-                                   config.posture_cost, config.lm_damping, self.DAMPING, self._limited,
-                                   self._q_min, self._q_max, self.LIMIT_GAIN, self._dq, self._scratch)
-            if not ok:
-                raise ControllerError(f"IK step failed for site {site_name(model, site)!r} (QP not solved)")
-            mujoco.mj_integratePos(model, data.qpos, self._dq, 1.0)
-            self._kinematics()
+            self._problem.iterate()
         return self.q

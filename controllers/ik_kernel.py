@@ -170,8 +170,9 @@ def frame_task(jac_world, site_pos, site_mat, target_pos, target_mat, error, jac
     for half in range(2):
         for i in range(3):
             for col in range(nv):
-                body[3 * half + i, col] = (r_b[0, i] * jac_world[3 * half, col] + r_b[1, i] * jac_world[3 * half + 1, col]
-                                           + r_b[2, i] * jac_world[3 * half + 2, col])
+                row = 3 * half
+                body[row + i, col] = (r_b[0, i] * jac_world[row, col] + r_b[1, i] * jac_world[row + 1, col]
+                                      + r_b[2, i] * jac_world[row + 2, col])
     for i in range(6):  # J_f = -Jl^-1 J_b
         for col in range(nv):
             s = 0.0

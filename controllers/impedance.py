@@ -20,7 +20,9 @@ The commanded torque is then limited to the Panda's joint torques and torque rat
 
     tau_k = clip(clip(tau, tau_{k-1} - rate dt, tau_{k-1} + rate dt), -tau_max, tau_max)
 
-`step` runs mj_step1 -> torque -> mj_step2, so the torque sees the state it acts on (no one-step lag).
+`step` runs mj_step1 -> torque -> mj_step2, so the torque sees the state it acts on (no one-step lag). The law
+itself is one compiled call per physics step (`controllers.impedance_kernel`, numba) on preallocated buffers,
+between MuJoCo's own mj_jacSite and mj_solveM.
 """
 
 from __future__ import annotations

@@ -6,10 +6,11 @@ impedance controller runs at the physics rate:
 
     tau = J^T (K e - D v) + nullspace(q_ref) + c(q, qdot)      (controllers.impedance)
 
-with q_ref from a mink NullspaceReference that follows the commanded pose. A grasped peg is squeezed by both
-fingers with the grasp force (a generalised force on each finger joint) and held by friction only. Its
-weight, which the arm's model does not contain (the peg is a separate body), is compensated as a known tool
-load, as the Franka controller does with its end-effector load setting: tau_load = -J_c^T m g, with J_c the
+with q_ref from a mink NullspaceReference that follows the commanded pose (when its QP has no solution in a
+period, the reference restarts from the measured posture; ``nullspace_failures`` counts those periods).
+A grasped peg is squeezed by both fingers with the grasp force (a generalised force on each finger joint)
+and held by friction only. Its weight, which the arm's model does not contain (the peg is a separate body),
+is compensated as a known tool load, as the Franka controller does with its end-effector load setting: tau_load = -J_c^T m g, with J_c the
 translational Jacobian of the peg's nominal centre of mass (on the hand, half a peg below peg_mount).
 
 Every physics step the wrist F/T sensor and the peg's contacts are read (envs.sensing): their peaks over the
@@ -180,6 +181,8 @@ class ContactStats:
         peak_contact_force_n: largest sum of the environment's normal-force magnitudes on the peg.
         peak_single_contact_n: largest single normal force on the peg.
         peak_wrist_force_n, peak_wrist_torque_nm: largest |F_ext| and |tau_ext| of the wrist sensor.
+        peak_sustained_wrist_force_n: largest |F_ext| held for the force limit's whole window (the largest
+            minimum of |F_ext| over any window of ``force_limit_window_s``): what the force limit compares.
         wrist_force_samples, wrist_torque_samples: |F_ext|, |tau_ext| at the end of every control period.
         force_limit_time_s: physics time the force first stayed above the limit for the window (None: never).
     """
@@ -188,6 +191,7 @@ class ContactStats:
     peak_single_contact_n: float = 0.0
     peak_wrist_force_n: float = 0.0
     peak_wrist_torque_nm: float = 0.0
+    peak_sustained_wrist_force_n: float = 0.0
     wrist_force_samples: list[float] = field(default_factory=list)
     wrist_torque_samples: list[float] = field(default_factory=list)
     force_limit_time_s: float | None = None
@@ -201,6 +205,7 @@ class ContactStats:
             "peak_contact_force_n": self.peak_contact_force_n,
             "peak_single_contact_n": self.peak_single_contact_n,
             "peak_wrist_force_n": self.peak_wrist_force_n,
+            "peak_sustained_wrist_force_n": self.peak_sustained_wrist_force_n,
             "median_wrist_force_n": median(self.wrist_force_samples),
             "peak_wrist_torque_nm": self.peak_wrist_torque_nm,
             "median_wrist_torque_nm": median(self.wrist_torque_samples),
@@ -299,6 +304,9 @@ class PegInHoleEnv:
         self.perturbation = Perturbation()
         self._warning_counts = np.zeros(len(_BAD_STATE_WARNINGS), dtype=int)
         self._above_limit_s = 0.0
+        self._force_window = [0.0]
+        self._window_index = 0
+        self.nullspace_failures = 0
         self._steps = 0
         self._done = True
         self._reason: str | None = "not reset"
@@ -423,6 +431,9 @@ class PegInHoleEnv:
         self.tracker.reset()
         self.stats = ContactStats()
         self._above_limit_s = 0.0
+        self._force_window = [0.0] * max(1, int(round(self.config.force_limit_window_s / float(self.model.opt.timestep))))
+        self._window_index = 0
+        self.nullspace_failures = 0
         self._steps = 0
         self._done = False
         self._reason = None
@@ -446,9 +457,9 @@ class PegInHoleEnv:
     def _settle_grasp(self, start: Pose, q_ref: FloatArray) -> None:
         """Hold the start pose while the grasp forces build up (``grasp_settle_s``)."""
         steps = int(round(self.config.grasp_settle_s / float(self.model.opt.timestep)))
-        for _ in range(steps):
-            self._compensate_tool_load()
-            self.controller.step(self.data, start.pos, start.quat, None, q_ref, 1)
+        if steps > 0:
+            self.controller.step(self.data, start.pos, start.quat, None, q_ref, steps,
+                                 before_substep=self._compensate_tool_load)
 
     def _compensate_tool_load(self) -> None:
         """qfrc_applied on the arm = -J_c^T m g for the grasped peg's nominal centre of mass (module docstring)."""
@@ -482,19 +493,18 @@ class PegInHoleEnv:
                 raise EnvError(f"bad stiffness: {err}") from None
         try:
             q_ref = self.nullspace.update(pose.pos, pose.quat)
-        except ControllerError as err:
-            raise EnvError(f"nullspace reference failed for target {format_pose(pose)}: {err}") from None
+        except ControllerError:  # the posture QP had no solution this period: hold the measured posture
+            self.nullspace.reset(self.data.qpos[self._arm_qpos])
+            q_ref = self.nullspace.q
+            self.nullspace_failures += 1
         problem: str | None = None
         force_limited = False
         q_arm = q_ref
         try:
             with np.errstate(all="ignore"):
-                for _ in range(self.n_substeps):
-                    self._compensate_tool_load()
-                    self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_arm, 1)
-                    if self._sense():
-                        force_limited = True
-                        break
+                ran = self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_arm, self.n_substeps,
+                                           before_substep=self._compensate_tool_load, after_substep=self._sense)
+            force_limited = ran < self.n_substeps
         except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
             problem = f"controller failed ({type(err).__name__}: {err})"
         self._steps += 1
@@ -526,6 +536,11 @@ class PegInHoleEnv:
         torque = math.sqrt(wrench[3] ** 2 + wrench[4] ** 2 + wrench[5] ** 2)
         stats.peak_wrist_force_n = max(stats.peak_wrist_force_n, force)
         stats.peak_wrist_torque_nm = max(stats.peak_wrist_torque_nm, torque)
+        window = self._force_window
+        window[self._window_index % len(window)] = force
+        self._window_index += 1
+        if self._window_index >= len(window):
+            stats.peak_sustained_wrist_force_n = max(stats.peak_sustained_wrist_force_n, min(window))
         dt = float(self.model.opt.timestep)
         self._above_limit_s = self._above_limit_s + dt if force > self.config.force_limit_n else 0.0
         if self._above_limit_s >= self.config.force_limit_window_s - 1e-12 and self._above_limit_s > 0.0:
@@ -582,7 +597,7 @@ class PegInHoleEnv:
 
         Shortcut, exact: a peg_tip is in a hole only deeper than MIN_ENTRY_DEPTH_M below its opening, so
         while it is above every opening (depth_h = -(p - p_h) . z_h <= MIN_ENTRY_DEPTH_M for all holes h)
-        only the target hole's state is computed.
+        only the target hole's state is computed, and otherwise only the holes it is below the opening of.
         """
         tip = _site_pose(self.data, self.peg_tip_site) if peg_tip is None else peg_tip
         speed = self.peg_speed_m_s() if speed_m_s is None else speed_m_s
@@ -590,7 +605,9 @@ class PegInHoleEnv:
         if np.all(depths <= MIN_ENTRY_DEPTH_M):
             state = insertion_state(tip.pos, tip.quat, self._holes[self.shape], speed_m_s=speed)
             return Assessment(None, state, False)
-        return assess_insertion(tip.pos, tip.quat, self._holes, self.shape, self.scene.config.insertion_depth_m,
+        candidates = {shape: hole for (shape, hole), depth in zip(self._holes.items(), depths)
+                      if depth > MIN_ENTRY_DEPTH_M or shape == self.shape}  # only these can hold the peg_tip
+        return assess_insertion(tip.pos, tip.quat, candidates, self.shape, self.scene.config.insertion_depth_m,
                                 self.config.success, self._peg_section, speed)
 
     def _observe(self, track: bool = True) -> Observation:

@@ -439,7 +439,8 @@ def stiffness_reproduction(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.Array
 
     Returns:
         JSON-ready {"log_euclidean_mean", "log_euclidean_per_demo" (N,), "clip_fraction" (of generated
-        samples the eigenvalue clip changed)}.
+        samples the eigenvalue clip changed), "clip_max_log_change" (the largest |log(lambda_clipped /
+        lambda)| of any eigenvalue: how far outside the bounds generation went)}.
 
     Raises:
         RFlowError: a skill without stiffness, bad shapes.
@@ -457,5 +458,6 @@ def stiffness_reproduction(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.Array
     generated = skill.split_point(rollout(model, starts, p.shape[1] - 1, xi=1e-12).points)[2]
     bounded, clipped = skill.bound_stiffness(generated)
     per_demo = profile_distance(k, bounded)
+    change = np.abs(np.log(np.linalg.eigvalsh(bounded) / np.linalg.eigvalsh(generated)))
     return {"log_euclidean_mean": float(per_demo.mean()), "log_euclidean_per_demo": per_demo.tolist(),
-            "clip_fraction": float(clipped.mean())}
+            "clip_fraction": float(clipped.mean()), "clip_max_log_change": float(change.max())}

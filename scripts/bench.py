@@ -153,8 +153,8 @@ def bench_render(quick: bool) -> dict[str, Any]:
 
 
 def bench_ik(quick: bool) -> dict[str, Any]:
-    """mink IK solves of the tcp on the arm model (from the home posture) per second, and the nullspace reference's
-    per-control-step update."""
+    """IK solves (`solve_ik`) of the tcp on the arm model (from the home posture) per second, and the nullspace
+    reference's per-control-step update."""
     from controllers.benchmark import measure_ik_rate, measure_nullspace_update
 
     scene = build_scene(SceneConfig())

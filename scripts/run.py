@@ -2,7 +2,9 @@
 
     pih run [--name default] [--episodes 50] [--workers 2]
 
-Writes runs/<name>/: demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png),
+The task is the default "contact" preset (envs/task.py: grasped peg, 0.2 mm clearance, 1 mm chamfers, seated
+on the hole floor, hole-pose error up to 1 mm / 1 deg, 40 N force limit) unless --preset or a task option says
+otherwise. Writes runs/<name>/: demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png),
 eval.json (closed-loop evaluation, 50 perturbed starts), skill.png (demos / generated / executed, as the
 paper's peg-in-hole figure), outcomes.png (final errors), episodes.mp4 (three successes and the first
 failure, if any) and summary.json (timings and the success rate). Prints a summary.
@@ -20,6 +22,7 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from envs.errors import EnvError  # noqa: E402
+from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "episodes.mp4", "summary.json")
 """What `pih run` writes into runs/<name>/; a folder holding anything else is not replaced."""
@@ -40,6 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation starts (default 0)")
     parser.add_argument("--workers", type=int, default=2, help="evaluation processes (default 2)")
     parser.add_argument("--no-video", action="store_true", help="skip the MP4")
+    add_task_arguments(parser)
 
 
 def _step(name: str) -> None:
@@ -59,7 +63,9 @@ def main(args: argparse.Namespace) -> int:
 
     if not args.name or "/" in args.name or args.name in (".", ".."):
         raise EnvError(f"--name {args.name!r} must be a plain folder name")
-    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers)  # validated first
+    task = task_from_args(args)
+    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers,
+                              perturbations=task.perturbations, force_limit_n=task.force_limit_n)  # validated first
     out = args.root / args.name
     check_run_folder(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -75,7 +81,7 @@ def main(args: argparse.Namespace) -> int:
             else:
                 tqdm.write(f"  failed attempt: {attempt.reason}")
 
-        collection = collect_demos(args.demos, args.demo_seed, on_attempt=on_attempt)
+        collection = collect_demos(args.demos, args.demo_seed, task.scene_config(), on_attempt=on_attempt)
     demo_path = save_demos(out / "demos.npz", collection.demos)
     timings["demos_s"] = time.perf_counter() - t0
 

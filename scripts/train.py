@@ -242,7 +242,8 @@ def main(args: argparse.Namespace) -> int:
     if rec:
         print(f"stiffness ({rec['source']}): mean Log-Euclidean distance of generated to demonstrated profiles "
               f"{rec['log_euclidean_mean']:.3f} (per demo " + ", ".join(f"{d:.3f}" for d in rec["log_euclidean_per_demo"])
-              + f"); eigenvalue clip acted on {100 * rec['clip_fraction']:.2f} % of generated samples")
+              + f"); eigenvalue clip acted on {100 * rec['clip_fraction']:.2f} % of generated samples, changing an "
+              f"eigenvalue by at most {100 * np.expm1(rec['clip_max_log_change']):.2f} %")
     return 0
 
 

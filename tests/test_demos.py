@@ -75,6 +75,7 @@ def collection():
     return collect_demos(2, seed=0, expert=ExpertConfig(num_samples=300))
 
 
+@pytest.mark.slow
 def test_quick_collection_succeeds_and_ends_at_the_goal(collection) -> None:
     demos = collection.demos
     assert demos.pos.shape == (2, 300, 3) and demos.quat.shape == (2, 300, 4)
@@ -82,23 +83,27 @@ def test_quick_collection_succeeds_and_ends_at_the_goal(collection) -> None:
     assert demos.dt == pytest.approx(CONFIG.duration_s / 299)
 
 
+@pytest.mark.slow
 def test_kept_demos_settled_within_tolerance(collection) -> None:
     assert np.all(collection.demos.residual_pos_m <= 1e-3)
     assert np.all(collection.demos.residual_rot_deg <= 1.0)
 
 
+@pytest.mark.slow
 def test_recorded_demos_start_at_the_sampled_starts(collection) -> None:
     starts = collection.demos.config["starts"]
     for n, start in enumerate(starts):
         assert np.linalg.norm(collection.demos.pos[n, 0] - start["pos"]) < 1e-3
 
 
+@pytest.mark.slow
 def test_collected_file_validates(collection, tmp_path: Path) -> None:
     loaded = load_demos(save_demos(tmp_path / "demos.npz", collection.demos))
     assert loaded.num_demos == 2 and loaded.shape == "square"
     assert scene_config_from_demos(loaded).clearance_m == pytest.approx(0.001)
 
 
+@pytest.mark.slow
 def test_failed_attempt_is_recorded_and_resampled(monkeypatch: pytest.MonkeyPatch) -> None:
     real = demos_module.execute_demo
     calls = []

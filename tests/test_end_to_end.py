@@ -17,6 +17,8 @@ from envs.execution.evaluate import EvaluationConfig, evaluate
 from rflow.skill_io import load_skill, save_skill
 from scripts.train import skill_train_config, train_skill
 
+pytestmark = pytest.mark.slow  # trains a model and runs physics episodes
+
 GOAL_SHIFT_M = np.array([0.0, 0.03, 0.0])
 
 

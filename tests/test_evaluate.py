@@ -133,6 +133,7 @@ def test_result_json_holds_rate_and_interval(tmp_path):
     assert data["success_rate"] == 0.75 and data["success_rate_ci95"] == list(wilson_interval(3, 4))
 
 
+@pytest.mark.slow
 def test_batch_keeps_order_and_count_with_two_workers(skill, tmp_path):
     save_skill(tmp_path / "ck", skill)
     config = EvaluationConfig(episodes=3, time_limit_s=0.05, workers=2)

@@ -36,24 +36,21 @@ def without_wall_times(data: dict) -> dict:
     return data
 
 
+@pytest.mark.slow
 def test_resumed_evaluation_equals_an_uninterrupted_one(model, tmp_path):
     config = EvaluationConfig(episodes=4, time_limit_s=0.05)
-    whole = evaluate(model, config, progress=False)
-    full_starts = None
-    with Journal.open(tmp_path / "j.jsonl", journal_run(model, config)) as journal:
-        from envs.execution.evaluate import sample_starts
-        from rflow.skill_io import load_skill
-
-        meta = load_skill(model).metadata["demo_starts"]
-        full_starts = sample_starts(meta["pos"], meta["quat"], 4, 0, 0.05, 15.0)
-        partial = evaluate(model, config, progress=False, starts=full_starts[:2], journal=journal)  # "interrupted"
-    assert len(partial.records) == 2
-    with Journal.open(tmp_path / "j.jsonl", journal_run(model, config), resume=True) as journal:
+    path = tmp_path / "j.jsonl"
+    with Journal.open(path, journal_run(model, config)) as journal:
+        whole = evaluate(model, config, progress=False, journal=journal)
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(lines[:3]) + lines[3][:40])  # a run stopped after 2 episodes, mid-write of the 3rd
+    with Journal.open(path, journal_run(model, config), resume=True) as journal:
+        assert len(journal.done()) == 2
         resumed = evaluate(model, EvaluationConfig(episodes=4, time_limit_s=0.05, workers=2), progress=False,
                            journal=journal)
-    assert resumed.complete
+    assert resumed.complete and len(path.read_text().splitlines()) == 5
     a, b = without_wall_times(whole.to_dict()), without_wall_times(resumed.to_dict())
-    a["config"].pop("workers"), b["config"].pop("workers")
+    assert (a["config"].pop("workers"), b["config"].pop("workers")) == (1, 2)
     assert a == b
 
 

@@ -81,3 +81,46 @@ def test_box_qp_starts_on_a_bound_that_excludes_zero():
     x = np.zeros(2)
     assert ik_kernel.solve_box_qp(np.eye(2), np.array([-1.0, 0.0]), np.array([0.5, -1.0]), np.array([2.0, 1.0]), x)
     np.testing.assert_allclose(x, [1.0, 0.0])
+
+
+def _mink_solve_ik(model, site, pos, quat, q_nominal, config=IKConfig()):
+    """solve_ik's two phases (choose the posture, then refine to tolerance) with mink + daqp."""
+    configuration = mink.Configuration(model)
+    configuration.update(q_nominal.copy())
+    frame = mink.FrameTask(site, "site", position_cost=1.0, orientation_cost=1.0, lm_damping=config.lm_damping)
+    frame.set_target(mink.SE3(wxyz_xyz=np.concatenate([quat, pos])))
+    posture = mink.PostureTask(model, cost=config.posture_cost)
+    posture.set_target(q_nominal)
+    limits = [mink.ConfigurationLimit(model)]
+
+    def iterate():
+        v = mink.solve_ik(configuration, [frame, posture], dt=1.0, solver="daqp", damping=1e-9, limits=limits)
+        configuration.integrate_inplace(v, 1.0)
+
+    previous = configuration.q.copy()
+    for _ in range(config.max_iterations):
+        iterate()
+        if np.max(np.abs(configuration.q - previous)) < 1e-6:
+            break
+        previous = configuration.q.copy()
+    posture.set_cost(config.refine_posture_cost)
+    for _ in range(20):
+        iterate()
+    return configuration.q.copy()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_solve_ik_reaches_the_posture_mink_reaches(model, seed):
+    from controllers.ik import solve_ik
+
+    rng = np.random.default_rng(seed)
+    q_home = model.key("home").qpos.copy()
+    data = mujoco.MjData(model)
+    data.qpos[:] = np.clip(q_home + rng.uniform(-0.4, 0.4, model.nq), model.jnt_range[:, 0], model.jnt_range[:, 1])
+    mujoco.mj_kinematics(model, data)
+    site = model.site("peg_mount").id
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[site])
+    pos = data.site_xpos[site].copy()
+    np.testing.assert_allclose(solve_ik(model, "peg_mount", pos, quat, q_home),
+                               _mink_solve_ik(model, "peg_mount", pos, quat, q_home), atol=1e-5, rtol=0)

@@ -258,15 +258,24 @@ def test_pose_lead_damping_squares_to_four_zeta_squared_lambda_inv_k(model):
 def test_substep_hooks_run_around_every_physics_step(model):
     data, controller, pos, quat = _start(model)
     calls = []
-    taken = controller.step(data, pos, quat, n_substeps=4, before_substep=lambda: calls.append(("before", data.time)),
-                            after_substep=lambda: calls.append(("after", data.time)) is not None and False)
+
+    def before():
+        calls.append(("before", data.time))
+
+    def after():
+        calls.append(("after", data.time))
+        return False
+
+    taken = controller.step(data, pos, quat, n_substeps=4, before_substep=before, after_substep=after)
     dt = model.opt.timestep
     assert taken == 4
-    assert calls == [(kind, pytest.approx(dt * (k + (kind == "after")))) for k in range(4) for kind in ("before", "after")]
+    expected = [(kind, pytest.approx(dt * (k + (kind == "after")))) for k in range(4) for kind in ("before", "after")]
+    assert calls == expected
 
 
 def test_after_substep_returning_true_stops_the_loop(model):
     data, controller, pos, quat = _start(model)
-    taken = controller.step(data, pos, quat, n_substeps=10, after_substep=lambda: data.time >= 3 * model.opt.timestep - 1e-12)
+    three_steps_s = 3 * model.opt.timestep
+    taken = controller.step(data, pos, quat, n_substeps=10, after_substep=lambda: data.time >= three_steps_s - 1e-12)
     assert taken == 3
-    assert data.time == pytest.approx(3 * model.opt.timestep)
+    assert data.time == pytest.approx(three_steps_s)

@@ -8,7 +8,7 @@ from rflow.manifolds import MANIFOLDS, euclidean, get_manifold, sphere, spd
 
 
 def test_registry_names():
-    assert set(MANIFOLDS) == {"euclidean", "sphere", "spd"}
+    assert set(MANIFOLDS) == {"euclidean", "sphere", "spd", "spd_normal"}
 
 
 def test_unknown_manifold_raises():

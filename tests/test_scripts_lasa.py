@@ -96,6 +96,7 @@ def test_write_json_replaces_atomically_and_leaves_no_temp_file(tmp_path) -> Non
     assert json.loads(path.read_text()) == {"a": 1} and [p.name for p in tmp_path.iterdir()] == ["r.json"]
 
 
+@pytest.mark.slow
 def test_batch_writes_results_table_and_figures_for_all_four_methods(tmp_path) -> None:
     argv = ["lasa", "--all", "--workers", "2", "--out", str(tmp_path), "--shapes", "Angle", "--manifolds", "uq", *TINY]
     assert cli.main(argv) == 0
@@ -126,6 +127,7 @@ def _die_on_rgmm(setup, unit):
     return lasa_script.work_unit(setup, unit)
 
 
+@pytest.mark.slow
 def test_a_dead_worker_is_one_failed_unit_and_the_exit_status_says_so(tmp_path, monkeypatch) -> None:
     monkeypatch.setattr(lasa_script, "work_unit", _die_on_rgmm)
     argv = ["lasa", "--all", "--workers", "2", "--out", str(tmp_path), "--shapes", "Angle", "--manifolds", "spd",

@@ -97,3 +97,17 @@ def test_a_trial_worse_than_the_median_of_earlier_trials_is_pruned_at_its_first_
     study.optimize(search.make_objective(config, data), n_trials=1)
     last = study.trials[-1]
     assert last.state.name == "PRUNED" and sorted(last.intermediate_values) == [1]
+
+
+def test_pih_train_takes_its_hyperparameters_from_a_config_file(tmp_path) -> None:
+    import argparse
+
+    from scripts import train as train_script
+
+    config = TrainConfig(model=ModelConfig(layers=9, activation="tanh"), optimizer="adamax", lr=0.004, epochs=7)
+    path = save_train_config(tmp_path / "best.json", config)
+    parser = argparse.ArgumentParser()
+    train_script.add_arguments(parser)
+    args = parser.parse_args(["--demos", "d.npz", "--out", "m", "--config", str(path), "--seed", "4"])
+    got = train_script.train_config_from_args(args)
+    assert got == TrainConfig(model=config.model, optimizer="adamax", lr=0.004, epochs=7, seed=4, threads=1)

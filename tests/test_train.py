@@ -120,7 +120,7 @@ def test_history_round_trip(tmp_path, trained):
 
 def test_bad_config_raises():
     with pytest.raises(RFlowError, match="optimizer"):
-        TrainConfig(optimizer="sgd")
+        TrainConfig(optimizer="lbfgs")  # sgd and rmsprop are valid: the paper's search space
     with pytest.raises(RFlowError, match="prior_weight"):
         TrainConfig(prior_weight=-1.0)
     with pytest.raises(RFlowError, match="prior_radius"):

@@ -62,6 +62,7 @@ class EpisodeRecord:
         peak_single_contact_n: largest single contact normal force on the peg.
         touched: peak_contact_force_n > CONTACT_THRESHOLD_N.
         peak_wrist_force_n, median_wrist_force_n: |F| of the wrist F/T sensor (zeroed for the tool load).
+        peak_sustained_wrist_force_n: largest |F| held for the force limit's window (what the limit compares).
         peak_wrist_torque_nm, median_wrist_torque_nm: |tau| of the wrist F/T sensor.
         final_pos, final_quat: measured peg_tip pose at the end.
         steps: control steps run.
@@ -87,6 +88,7 @@ class EpisodeRecord:
     peak_single_contact_n: float = float("nan")
     touched: bool = False
     peak_wrist_force_n: float = float("nan")
+    peak_sustained_wrist_force_n: float = float("nan")
     median_wrist_force_n: float = float("nan")
     peak_wrist_torque_nm: float = float("nan")
     median_wrist_torque_nm: float = float("nan")
