@@ -1,8 +1,12 @@
-"""Conversion of records (dataclasses, numpy arrays and scalars, nested containers) to JSON-ready values."""
+"""Conversion of records (dataclasses, numpy arrays and scalars, nested containers) to JSON-ready values, and
+the one atomic JSON writer of the project."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,3 +26,16 @@ def to_jsonable(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+def write_json_atomic(path: str | os.PathLike[str], value: Any) -> Path:
+    """Write ``value`` as indented JSON to a temporary file beside ``path`` (mode per umask) and rename it into
+    place, so a reader never sees half a file and a failure leaves the old file (or none)."""
+    out = Path(path)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps(value, indent=2))
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return out

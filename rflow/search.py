@@ -176,23 +176,39 @@ def make_objective(config: SearchConfig, data: RiemannianLasa,
     return objective
 
 
+CREATE_ATTEMPTS: int = 5
+"""Processes that open a new database at once race to create Optuna's tables (PostgreSQL answers the loser with
+a unique violation); the loser looks again, up to this many times."""
+
+
 def open_study(storage: str, study_name: str, sampler_seed: int | None = 0, startup_trials: int = 5) -> Any:
     """Create or load the study ``study_name`` at the SQLAlchemy URL ``storage`` (TPE, median pruner, minimise).
 
     Raises:
         RFlowError: the storage cannot be opened, or the study exists with another direction.
     """
+    import time
+
+    from sqlalchemy.exc import IntegrityError
+
     optuna = _import_optuna()
     sampler = optuna.samplers.TPESampler(seed=sampler_seed)
     pruner = optuna.pruners.MedianPruner(n_startup_trials=startup_trials)
-    try:
-        return optuna.create_study(storage=storage, study_name=study_name, sampler=sampler, pruner=pruner,
-                                   direction="minimize", load_if_exists=True)
-    except ValueError as err:
-        raise RFlowError(f"study {study_name!r} at {storage}: {err}") from None
-    except Exception as err:  # noqa: BLE001 - SQLAlchemy's errors: unreachable server, bad credentials, ...
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise RFlowError(f"cannot open storage {storage}: {type(err).__name__}: {first}") from None
+    for attempt in range(CREATE_ATTEMPTS):
+        try:
+            return optuna.create_study(storage=storage, study_name=study_name, sampler=sampler, pruner=pruner,
+                                       direction="minimize", load_if_exists=True)
+        except IntegrityError:  # another process created the same tables or study a moment earlier: look again
+            if attempt == CREATE_ATTEMPTS - 1:
+                raise RFlowError(f"study {study_name!r} at {storage}: could not create or load it after "
+                                 f"{CREATE_ATTEMPTS} attempts (other processes creating it)") from None
+            time.sleep(0.2 * (attempt + 1))
+        except ValueError as err:
+            raise RFlowError(f"study {study_name!r} at {storage}: {err}") from None
+        except Exception as err:  # noqa: BLE001 - SQLAlchemy's errors: unreachable server, bad credentials, ...
+            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise RFlowError(f"cannot open storage {storage}: {type(err).__name__}: {first}") from None
+    raise AssertionError("unreachable")
 
 
 def run_search(config: SearchConfig, storage: str, study_name: str,

@@ -13,7 +13,6 @@ failure, if any) and summary.json (timings and the success rate). Prints a summa
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from envs.errors import EnvError  # noqa: E402
+from envs.jsonable import write_json_atomic  # noqa: E402
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "episodes.mp4", "summary.json")
@@ -143,14 +143,3 @@ def check_run_folder(out: Path) -> None:
     if foreign:
         shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
         raise EnvError(f"run folder {out} holds files `pih run` did not write ({shown}): choose another --name")
-
-
-def write_json_atomic(path: Path, value: Any) -> Path:
-    """Write ``value`` as JSON to a temporary file beside ``path`` (mode per umask) and rename it into place."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps(value, indent=2))
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path

@@ -13,7 +13,6 @@ for --resume). Settings not swept come from --preset and the task options, and t
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import time
@@ -24,6 +23,7 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from envs.errors import EnvError  # noqa: E402
+from envs.jsonable import write_json_atomic  # noqa: E402
 from envs.execution.evaluate import EvaluationConfig  # noqa: E402
 from envs.execution.policy import MODES  # noqa: E402
 from envs.execution.sweep import SweepAxes, sweep, sweep_cells, sweep_run  # noqa: E402
@@ -103,15 +103,6 @@ def base_config(args: argparse.Namespace) -> EvaluationConfig:
         perturbations=task.perturbations, force_limit_n=task.force_limit_n)
 
 
-def _write_json(path: Path, payload: dict[str, Any]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps(payload, indent=2))
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def main(args: argparse.Namespace) -> int:
     """Run the sweep; exit 0 when complete, 3 when incomplete, 130 when interrupted."""
     from batch import Journal
@@ -139,7 +130,7 @@ def main(args: argparse.Namespace) -> int:
     with Journal.open(out / "journal.jsonl", sweep_run(str(args.model), cells, checksum), resume=args.resume,
                       overwrite=args.overwrite) as journal:
         result = sweep(str(args.model), cells, progress=not args.quiet, journal=journal)
-    _write_json(out / "sweep.json", result.to_dict())
+    write_json_atomic(out / "sweep.json", result.to_dict())
     active = axes.active()
     rows, columns = ("clearance_m", "hole_error_m") if {"clearance_m", "hole_error_m"} <= set(active) else (
         (active + active)[:2] if len(active) == 1 else active[:2])

@@ -41,11 +41,12 @@ def test_render_missing_demo_file_exits_2(tmp_path: Path, capsys) -> None:
 
 @pytest.fixture(scope="module")
 def short_demo_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One 0.4 s demo straight down the hole axis from 1 cm above the opening to the default goal."""
+    """One 0.4 s free-space demo, 3 cm sideways 6 cm above the goal (rendering, not insertion, is tested)."""
     scene = build_scene(SceneConfig())
     goal_pos, goal_quat = scene.goal_pose()
     s = np.linspace(0.0, 1.0, 41)[:, None]
-    start = goal_pos + [0.0, 0.0, 0.04]
+    start = goal_pos + [0.0, -0.03, 0.06]
+    goal_pos = goal_pos + [0.0, 0.0, 0.06]
     demos = DemoSet(pos=(start + s * (goal_pos - start))[None], quat=np.tile(goal_quat, (1, 41, 1)), dt=0.01,
                     goal_pos=goal_pos, goal_quat=goal_quat, shape="square", clearance_m=0.001)
     return save_demos(tmp_path_factory.mktemp("demos") / "short.npz", demos)

@@ -1,4 +1,6 @@
-"""End to end: scripted demos -> small RiemannianFlow skill -> closed-loop insertions scored by physics.
+"""End to end: scripted demos -> small RiemannianFlow skill -> closed-loop insertions scored by physics, in the
+paper's setting (the "paper" task preset: grasped peg, 1 mm clearance, the hole where the demos ended; seated
+within 1 mm, inside the walls, at rest).
 
 Small on purpose (7 demos of 400 samples instead of 4000, 40 epochs instead of 80, 20 starts in each mode
 from the issue's default region, +-5 cm / +-15 deg around the mean demo start) so it runs in about a minute
@@ -14,25 +16,27 @@ import pytest
 from envs.demo_file import save_demos
 from envs.demos import ExpertConfig, collect_demos
 from envs.execution.evaluate import EvaluationConfig, evaluate
+from envs.task import PRESETS
 from rflow.skill_io import load_skill, save_skill
 from scripts.train import skill_train_config, train_skill
 
 pytestmark = pytest.mark.slow  # trains a model and runs physics episodes
 
 GOAL_SHIFT_M = np.array([0.0, 0.03, 0.0])
+PAPER = PRESETS["paper"]
 
 
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
     folder = tmp_path_factory.mktemp("e2e")
-    demos = collect_demos(7, seed=0, expert=ExpertConfig(num_samples=400)).demos
+    demos = collect_demos(7, seed=0, scene_config=PAPER.scene_config(), expert=ExpertConfig(num_samples=400)).demos
     path = save_demos(folder / "demos.npz", demos)
     return train_skill(path, folder / "model", skill_train_config(epochs=40), subsample=1, progress=False)
 
 
 @pytest.mark.parametrize("mode", ["closed-loop", "open-loop"])
 def test_small_skill_inserts_from_perturbed_starts(checkpoint, mode):
-    config = EvaluationConfig(episodes=20, seed=1, mode=mode, workers=2)
+    config = EvaluationConfig(episodes=20, seed=1, mode=mode, workers=2, perturbations=PAPER.perturbations)
     assert (config.pos_range_m, config.rot_range_deg) == (0.05, 15.0)
     result = evaluate(checkpoint, config, progress=False)
     failures = [r.reason for r in result.records if not r.success]
@@ -45,7 +49,8 @@ def test_goal_shifted_skill_is_scored_as_failing(checkpoint, tmp_path):
     skill = load_skill(checkpoint)
     skill.models["position"].goal = skill.models["position"].goal + GOAL_SHIFT_M
     shifted = save_skill(tmp_path / "shifted", skill)
-    config = EvaluationConfig(episodes=4, seed=1, pos_range_m=0.02, rot_range_deg=5.0, time_limit_s=8.0, workers=2)
+    config = EvaluationConfig(episodes=4, seed=1, pos_range_m=0.02, rot_range_deg=5.0, time_limit_s=8.0, workers=2,
+                              perturbations=PAPER.perturbations)
     result = evaluate(shifted, config, progress=False)
     assert result.num_success == 0
     assert all(r.final_pos_error_mm > 20.0 for r in result.records)

@@ -4,14 +4,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from assets import PANDA_XML
+from panda_fixtures import arm_model, arm_spec  # noqa: F401
 from controllers.errors import ControllerError
 from controllers.ik import IKConfig, NullspaceReference, pose_residual, solve_ik
 
 
 @pytest.fixture(scope="module")
 def model() -> mujoco.MjModel:
-    return mujoco.MjModel.from_xml_path(str(PANDA_XML))
+    return arm_model()
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +78,7 @@ def test_bad_inputs_raise_controller_error(model, q_home, args, match):
 
 
 def test_works_on_a_scene_with_extra_fixed_bodies(q_home):
-    spec = mujoco.MjSpec.from_file(str(PANDA_XML))
+    spec = arm_spec()
     fixture = spec.worldbody.add_body()
     fixture.pos = [0.5, 0.0, 0.05]
     fixture.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.05, 0.05])

@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from assets import PANDA_XML
+from panda_fixtures import arm_model, arm_spec  # noqa: F401
 from controllers.errors import ControllerError
 from controllers.impedance import CartesianImpedanceController, ImpedanceConfig, modal_factors
 
@@ -14,7 +14,7 @@ PEG_LENGTH_M = 0.08
 @pytest.fixture(scope="module")
 def model() -> mujoco.MjModel:
     """The Panda with a 30 x 30 x 80 mm wooden peg held at peg_mount and a site at its tip."""
-    spec = mujoco.MjSpec.from_file(str(PANDA_XML))
+    spec = arm_spec()
     mount = spec.site("peg_mount")
     peg = spec.body("hand").add_body()
     peg.pos = mount.pos
@@ -208,7 +208,7 @@ def test_full_stiffness_matrix_deflects_along_its_compliance(model):
 @pytest.fixture(scope="module")
 def model_with_free_peg() -> mujoco.MjModel:
     """The Panda beside a peg on a free joint (another kinematic tree): nv = 13, nu = 7."""
-    spec = mujoco.MjSpec.from_file(str(PANDA_XML))
+    spec = arm_spec()
     peg = spec.worldbody.add_body(pos=[0.3, -0.4, 0.2])
     peg.add_freejoint()
     peg.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.015, 0.015, 0.04])

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from assets import PANDA_XML
+from panda_fixtures import arm_model, arm_spec  # noqa: F401
 
 # Franka's modified DH (Craig): a_{i-1}, d_i, alpha_{i-1}; flange = TransZ(0.107) from frame 7.
 DH_A_M = (0.0, 0.0, 0.0, 0.0825, -0.0825, 0.0, 0.088)
@@ -48,7 +49,7 @@ def dh_flange(q: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def model() -> mujoco.MjModel:
-    return mujoco.MjModel.from_xml_path(str(PANDA_XML))
+    return arm_model()
 
 
 def _random_configurations(model: mujoco.MjModel, count: int) -> np.ndarray:
@@ -119,8 +120,10 @@ def test_hand_is_rotated_minus_45_deg_about_flange_z(model):
     np.testing.assert_allclose(rel, _rot_z(-np.pi / 4)[:3, :3], atol=1e-9)
 
 
-def test_peg_mount_sits_between_the_fingers_along_hand_z(model):
+def test_peg_mount_sits_between_the_fingers_along_hand_z():
+    model = mujoco.MjModel.from_xml_path(str(PANDA_XML))  # with the finger joints
     data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)  # fingers 20 mm open each
     mujoco.mj_kinematics(model, data)
     hand = data.body("hand")
     mount = data.site("peg_mount")
@@ -129,8 +132,17 @@ def test_peg_mount_sits_between_the_fingers_along_hand_z(model):
     left = hand.xmat.reshape(3, 3).T @ (data.body("left_finger").xpos - hand.xpos)
     right = hand.xmat.reshape(3, 3).T @ (data.body("right_finger").xpos - hand.xpos)
     assert in_hand[2] > 0.05 and abs(in_hand[0]) < 1e-9 and abs(in_hand[1]) < 1e-9
-    assert left[1] > 0 > right[1] and left[1] == pytest.approx(-right[1])  # fingers close along hand y
+    assert left[1] == pytest.approx(0.02) and right[1] == pytest.approx(-0.02)  # finger joints open along hand y
     assert left[2] < in_hand[2]  # the pads reach past the peg's top face
+
+
+def test_finger_joints_are_prismatic_0_to_40_mm_along_the_hand_y_axis():
+    model = mujoco.MjModel.from_xml_path(str(PANDA_XML))
+    for name, sign in (("finger_joint1", 1.0), ("finger_joint2", -1.0)):
+        joint = model.joint(name)
+        assert joint.type == mujoco.mjtJoint.mjJNT_SLIDE
+        np.testing.assert_allclose(joint.range, [0.0, 0.04])
+        np.testing.assert_allclose(model.jnt_axis[joint.id], [0.0, sign, 0.0])
 
 
 def test_arm_never_collides_with_itself(model):
@@ -145,7 +157,7 @@ def test_fingers_collide_with_a_default_world_geom(model):
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
     mujoco.mj_kinematics(model, data)
-    spec = mujoco.MjSpec.from_file(str(PANDA_XML))
+    spec = arm_spec()
     probe = spec.worldbody.add_geom()  # contype = conaffinity = 1 by default
     probe.type = mujoco.mjtGeom.mjGEOM_BOX
     probe.size = [0.01, 0.01, 0.01]

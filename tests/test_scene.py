@@ -22,7 +22,12 @@ from envs.shapes import PEG_LENGTH_M
 
 @pytest.fixture(scope="module")
 def held():
-    return build_scene(SceneConfig())
+    return build_scene(SceneConfig(peg_mode="welded"))
+
+
+@pytest.fixture(scope="module")
+def grasped():
+    return build_scene(SceneConfig(peg_mode="grasped", chamfer_m=0.001))
 
 
 def kinematics(scene, key=True):
@@ -98,8 +103,9 @@ def test_held_peg_moves_with_the_hand(held):
 
 
 @pytest.mark.parametrize("shape", ["square", "triangle", "circle"])
-def test_fingers_touch_the_held_peg(shape):
-    scene = build_scene(SceneConfig(shape=shape))
+@pytest.mark.parametrize("mode", ["welded", "grasped"])
+def test_fingers_touch_the_peg(shape, mode):
+    scene = build_scene(SceneConfig(shape=shape, peg_mode=mode))
     data = kinematics(scene)
     mujoco.mj_forward(scene.model, data)
     peg_geom = scene.ids.peg_geoms[0]
@@ -114,10 +120,43 @@ def test_held_peg_has_no_contact_with_the_hand(held):
     assert data.ncon == 0
 
 
+def test_grasped_scene_has_arm_fingers_and_a_free_peg(grasped):
+    model = grasped.model
+    assert model.nq == 7 + 2 + 7 and len(grasped.ids.finger_qpos_adr) == 2 and grasped.ids.peg_qpos_adr == 9
+    assert model.body_parentid[grasped.ids.peg_body] == 0  # a body of its own, not part of the hand
+
+
+def test_grasped_peg_tip_starts_on_the_tcp(grasped):
+    data = kinematics(grasped)
+    np.testing.assert_allclose(data.site_xpos[grasped.ids.peg_tip_site], data.site_xpos[grasped.ids.tcp_site],
+                               atol=1e-9)
+    np.testing.assert_allclose(data.site_xmat[grasped.ids.peg_tip_site], data.site_xmat[grasped.ids.tcp_site],
+                               atol=1e-9)
+
+
+def test_welded_tcp_is_the_peg_tip(held):
+    data = kinematics(held)
+    np.testing.assert_allclose(data.site_xpos[held.ids.peg_tip_site], data.site_xpos[held.ids.tcp_site], atol=1e-12)
+
+
+def test_wrist_sensor_sits_between_flange_and_hand(grasped):
+    model = grasped.model
+    assert model.site_bodyid[grasped.ids.ft_site] == grasped.ids.hand_body
+    data = kinematics(grasped)
+    np.testing.assert_allclose(data.site_xpos[grasped.ids.ft_site], data.site_xpos[grasped.ids.flange_site],
+                               atol=1e-12)
+
+
+def test_chamfer_meshes_exist_only_with_a_chamfer(grasped, held):
+    names = [grasped.model.geom(g).name for g in grasped.ids.sorter_geoms]
+    assert sum(n.startswith("sorter/chamfer_square") for n in names) >= 4
+    assert not any(held.model.geom(g).name.startswith("sorter/chamfer") for g in held.ids.sorter_geoms)
+
+
 def test_free_peg_starts_above_its_hole():
     scene = build_scene(SceneConfig(peg_mode="free", free_peg_height_m=0.05))
     data = kinematics(scene)
-    assert scene.model.nq == 14
+    assert scene.model.nq == 16
     assert np.allclose(data.site_xpos[scene.ids.peg_tip_site], scene.hole_pose("square")[0] + [0.0, 0.0, 0.05])
 
 

@@ -25,7 +25,6 @@ Statistics. The success rate p = k/n with its 95 % Wilson score interval
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -37,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from batch import BatchConfig, BatchError, Journal, run_batch
-from envs.jsonable import to_jsonable
+from envs.jsonable import to_jsonable, write_json_atomic
 from envs.errors import EnvError
 from envs.perturbation import PerturbationRanges, sample_perturbation
 from envs.poses import Pose, StartRegion, format_pose, mean_quat, sample_start_poses
@@ -364,13 +363,7 @@ class EvaluationResult:
         out = Path(path)
         if str(out.parent) and not out.parent.is_dir():
             raise EnvError(f"cannot write {out}: folder {out.parent} does not exist")
-        tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-        try:
-            tmp.write_text(json.dumps(self.to_dict(), indent=2))
-            os.replace(tmp, out)
-        finally:
-            tmp.unlink(missing_ok=True)
-        return out
+        return write_json_atomic(out, self.to_dict())
 
     def summary_table(self) -> str:
         """A short plain-text table of the result."""
