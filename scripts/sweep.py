@@ -91,7 +91,8 @@ def parse_values(option: str, text: str | None, scale: float) -> tuple[float, ..
 
 def base_config(args: argparse.Namespace) -> EvaluationConfig:
     """The EvaluationConfig every cell derives from. Raises EnvError on a bad option."""
-    task = task_from_args(args)
+    swept = {name[2:].replace("-", "_") for name, _ in AXIS_OPTIONS.values()}
+    task = task_from_args(argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in swept}))
     explicit_scene = task.scene_fields() if args.preset else {}
     return EvaluationConfig(
         episodes=args.episodes, seed=args.seed, mode=args.mode, time_limit_s=args.time_limit,

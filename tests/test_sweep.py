@@ -1,0 +1,95 @@
+"""Success maps (envs.execution.sweep, `pih sweep`): the grid, common starts, per-cell statistics, the files, and
+bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from envs.errors import EnvError
+from envs.execution.evaluate import EvaluationConfig, evaluation_starts
+from envs.execution.sweep import SweepAxes, cell_summary, sweep_cells, sweep_units, unit_key
+from envs.perturbation import PerturbationRanges
+from rflow.skill_io import save_skill
+from scripts import cli
+from scripts.sweep import parse_values
+from skill_fixtures import tiny_skill
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory) -> Path:
+    return save_skill(tmp_path_factory.mktemp("sweep") / "model", tiny_skill())
+
+
+def test_cells_are_the_product_of_the_axes_first_axis_slowest() -> None:
+    cells = sweep_cells(EvaluationConfig(), SweepAxes(clearance_m=(0.001, 0.0002), hole_error_m=(0.0, 0.001, 0.002)))
+    assert [c.settings for c in cells[:3]] == [{"clearance_m": 0.001, "hole_error_m": e} for e in (0.0, 0.001, 0.002)]
+    assert len(cells) == 6 and cells[4].config.clearance_m == 0.0002
+    assert cells[4].config.perturbations.hole_error_m == 0.001
+
+
+def test_settings_not_swept_keep_the_base_config() -> None:
+    base = EvaluationConfig(perturbations=PerturbationRanges(hole_error_m=0.001, hole_error_deg=0.5), seed=3)
+    cell = sweep_cells(base, SweepAxes(hole_error_m=(0.002,)))[0]
+    assert cell.config.perturbations.hole_error_deg == 0.5 and cell.config.seed == 3
+    assert cell.config.clearance_m is None  # the demos' clearance
+
+
+def test_every_cell_uses_the_same_starts_and_scaled_perturbations() -> None:
+    """Common random numbers: the cells differ only by their setting."""
+    demo_starts = {"pos": [[0.6, 0.0, 0.4], [0.62, 0.02, 0.41]], "quat": [[0.0, 1.0, 0.0, 0.0]] * 2}
+    cells = sweep_cells(EvaluationConfig(episodes=3), SweepAxes(hole_error_m=(0.001, 0.002)))
+    units = sweep_units(cells, demo_starts)
+    assert [key for key, _ in units] == [unit_key(c, e) for c in (0, 1) for e in range(3)]
+    small, large = [start for _, (_, start) in units[:3]], [start for _, (_, start) in units[3:]]
+    for a, b in zip(small, large):
+        assert (a.pose.pos == b.pose.pos).all()
+        assert b.perturbation.hole_offset_m == pytest.approx(2 * a.perturbation.hole_offset_m)
+    alone = evaluation_starts(demo_starts, cells[0].config)  # the same starts as a plain evaluation of the cell
+    assert all((a.pose.pos == b.pose.pos).all() and a.perturbation == b.perturbation for a, b in zip(small, alone))
+
+
+def test_cell_summary_counts_and_interval() -> None:
+    cell = sweep_cells(EvaluationConfig(), SweepAxes(clearance_m=(0.001,)))[0]
+    records = [{"index": i, "demo_index": -1, "start_pos": [0, 0, 0], "start_quat": [1, 0, 0, 0], "success": i < 3,
+                "reason": "success" if i < 3 else "time_limit (stuck)", "time_to_insert_s": 5.0 if i < 3 else None,
+                "peak_wrist_force_n": 10.0 * (i + 1), "touched": True} for i in range(4)]
+    summary = cell_summary(cell, records)
+    assert (summary["successes"], summary["episodes"]) == (3, 4)
+    assert summary["median_peak_wrist_force_n"] == 20.0 and summary["failures_by_kind"] == {"time_limit": 1}
+    low, high = summary["success_rate_ci95"]
+    assert low < 0.75 < high
+
+
+def test_no_axis_is_an_error() -> None:
+    with pytest.raises(EnvError, match="axis"):
+        sweep_cells(EvaluationConfig(), SweepAxes())
+
+
+@pytest.mark.parametrize("text, match", [("1,x", "not a number"), ("1,-0.5", ">= 0"), ("nan", ">= 0")])
+def test_bad_axis_values_are_rejected(text, match) -> None:
+    with pytest.raises(EnvError, match=match):
+        parse_values("--clearance-mm", text, 1e-3)
+
+
+def test_out_of_range_value_is_rejected_before_any_work(model_dir, tmp_path, capsys) -> None:
+    out = tmp_path / "sweep"
+    code = cli.main(["sweep", "--model", str(model_dir), "--clearance-mm", "1,9", "--episodes", "1",
+                     "--out", str(out), "--quiet"])
+    assert code == 2 and "clearance" in capsys.readouterr().err and not out.exists()
+
+
+def test_sweep_writes_its_map_and_refuses_to_clobber_it(model_dir, tmp_path, capsys) -> None:
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--model", str(model_dir), "--clearance-mm", "1,0.5", "--hole-error-mm", "0",
+            "--episodes", "1", "--time-limit", "0.2", "--workers", "1", "--out", str(out), "--quiet"]
+    assert cli.main(argv) == 0
+    result = json.loads((out / "sweep.json").read_text())
+    assert result["complete"] and len(result["cells"]) == 2 and len(result["per_episode"]) == 2
+    assert {c["settings"]["clearance_m"] for c in result["cells"]} == {0.001, 0.0005}
+    assert (out / "sweep.png").stat().st_size > 0
+    capsys.readouterr()
+    assert cli.main(argv) == 2 and "--resume or --overwrite" in capsys.readouterr().err
+    assert cli.main(argv + ["--resume"]) == 0  # everything is in the journal: nothing runs again
