@@ -53,7 +53,9 @@ def cluster():
     port = _free_port()
     temp = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's socket paths must stay < 108 bytes
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent), os.environ.get("PYTHONPATH", "")]),
-           "RAY_USAGE_STATS_ENABLED": "0"}
+           "RAY_USAGE_STATS_ENABLED": "0", "HOME": temp}  # no ~/.ray/auth_token of another cluster is read
+    patch = pytest.MonkeyPatch()
+    patch.setenv("HOME", temp)  # the same for the driver in this process
     address = f"127.0.0.1:{port}"
     nodes = [_start(["--head", f"--port={port}", "--node-ip-address=127.0.0.1", "--num-cpus=1",
                      "--include-dashboard=false", f"--temp-dir={temp}"], env)]
@@ -65,18 +67,24 @@ def cluster():
     finally:
         for proc in reversed(nodes):
             _stop(proc)
+        patch.undo()
         shutil.rmtree(temp, ignore_errors=True)
 
 
-def _wait_for_nodes(address: str, count: int, nodes: list[subprocess.Popen], limit_s: float = 120.0) -> None:
-    """Wait until the cluster at ``address`` answers with ``count`` alive nodes (0: just answers)."""
+def _wait_for_nodes(address: str, count: int, nodes: list[subprocess.Popen], limit_s: float = 300.0) -> None:
+    """Wait until a driver can join the cluster at ``address`` and sees ``count`` alive nodes (0: just joins).
+    The limit is generous: a busy 2-core machine is slow to bring a head up."""
     deadline = time.monotonic() + limit_s
     while time.monotonic() < deadline:
         if any(p.poll() is not None for p in nodes):
             pytest.fail(f"a `ray start` exited with {[p.poll() for p in nodes]}")
-        probe = subprocess.run([sys.executable, "-c", (
-            "import ray; ray.init(address=%r, log_to_driver=False, configure_logging=False); "
-            "print(sum(n['Alive'] for n in ray.nodes()))") % address], capture_output=True, text=True)
+        try:
+            probe = subprocess.run([sys.executable, "-c", (
+                "import ray; ray.init(address=%r, log_to_driver=False, configure_logging=False); "
+                "print(sum(n['Alive'] for n in ray.nodes()))") % address], capture_output=True, text=True,
+                timeout=max(1.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            break
         if probe.returncode == 0 and int(probe.stdout.split()[-1]) >= count:
             return
         time.sleep(1.0)
