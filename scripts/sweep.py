@@ -126,11 +126,20 @@ def main(args: argparse.Namespace) -> int:
     if existing and not (args.resume or args.overwrite):
         raise EnvError(f"--out {out} already holds {', '.join(existing)} (use --resume or --overwrite)")
     checksum = journal_run(args.model, cells[0].config)["skill_sha256"]
+    created = not out.exists()
     out.mkdir(exist_ok=True)
     wall = time.perf_counter()
-    with Journal.open(out / "journal.jsonl", sweep_run(str(args.model), cells, checksum), resume=args.resume,
-                      overwrite=args.overwrite) as journal:
-        result = sweep(str(args.model), cells, progress=not args.quiet, journal=journal)
+    journal_path = out / "journal.jsonl"
+    try:
+        with Journal.open(journal_path, sweep_run(str(args.model), cells, checksum), resume=args.resume,
+                          overwrite=args.overwrite) as journal:
+            result = sweep(str(args.model), cells, progress=not args.quiet, journal=journal)
+    except Exception:  # a cell's scene or the checkpoint failed before any episode: leave nothing behind
+        if not args.resume and journal_path.is_file() and len(journal_path.read_text().splitlines()) <= 1:
+            journal_path.unlink()
+            if created and not any(out.iterdir()):
+                out.rmdir()
+        raise
     write_json_atomic(out / "sweep.json", result.to_dict())
     active = axes.active()
     rows, columns = ("clearance_m", "hole_error_m") if {"clearance_m", "hole_error_m"} <= set(active) else (

@@ -93,3 +93,11 @@ def test_sweep_writes_its_map_and_refuses_to_clobber_it(model_dir, tmp_path, cap
     capsys.readouterr()
     assert cli.main(argv) == 2 and "--resume or --overwrite" in capsys.readouterr().err
     assert cli.main(argv + ["--resume"]) == 0  # everything is in the journal: nothing runs again
+
+
+def test_a_missing_checkpoint_leaves_nothing_behind(tmp_path) -> None:
+    """Exit 2 before any episode, and no output folder."""
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--model", str(tmp_path / "missing"), "--clearance-mm", "1", "--episodes", "1",
+            "--out", str(out), "--quiet"]
+    assert cli.main(argv) == 2 and not out.exists()
