@@ -69,6 +69,28 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     return max(0.0, low), min(1.0, high)
 
 
+def finite_median(values: Iterable[float | None]) -> float | None:
+    """Median of the finite values (None when there is none)."""
+    kept = [x for x in values if x is not None and math.isfinite(x)]
+    return float(np.median(kept)) if kept else None
+
+
+def finite_max(values: Iterable[float | None]) -> float | None:
+    """Largest finite value (None when there is none)."""
+    kept = [x for x in values if x is not None and math.isfinite(x)]
+    return float(np.max(kept)) if kept else None
+
+
+def failure_kinds(records: Iterable[EpisodeRecord]) -> dict[str, int]:
+    """Failed episodes counted by kind: the reason up to its first ':' or ' (' ("time_limit", "force_limit", ...)."""
+    kinds: dict[str, int] = {}
+    for r in records:
+        if not r.success:
+            kind = r.reason.split(":")[0].split(" (")[0]
+            kinds[kind] = kinds.get(kind, 0) + 1
+    return kinds
+
+
 @dataclass(frozen=True)
 class EvaluationConfig:
     """What `evaluate` runs.
@@ -305,19 +327,8 @@ class EvaluationResult:
     def statistics(self) -> dict[str, Any]:
         """Medians / maxima of the per-episode figures and failure counts by kind."""
         ok = [r for r in self.records if r.success]
-        kinds: dict[str, int] = {}
-        for r in self.records:
-            if not r.success:
-                kind = r.reason.split(":")[0].split(" (")[0]
-                kinds[kind] = kinds.get(kind, 0) + 1
-
-        def med(values: Iterable[float | None]) -> float | None:
-            v = [x for x in values if x is not None and math.isfinite(x)]
-            return float(np.median(v)) if v else None
-
-        def top(values: Iterable[float | None]) -> float | None:
-            v = [x for x in values if x is not None and math.isfinite(x)]
-            return float(np.max(v)) if v else None
+        kinds = failure_kinds(self.records)
+        med, top = finite_median, finite_max
 
         return {
             "median_time_to_insert_s": med(r.time_to_insert_s for r in ok),

@@ -277,12 +277,12 @@ class ClosedLoopPolicy:
     winds down once the peg moves again (no overshoot past the goal):
         e_{k+1} = sat((1 - T / tau) e_k + (xi_d - v) T),   |e_p| <= ``push_limit_m``, |e_r| <= ``push_limit_rad``,
     added to the anchor: a virtual reference that keeps moving at the flow's twist while the peg is held, so the
-    force grows toward K tau xi_d (at most K push_limit); in free space v ~ xi_d and e stays near 0. (Integrating
-    only the error along the flow's direction did worse: 1 of 7 hard starts instead of 2, pegs pushed past the
-    hole.) It is a
-    leaky-PI velocity loop on the learned flow; the flow is still queried at the measured pose every step. The
-    rotational part is off by default (``push_limit_rad`` = 0): a hole turned or tilted against the demos needs
-    the peg to yield to the walls in rotation, which a push toward the demonstrated orientation would fight.
+    force grows toward K tau xi_d (at most K push_limit); in free space v ~ xi_d and e stays near 0. It is a
+    leaky-PI velocity loop on the learned flow; the flow is still queried at the measured pose every step.
+    (Integrating only the error along the flow's direction did worse: 1 of 7 hard starts instead of 2, pegs
+    pushed past the hole.) The rotational part is off by default (``push_limit_rad`` = 0): a hole turned or
+    tilted against the demos needs the peg to yield to the walls in rotation, which a push toward the
+    demonstrated orientation would fight (0 of 7 hard starts with a 2 deg limit).
 
     For a stiffness skill the stiffness state K is integrated alongside (module docstring) whatever
     ``stiffness`` commands, since the joint model's pose part is conditioned on it.

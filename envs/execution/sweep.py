@@ -12,12 +12,10 @@ the failures by kind.
 from __future__ import annotations
 
 import itertools
-import math
 from collections import OrderedDict
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Iterable, Sequence
+from typing import Any, Sequence
 
-import numpy as np
 
 from envs.errors import EnvError
 from envs.execution.episode import StartPose, run_episode
@@ -25,6 +23,9 @@ from envs.execution.evaluate import (
     EvaluationConfig,
     _failed_unit,
     build_setup,
+    failure_kinds,
+    finite_max,
+    finite_median,
     record_from_dict,
     wilson_interval,
 )
@@ -155,26 +156,11 @@ def failed_sweep_unit(key: str, unit: tuple[int, StartPose], reason: str) -> dic
     return record
 
 
-def _median(values: Iterable[float | None]) -> float | None:
-    kept = [v for v in values if v is not None and math.isfinite(v)]
-    return float(np.median(kept)) if kept else None
-
-
-def _maximum(values: Iterable[float | None]) -> float | None:
-    kept = [v for v in values if v is not None and math.isfinite(v)]
-    return float(np.max(kept)) if kept else None
-
-
 def cell_summary(cell: Cell, records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Statistics of one cell (module docstring) from its episode records (dicts)."""
     parsed = [record_from_dict(r) for r in records]
     ok = [r for r in parsed if r.success]
     low, high = wilson_interval(len(ok), len(parsed))
-    kinds: dict[str, int] = {}
-    for r in parsed:
-        if not r.success:
-            kind = r.reason.split(":")[0].split(" (")[0]
-            kinds[kind] = kinds.get(kind, 0) + 1
     return {
         "cell": cell.index,
         "settings": cell.settings,
@@ -182,12 +168,12 @@ def cell_summary(cell: Cell, records: Sequence[dict[str, Any]]) -> dict[str, Any
         "successes": len(ok),
         "success_rate": len(ok) / max(len(parsed), 1),
         "success_rate_ci95": [low, high],
-        "median_time_to_insert_s": _median(r.time_to_insert_s for r in ok),
-        "median_peak_wrist_force_n": _median(r.peak_wrist_force_n for r in ok),
-        "max_peak_wrist_force_n": _maximum(r.peak_wrist_force_n for r in ok),
-        "median_peak_contact_force_n": _median(r.peak_contact_force_n for r in parsed),
+        "median_time_to_insert_s": finite_median(r.time_to_insert_s for r in ok),
+        "median_peak_wrist_force_n": finite_median(r.peak_wrist_force_n for r in ok),
+        "max_peak_wrist_force_n": finite_max(r.peak_wrist_force_n for r in ok),
+        "median_peak_contact_force_n": finite_median(r.peak_contact_force_n for r in parsed),
         "contact_rate": sum(r.touched for r in parsed) / max(len(parsed), 1),
-        "failures_by_kind": kinds,
+        "failures_by_kind": failure_kinds(parsed),
     }
 
 
