@@ -284,7 +284,10 @@ def fit(
         epoch_loss = 0.0
         for k in range(steps_per_epoch):
             sl = slice(k * config.batch_size, (k + 1) * config.batch_size)
-            logp = network.transition_log_prob(z_t[s_t[sl]], z_t[e_t[sl]], tau_t[sl])
+            try:
+                logp = network.transition_log_prob(z_t[s_t[sl]], z_t[e_t[sl]], tau_t[sl])
+            except torch.linalg.LinAlgError:  # the latent covariance lost positive definiteness: diverged
+                logp = torch.full((1,), float("nan"))
             nll = -logp.mean() / dim
             loss = nll
             if config.prior_weight > 0:

@@ -99,6 +99,25 @@ def test_nan_loss_stops_and_keeps_the_last_good_weights(monkeypatch):
     assert all(torch.isfinite(p).all() for p in info.value.model.network.parameters())
 
 
+def test_a_covariance_that_is_no_longer_positive_definite_is_a_divergence(monkeypatch):
+    """High learning rates (as a hyperparameter search tries) can break the latent covariance's Cholesky factor:
+    that must end training like a non-finite loss, with the last good weights, not crash the caller."""
+    original = ImitationFlow.transition_log_prob
+    calls = {"n": 0}
+
+    def broken(self, p0, p1, tau):
+        calls["n"] += 1
+        if calls["n"] > 2:
+            raise torch.linalg.LinAlgError("linalg.cholesky: the input is not positive-definite")
+        return original(self, p0, p1, tau)
+
+    monkeypatch.setattr(ImitationFlow, "transition_log_prob", broken)
+    config = TrainConfig(model=ModelConfig(layers=3, width=8), epochs=5, transitions_per_epoch=128, batch_size=128,
+                         val_fraction=0.0)
+    with pytest.raises(RFlowError, match="diverged"):
+        fit(simple_demos(50), "euclidean", 0.01, config, progress=False)
+
+
 def test_quaternion_demos_with_sign_flips_train():
     g = np.array([0.022, 0.991, -0.125, 0.035])
     g /= np.linalg.norm(g)
