@@ -15,8 +15,7 @@ PERIOD_S = 0.01
 
 
 def policy(**kwargs) -> ClosedLoopPolicy:
-    p = ClosedLoopPolicy.__new__(ClosedLoopPolicy)  # the push needs no skill: build only its state
-    ClosedLoopPolicy.__init__(p, skill=_NoSkill(), **kwargs)
+    p = ClosedLoopPolicy(skill=_NoSkill(), **kwargs)  # the push needs no flow: a skill without stiffness
     p.reset(Pose(np.zeros(3), QUAT), PERIOD_S)
     return p
 

@@ -64,5 +64,5 @@ def test_bad_task_option_exits_2_with_one_line_and_writes_nothing(command, tmp_p
                                                              str(tmp_path / "e.json")]
     assert cli.main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith(f"pih {command}: error:")
+    assert len(err) == 1 and err[0].startswith(f"pih {command}: error:") and "clearance" in err[0]
     assert list(tmp_path.iterdir()) == []

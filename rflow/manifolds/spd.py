@@ -82,16 +82,26 @@ def _half_powers(g: Array) -> tuple[Array, Array]:
     return (u * root[..., None, :]) @ ut, (u * (1.0 / root)[..., None, :]) @ ut
 
 
+def _checked_pair(matrix: Array, base: Array, what: str) -> tuple[Array, Array]:
+    """``matrix`` (already checked) and the SPD ``base``, checked to share the size d.
+
+    Raises:
+        RFlowError: base not SPD, or sizes that differ.
+    """
+    base = check_spd(base, "base SPD matrix")
+    if matrix.shape[-1] != base.shape[-1]:
+        raise RFlowError(f"{what} is {matrix.shape[-1]}x{matrix.shape[-1]} but base is "
+                         f"{base.shape[-1]}x{base.shape[-1]}")
+    return matrix, base
+
+
 def log_map(p: Array, base: Array) -> Array:
     """Log_G(P) = G^1/2 logm(G^-1/2 P G^-1/2) G^1/2 -> symmetric tangent matrices (..., d, d).
 
     Raises:
         RFlowError: P or G not SPD, shapes differ in d, NaN.
     """
-    p = check_spd(p, "SPD matrix")
-    base = check_spd(base, "base SPD matrix")
-    if p.shape[-1] != base.shape[-1]:
-        raise RFlowError(f"SPD matrix is {p.shape[-1]}x{p.shape[-1]} but base is {base.shape[-1]}x{base.shape[-1]}")
+    p, base = _checked_pair(check_spd(p, "SPD matrix"), base, "SPD matrix")
     half, inv_half = _half_powers(base)
     inner = inv_half @ p @ inv_half
     return half @ logm(0.5 * (inner + swap_last(inner))) @ half
@@ -103,10 +113,7 @@ def exp_map(v: Array, base: Array) -> Array:
     Raises:
         RFlowError: V not symmetric, G not SPD, shapes differ in d, NaN.
     """
-    v = check_symmetric(v, "tangent matrix")
-    base = check_spd(base, "base SPD matrix")
-    if v.shape[-1] != base.shape[-1]:
-        raise RFlowError(f"tangent matrix is {v.shape[-1]}x{v.shape[-1]} but base is {base.shape[-1]}x{base.shape[-1]}")
+    v, base = _checked_pair(check_symmetric(v, "tangent matrix"), base, "tangent matrix")
     half, inv_half = _half_powers(base)
     inner = inv_half @ v @ inv_half
     out = half @ expm_sym(0.5 * (inner + swap_last(inner))) @ half
@@ -123,10 +130,7 @@ def normal_log_map(p: Array, base: Array) -> Array:
     Raises:
         RFlowError: P or G not SPD, shapes differ in d, NaN.
     """
-    p = check_spd(p, "SPD matrix")
-    base = check_spd(base, "base SPD matrix")
-    if p.shape[-1] != base.shape[-1]:
-        raise RFlowError(f"SPD matrix is {p.shape[-1]}x{p.shape[-1]} but base is {base.shape[-1]}x{base.shape[-1]}")
+    p, base = _checked_pair(check_spd(p, "SPD matrix"), base, "SPD matrix")
     _, inv_half = _half_powers(base)
     inner = inv_half @ p @ inv_half
     return logm(0.5 * (inner + swap_last(inner)))
@@ -140,10 +144,7 @@ def normal_exp_map(v: Array, base: Array) -> Array:
     Raises:
         RFlowError: V not symmetric, G not SPD, shapes differ in d, NaN.
     """
-    v = check_symmetric(v, "tangent matrix")
-    base = check_spd(base, "base SPD matrix")
-    if v.shape[-1] != base.shape[-1]:
-        raise RFlowError(f"tangent matrix is {v.shape[-1]}x{v.shape[-1]} but base is {base.shape[-1]}x{base.shape[-1]}")
+    v, base = _checked_pair(check_symmetric(v, "tangent matrix"), base, "tangent matrix")
     half, _ = _half_powers(base)
     out = half @ expm_sym(v) @ half
     return 0.5 * (out + swap_last(out))
