@@ -51,6 +51,7 @@ class WristSensor:
         self._masses = model.body_mass[self._bodies].copy()
         self._mass = float(self._masses.sum())
         self._gravity = np.asarray(model.opt.gravity, dtype=np.float64).copy()
+        self._weight = -self._mass * self._gravity  # -M g, constant
 
     def wrench(self, data: mujoco.MjData) -> FloatArray:
         """[F_ext (N); tau_ext (N m)] (6,) in the sensor frame (a new array).
@@ -62,10 +63,9 @@ class WristSensor:
         lever = self._masses @ data.xipos[self._bodies] - self._mass * data.site_xpos[self.site]  # M (c - s)
         gx, gy, gz = self._gravity
         lx, ly, lz = lever
-        weight = -self._mass * self._gravity
         moment = -np.array([ly * gz - lz * gy, lz * gx - lx * gz, lx * gy - ly * gx])
         out = np.empty(6)
-        out[:3] = weight @ rot - data.sensordata[self._force]
+        out[:3] = self._weight @ rot - data.sensordata[self._force]
         out[3:] = moment @ rot - data.sensordata[self._torque]
         return out
 
@@ -84,10 +84,15 @@ class PegContacts:
         """
         if model.opt.cone != mujoco.mjtCone.mjCONE_ELLIPTIC:
             raise EnvError("PegContacts needs the elliptic friction cone (ContactConfig.cone='elliptic')")
-        self._peg = np.zeros(model.ngeom, dtype=bool)
-        self._peg[list(peg_geoms)] = True
-        self._ignored = np.zeros(model.ngeom, dtype=bool)
-        self._ignored[list(ignored_geoms)] = True
+        peg = np.zeros(model.ngeom, dtype=bool)
+        peg[list(peg_geoms)] = True
+        ignored = np.zeros(model.ngeom, dtype=bool)
+        ignored[list(ignored_geoms)] = True
+        # counted[g1, g2]: exactly one of the pair is a peg geom and the other is not ignored (a table built once,
+        # so a physics step looks its contacts up in one indexing instead of six array operations)
+        one_peg = peg[:, None] != peg[None, :]
+        other_ignored = np.where(peg[:, None], ignored[None, :], ignored[:, None])
+        self._counted = one_peg & ~other_ignored
 
     def normal_forces(self, data: mujoco.MjData) -> tuple[float, float]:
         """(sum of normal-force magnitudes, largest single normal force) in N, now."""
@@ -96,10 +101,7 @@ class PegContacts:
             return 0.0, 0.0
         contact = data.contact
         geoms = contact.geom
-        first = self._peg[geoms[:, 0]]
-        on_peg = first != self._peg[geoms[:, 1]]
-        other = np.where(first, geoms[:, 1], geoms[:, 0])
-        adr = contact.efc_address[on_peg & ~self._ignored[other]]
+        adr = contact.efc_address[self._counted[geoms[:, 0], geoms[:, 1]]]
         adr = adr[adr >= 0]
         if adr.size == 0:
             return 0.0, 0.0

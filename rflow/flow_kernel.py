@@ -10,7 +10,10 @@ with W_u, b_u already divided by c (`rflow.inference`). Only the conditioner row
 the output layer are stored: the zero rows and columns of the masked network are never multiplied. Batches run in
 blocks of BLOCK_POINTS points whose inner loops run across the block (vectorised by the compiler), the blocks spread
 over the cores (numba prange); the closed-loop step of one point is a single call on preallocated buffers.
-Results equal the previous numpy export to ~1e-15 (float64 throughout; only the summation order differs).
+In the batches exp(c tanh(u)) is a vectorised Taylor series with argument halving (`_exp_clamped_tanh`) instead of
+libm's scalar calls, and the output sums run four hidden units at a time: batch results equal the single-point step
+(libm, plain summation order) and the torch flow to ~1e-14 relative in float64, and cost a quarter of the time of
+the previous blocks of 32 points (100 x 1001 points of the paper's 3-D flow: 139 ms -> ~35 ms on one core).
 """
 
 from __future__ import annotations
@@ -127,32 +130,112 @@ def flow_step(x, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_fir
                clamp, n_extra, relu)
 
 
-BLOCK_POINTS = 32
-"""Points per block of `flow_pass`: the inner loops run across a block's points, so the compiler vectorises
-them (AVX2: 4 doubles per instruction), and a block's hidden layer (H x 32 doubles) stays in the L1 cache."""
+BLOCK_POINTS = 128
+"""Points per block of `flow_pass`, a compile-time constant (the last block is padded): the inner loops run across a
+block's points with a known trip count, so the compiler vectorises and unrolls them (AVX2: 4 doubles per
+instruction)."""
+
+TAYLOR_RADIUS = 0.3125
+"""|r| up to which `_expm1_small` is accurate to rounding (next Taylor term r^15 / 15! < 1e-19)."""
+TANH_SATURATION = 20.0
+"""tanh(u) rounds to +-1 in float64 for |u| >= 20 (1 - tanh(20) = 8.5e-18 < half an ulp of 1)."""
+
+
+@numba.njit(inline="always", fastmath={"contract"}, error_model="numpy")
+def _expm1_small(r):
+    """expm1(r) = sum_{n=1}^{14} r^n / n! (Horner) for |r| <= TAYLOR_RADIUS; plain arithmetic, so loops over
+    points that call it vectorise (libm's exp and tanh are scalar calls without SVML)."""
+    a = 1.0 / 87178291200.0
+    a = a * r + 1.0 / 6227020800.0
+    a = a * r + 1.0 / 479001600.0
+    a = a * r + 1.0 / 39916800.0
+    a = a * r + 1.0 / 3628800.0
+    a = a * r + 1.0 / 362880.0
+    a = a * r + 1.0 / 40320.0
+    a = a * r + 1.0 / 5040.0
+    a = a * r + 1.0 / 720.0
+    a = a * r + 1.0 / 120.0
+    a = a * r + 1.0 / 24.0
+    a = a * r + 1.0 / 6.0
+    a = a * r + 0.5
+    a = a * r + 1.0
+    return a * r
+
+
+@_jit
+def _halvings(bound):
+    """Smallest n >= 0 with bound / 2^n <= TAYLOR_RADIUS."""
+    n = 0
+    while bound * 0.5**n > TAYLOR_RADIUS:
+        n += 1
+    return n
+
+
+_TANH_HALVINGS = 7  # 2 TANH_SATURATION / 2^7 = TAYLOR_RADIUS
+
+
+@_jit
+def _exp_clamped_tanh(u, out, c, halvings):
+    """out = exp(c tanh(u)) elementwise over a block (B,), vectorised (B = BLOCK_POINTS), equal to libm to ~1e-14
+    relative:
+
+        e = expm1(2 |u|) from a = expm1(2 |u| / 2^7) by 7 times a <- a (a + 2)   (= (1 + a)^2 - 1),
+        tanh(u) = sign(u) e / (e + 2)   (|u| capped at TANH_SATURATION),
+        exp(s) = (1 + expm1(s / 2^n))^(2^n),   n = `_halvings`(|c|)   (|s| <= |c|),
+
+    so every Taylor argument is at most TAYLOR_RADIUS. The expm1 form keeps tanh's relative accuracy near 0 (no
+    1 - 1 cancellation); the squarings of exp double its relative error n times (c = 9: n = 5, ~1e-14).
+    """
+    for p in range(BLOCK_POINTS):
+        out[p] = _expm1_small(min(abs(u[p]), TANH_SATURATION) * (2.0 / 2**_TANH_HALVINGS))
+    for _ in range(_TANH_HALVINGS):
+        for p in range(BLOCK_POINTS):
+            out[p] = out[p] * (out[p] + 2.0)
+    scale = c * 0.5**halvings
+    for p in range(BLOCK_POINTS):
+        out[p] = 1.0 + _expm1_small(scale * math.copysign(out[p] / (out[p] + 2.0), u[p]))
+    for _ in range(halvings):
+        for p in range(BLOCK_POINTS):
+            out[p] = out[p] * out[p]
 
 
 @_jit
 def _pass_block(xs, hb, hb2, u, t, sign, cond, n_cond, moved, n_moved, w_first, b_first, w_hidden, b_hidden, w_out,
                 b_out, clamp, n_extra, relu):
-    """All layers (sign +1) or all inverses (sign -1) on a block xs (D, B) of points, in place."""
+    """All layers (sign +1) or all inverses (sign -1) on a block xs (D, BLOCK_POINTS) of points, in place.
+
+    hb and hb2 (H, BLOCK_POINTS) hold the pre-activations (ReLU) or activations (tanh) of a hidden layer; the ReLU
+    is applied where they are read. The output sums run four hidden units at a time, u += (h_j w_j + h_j+1 w_j+1)
+    + (h_j+2 w_j+2 + h_j+3 w_j+3), which quarters the loads and stores of the accumulators.
+    """
     layers, width = b_first.shape
-    nb = xs.shape[1]
+    nb = BLOCK_POINTS
+    scale = np.empty(nb)
+    w4 = width - width % 4
     for k in range(layers):
         l = k if sign > 0 else layers - 1 - k
-        for j in range(width):
-            bj = b_first[l, j]
-            for p in range(nb):
-                hb[j, p] = bj
-        for c in range(n_cond[l]):
+        c0 = cond[l, 0]
+        if n_cond[l] == 1:
+            for j in range(width):
+                bj, w0 = b_first[l, j], w_first[l, 0, j]
+                for p in range(nb):
+                    hb[j, p] = bj + xs[c0, p] * w0
+        else:
+            c1 = cond[l, 1]
+            for j in range(width):
+                bj, w0, w1 = b_first[l, j], w_first[l, 0, j], w_first[l, 1, j]
+                for p in range(nb):
+                    hb[j, p] = bj + xs[c0, p] * w0 + xs[c1, p] * w1
+        for c in range(2, n_cond[l]):
             ci = cond[l, c]
             for j in range(width):
                 w = w_first[l, c, j]
                 for p in range(nb):
                     hb[j, p] += xs[ci, p] * w
-        for j in range(width):
-            for p in range(nb):
-                hb[j, p] = max(hb[j, p], 0.0) if relu else math.tanh(hb[j, p])
+        if not relu:
+            for j in range(width):
+                for p in range(nb):
+                    hb[j, p] = math.tanh(hb[j, p])
         h = hb
         for e in range(n_extra):
             src, dst = (hb, hb2) if e % 2 == 0 else (hb2, hb)
@@ -164,30 +247,45 @@ def _pass_block(xs, hb, hb2, u, t, sign, cond, n_cond, moved, n_moved, w_first, 
                 for j in range(width):
                     w = w_hidden[l, e, i, j]
                     for p in range(nb):
-                        dst[j, p] += src[i, p] * w
-            for j in range(width):
-                for p in range(nb):
-                    dst[j, p] = max(dst[j, p], 0.0) if relu else math.tanh(dst[j, p])
+                        dst[j, p] += (max(src[i, p], 0.0) if relu else src[i, p]) * w
+            if not relu:
+                for j in range(width):
+                    for p in range(nb):
+                        dst[j, p] = math.tanh(dst[j, p])
             h = dst
         m = n_moved[l]
+        halvings = _halvings(clamp[l])
         for o in range(m):
             bu, bt = b_out[l, o], b_out[l, m + o]
             for p in range(nb):
                 u[p] = bu
                 t[p] = bt
-            for j in range(width):
+            for j in range(0, w4, 4):
+                wu0, wu1, wu2, wu3 = w_out[l, o, j], w_out[l, o, j + 1], w_out[l, o, j + 2], w_out[l, o, j + 3]
+                wt0, wt1 = w_out[l, m + o, j], w_out[l, m + o, j + 1]
+                wt2, wt3 = w_out[l, m + o, j + 2], w_out[l, m + o, j + 3]
+                for p in range(nb):
+                    if relu:
+                        h0, h1 = max(h[j, p], 0.0), max(h[j + 1, p], 0.0)
+                        h2, h3 = max(h[j + 2, p], 0.0), max(h[j + 3, p], 0.0)
+                    else:
+                        h0, h1, h2, h3 = h[j, p], h[j + 1, p], h[j + 2, p], h[j + 3, p]
+                    u[p] += (h0 * wu0 + h1 * wu1) + (h2 * wu2 + h3 * wu3)
+                    t[p] += (h0 * wt0 + h1 * wt1) + (h2 * wt2 + h3 * wt3)
+            for j in range(w4, width):
                 wu, wt = w_out[l, o, j], w_out[l, m + o, j]
                 for p in range(nb):
-                    u[p] += h[j, p] * wu
-                    t[p] += h[j, p] * wt
+                    hj = max(h[j, p], 0.0) if relu else h[j, p]
+                    u[p] += hj * wu
+                    t[p] += hj * wt
+            _exp_clamped_tanh(u, scale, clamp[l] * sign, halvings)
             i = moved[l, o]
-            c = clamp[l] * sign
-            for p in range(nb):
-                scale = math.exp(c * math.tanh(u[p]))
-                if sign > 0:
-                    xs[i, p] = xs[i, p] * scale + t[p]
-                else:
-                    xs[i, p] = (xs[i, p] - t[p]) * scale
+            if sign > 0:
+                for p in range(nb):
+                    xs[i, p] = xs[i, p] * scale[p] + t[p]
+            else:
+                for p in range(nb):
+                    xs[i, p] = (xs[i, p] - t[p]) * scale[p]
 
 
 @_jit
@@ -199,11 +297,11 @@ def _run_block(points, blk, sign, offset_before, offset_after, cond, n_cond, mov
     width = b_first.shape[1]
     start = blk * BLOCK_POINTS
     nb = min(BLOCK_POINTS, n - start)
-    xs = np.empty((dim, nb))
-    hb = np.empty((width, nb))
-    hb2 = np.empty((width, nb))
-    u = np.empty(nb)
-    t = np.empty(nb)
+    xs = np.zeros((dim, BLOCK_POINTS))  # the last block's padding is computed and dropped
+    hb = np.empty((width, BLOCK_POINTS))
+    hb2 = np.empty((width, BLOCK_POINTS))
+    u = np.empty(BLOCK_POINTS)
+    t = np.empty(BLOCK_POINTS)
     for p in range(nb):
         for i in range(dim):
             xs[i, p] = points[start + p, i] + offset_before[i]

@@ -26,7 +26,7 @@ def model(request):
     return RiemannianFlow("euclidean", np.zeros(4), norm, 0.01, request.param, net)
 
 
-@pytest.mark.parametrize("n", [1, 63, 64, 65, 300])  # partial, exact and several blocks
+@pytest.mark.parametrize("n", [1, 127, 128, 129, 300])  # partial, exact and several blocks
 def test_forward_and_inverse_equal_torch_in_float64(model, n):
     x = np.random.default_rng(n).normal(size=(n, 4))
     with torch.no_grad():
@@ -57,3 +57,14 @@ def test_parallel_pass_of_a_large_batch_equals_the_serial_pass(model):
     whole = net.forward(x)  # all cores
     halves = np.vstack([net.forward(x[: x.shape[0] // 2]), net.forward(x[x.shape[0] // 2 :])])  # one core each
     np.testing.assert_array_equal(whole, halves)
+
+
+@pytest.mark.parametrize("clamp", [0.5, 2.0, 9.0, -2.0])  # several halvings of the exp; -c: the inverse pass
+def test_block_exp_of_clamped_tanh_equals_libm(clamp):
+    from rflow.flow_kernel import BLOCK_POINTS, _exp_clamped_tanh, _halvings
+
+    rng = np.random.default_rng(4)
+    u = np.concatenate([[0.0, -0.0, 1e-300, -1e-9, 19.99, 20.0, -25.0, 1e6], rng.normal(0.0, 3.0, BLOCK_POINTS - 8)])
+    out = np.empty(BLOCK_POINTS)
+    _exp_clamped_tanh(u, out, clamp, _halvings(abs(clamp)))
+    np.testing.assert_allclose(out, np.exp(clamp * np.tanh(u)), rtol=1e-14, atol=0.0)

@@ -39,6 +39,31 @@ def test_rollout_holds_the_goal_after_stopping(model_and_demos):
     assert np.all(out.tangent[0, k:] == 0) and np.allclose(out.points[0, k:], GOAL)
 
 
+def step_by_step_rollout(model, start, steps, xi):
+    """Reference of `rollout` for one start: p_{k+1} = next_point(p_k) (one flow round trip per step), stopping at
+    the first point with ||Log_g p|| < xi and holding the goal afterwards; returns (points, length)."""
+    points = np.repeat(GOAL[None], steps + 1, axis=0)
+    point = np.asarray(start, dtype=np.float64)
+    for k in range(steps + 1):
+        points[k] = point
+        if np.linalg.norm(model.to_tangent(point)) < xi:
+            return points, k + 1
+        point = next_point(model, point)
+    return points, steps + 1
+
+
+def test_batched_rollout_equals_the_step_by_step_reference(model_and_demos):
+    model, demos = model_and_demos
+    starts = np.concatenate([demos[:, 0], GOAL + np.random.default_rng(5).uniform(-0.2, 0.2, (3, 3))])
+    steps = int(np.median(rollout(model, starts, steps=3000, xi=XI).lengths))  # half of them stop before
+    out = rollout(model, starts, steps=steps, xi=XI)
+    for i, start in enumerate(starts):
+        points, length = step_by_step_rollout(model, start, steps, XI)
+        assert out.lengths[i] == length
+        np.testing.assert_allclose(out.points[i], points, rtol=0.0, atol=1e-9)
+    assert out.converged.any() and not out.converged.all()  # both the stopping and the step limit are covered
+
+
 def test_rollout_shapes_and_start(model_and_demos):
     model, demos = model_and_demos
     out = rollout(model, demos[:, 0], steps=50)
