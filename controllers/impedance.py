@@ -128,6 +128,19 @@ def validate_stiffness(stiffness: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return k
 
 
+def full_stiffness(k_trans: npt.ArrayLike, k_rot: float | npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """The 6x6 Cartesian stiffness K = [[K_t, 0], [0, K_r]] (N/m, N m/rad) from its translational block K_t (3, 3)
+    and its rotational block K_r: a scalar k_r (K_r = k_r I, e.g. ImpedanceConfig.rotational_stiffness) or (3, 3).
+
+    Not validated here: `validate_stiffness` (or PegInHoleEnv.step) checks the result.
+    """
+    k = np.zeros((6, 6))
+    k[:3, :3] = np.asarray(k_trans, dtype=np.float64)
+    rot = np.asarray(k_rot, dtype=np.float64)
+    k[3:, 3:] = rot * np.eye(3) if rot.ndim == 0 else rot
+    return k
+
+
 def modal_factors(
     lambda_inv: npt.NDArray[np.float64], stiffness: npt.NDArray[np.float64]
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:

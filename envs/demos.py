@@ -30,6 +30,17 @@ to 1 at its end, p'(t) = p(t) + w (g_p - p_settled) and q'(t) = exp(w Log(g_q co
 the last sample is set to the goal, so every demo ends exactly at the shared goal (p_M = g) while the
 recorded motion is changed by at most the residual (reported per demo). Failed demos are recorded with
 their reason and replaced by a new start from the same random stream; none is silently kept.
+
+Stiffness (issue #10, on by default: ``ExpertConfig.stiffness``). The expert also varies the robot's
+compliance as a teacher would: each control step it commands the translational stiffness of its schedule
+(envs.stiffness_schedule: stiff in free space, compliant across the hole axis near and in the hole) at the
+MEASURED tcp position, K_k = K(h(p_k)), as the 6x6 stiffness [[K_k, 0], [0, k_rot I]] (k_rot: the
+controller's default rotational stiffness); damping follows from the damping ratio as always. What it
+commanded is recorded with the poses (sample k: the stiffness commanded from pose k; the last: the schedule
+at the final pose), resampled to the M-sample grid along Log-Euclidean geodesics (SPD at every sample,
+rflow.stiffness.log_euclidean_resample) and stored as the demo file's ``stiffness``. A kept demo ends
+seated in the hole, where the schedule is the goal stiffness K_goal exactly, so every demo ends at the
+shared K_goal (an attempt whose final stiffness is not K_goal is not kept).
 """
 
 from __future__ import annotations
@@ -43,7 +54,7 @@ from typing import Any, Callable
 import numpy as np
 import numpy.typing as npt
 
-from controllers.impedance import ImpedanceConfig
+from controllers.impedance import ImpedanceConfig, full_stiffness
 from envs.jsonable import to_jsonable
 from envs.contact import ContactConfig
 from envs.demo_file import DemoSet
@@ -66,6 +77,8 @@ from envs.poses import (
     slerp,
 )
 from envs.scene import SceneConfig
+from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
+from rflow.stiffness import log_euclidean_resample
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -87,6 +100,8 @@ class ExpertConfig:
         goal_tol_m, goal_tol_deg: largest accepted distance of the settled pose from the goal.
         max_attempts: give up after this many attempts (kept + failed) in one collection.
         start_region: where starts are sampled.
+        stiffness: the translational stiffness schedule the expert commands and records (module docstring);
+            None: the controller's constant default stiffness, and no stiffness in the demo file.
     """
 
     entry_height_m: float = 0.005
@@ -102,6 +117,7 @@ class ExpertConfig:
     goal_tol_deg: float = 1.0
     max_attempts: int = 1000
     start_region: StartRegion = field(default_factory=StartRegion)
+    stiffness: StiffnessSchedule | None = field(default_factory=StiffnessSchedule)
 
     def __post_init__(self) -> None:
         for name in ("entry_height_m", "align_duration_s", "approach_duration_s", "insertion_duration_s",
@@ -123,6 +139,8 @@ class ExpertConfig:
             raise EnvError(f"ExpertConfig.num_samples={self.num_samples!r} must be an integer >= 2")
         if self.max_attempts < 1:
             raise EnvError(f"ExpertConfig.max_attempts={self.max_attempts} must be >= 1")
+        if self.stiffness is not None and not isinstance(self.stiffness, StiffnessSchedule):
+            raise EnvError(f"ExpertConfig.stiffness={self.stiffness!r} must be a StiffnessSchedule or None")
 
     @property
     def entry_duration_s(self) -> float:
@@ -203,6 +221,8 @@ class DemoAttempt:
         commanded_pos: (K, 3) commanded peg_tip positions (for drawing).
         residual_pos_m, residual_rot_deg: settled pose minus goal (NaN when not reached).
         wall_s: wall-clock seconds the attempt took.
+        stiffness: (K, 3, 3) translational stiffness commanded from each measured sample (N/m, world frame;
+            the last: the schedule at the final pose), or None when the expert has no schedule.
     """
 
     start: Pose
@@ -215,6 +235,7 @@ class DemoAttempt:
     residual_pos_m: float
     residual_rot_deg: float
     wall_s: float
+    stiffness: FloatArray | None = None
 
 
 def settled_pose(times: FloatArray, pos: FloatArray, quat: FloatArray, window_s: float) -> Pose:
@@ -228,7 +249,9 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
     """Run the scripted expert from ``start`` in physics and judge the result (never raises for a failure).
 
     The environment must not stop on success (the expert holds the peg to let it settle) and its time
-    limit must exceed ``config.duration_s``.
+    limit must exceed ``config.duration_s``. With ``config.stiffness`` every step commands the schedule's
+    stiffness at the measured tcp position (module docstring), and a demo whose final stiffness is not the
+    goal stiffness is not kept.
 
     Returns:
         DemoAttempt with the measured trajectory at every control step (t = 0 included).
@@ -255,9 +278,16 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
     except EnvError as err:
         return failed(f"{UNREACHABLE_PREFIX}: {err}")
     times, pos, quat = [0.0], [obs.tcp.pos], [obs.tcp.quat]
+    schedule = config.stiffness
+    k_rot = env.controller.config.rotational_stiffness
+    commanded: list[FloatArray] = []
     result: StepResult | None = None
     for k in range(num_steps):
-        result = env.step((cmd_pos[k], cmd_quat[k]))
+        stiffness = None
+        if schedule is not None:
+            commanded.append(expert_stiffness(pos[-1], env.hole.pos, env.hole_axis, schedule))
+            stiffness = full_stiffness(commanded[-1], k_rot)
+        result = env.step((cmd_pos[k], cmd_quat[k]), stiffness)
         if on_step is not None:
             on_step(result)
         times.append(result.obs.time_s)
@@ -266,6 +296,10 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
         if result.done:
             break
     t_arr, p_arr, q_arr = np.asarray(times), np.asarray(pos), make_continuous(np.asarray(quat))
+    k_arr = None
+    if schedule is not None:
+        commanded.append(expert_stiffness(pos[-1], env.hole.pos, env.hole_axis, schedule))
+        k_arr = np.stack(commanded)
     if result is not None and result.done and result.reason != "success":
         return failed(f"episode ended early: {result.reason}", t_arr, p_arr, q_arr)
     if result is None or not result.obs.success:
@@ -278,14 +312,29 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
     ok = res_pos <= config.goal_tol_m and res_rot <= config.goal_tol_deg
     reason = "ok" if ok else (f"settled {res_pos * 1e3:.2f} mm / {res_rot:.2f} deg from the goal "
                               f"(tolerance {config.goal_tol_m * 1e3:g} mm / {config.goal_tol_deg:g} deg)")
-    return DemoAttempt(start, ok, reason, t_arr, p_arr, q_arr, cmd_pos, res_pos, res_rot, time.perf_counter() - wall)
+    if ok and k_arr is not None:
+        goal_k = schedule.goal_stiffness(env.hole_axis)
+        off = float(np.abs(k_arr[-1] - goal_k).max() / np.abs(goal_k).max())
+        if off > STIFFNESS_GOAL_RTOL:
+            ok, reason = False, f"final stiffness {off:.2g} (relative) from the goal stiffness"
+    return DemoAttempt(start, ok, reason, t_arr, p_arr, q_arr, cmd_pos, res_pos, res_rot, time.perf_counter() - wall,
+                       k_arr)
 
 
-def finalize_demo(attempt: DemoAttempt, goal: Pose, config: ExpertConfig) -> tuple[FloatArray, FloatArray]:
+def finalize_demo(attempt: DemoAttempt, goal: Pose, config: ExpertConfig,
+                  goal_stiffness: FloatArray | None = None) -> tuple[FloatArray, FloatArray, FloatArray | None]:
     """Resample a kept attempt to M samples on [0, T] and make it end exactly at the goal.
 
+    Args:
+        attempt: a kept attempt.
+        goal: the shared goal pose.
+        config: the expert (duration, samples, hold).
+        goal_stiffness: (3, 3) the shared goal stiffness the last stiffness sample is set to (needed when the
+            attempt recorded stiffness; `execute_demo` kept it only if it ended there).
+
     Returns:
-        (pos (M, 3), quat (M, 4)), quaternions continuous and ending at +goal.quat.
+        (pos (M, 3), quat (M, 4), stiffness (M, 3, 3) or None), quaternions continuous and ending at
+        +goal.quat, stiffness resampled along Log-Euclidean geodesics and ending at ``goal_stiffness``.
     """
     grid = np.linspace(0.0, config.duration_s, config.num_samples)
     pos, quat = resample_trajectory(attempt.times, attempt.pos, attempt.quat, grid)
@@ -297,7 +346,13 @@ def finalize_demo(attempt: DemoAttempt, goal: Pose, config: ExpertConfig) -> tup
     pos[-1] = goal.pos
     quat[-1] = goal.quat
     quat /= np.linalg.norm(quat, axis=-1, keepdims=True)
-    return pos, make_continuous(quat, reference=goal.quat)
+    stiffness = None
+    if attempt.stiffness is not None:
+        if goal_stiffness is None:
+            raise EnvError("finalize_demo: an attempt with stiffness needs the goal stiffness")
+        stiffness = log_euclidean_resample(attempt.times, attempt.stiffness, grid)
+        stiffness[-1] = goal_stiffness
+    return pos, make_continuous(quat, reference=goal.quat), stiffness
 
 
 def demo_episode_config(config: ExpertConfig, base: EpisodeConfig = EpisodeConfig()) -> EpisodeConfig:
@@ -355,7 +410,8 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
     rng = np.random.default_rng(seed)
     goal = env.goal
     attempts: list[DemoAttempt] = []
-    kept: list[tuple[FloatArray, FloatArray]] = []
+    kept: list[tuple[FloatArray, FloatArray, FloatArray | None]] = []
+    goal_k = None if expert.stiffness is None else expert.stiffness.goal_stiffness(env.hole_axis)
     while len(kept) < num:
         if len(attempts) >= expert.max_attempts:
             reasons = "; ".join(sorted({a.reason.split(" (")[0] for a in attempts if not a.ok}))
@@ -373,7 +429,7 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
         if on_attempt is not None:
             on_attempt(len(attempts) - 1, attempt)
         if attempt.ok:
-            kept.append(finalize_demo(attempt, goal, expert))
+            kept.append(finalize_demo(attempt, goal, expert, goal_k))
     kept_attempts = [a for a in attempts if a.ok]
     config = {
         "scene": to_jsonable(env.scene.config),
@@ -389,8 +445,8 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
     }
     json.dumps(config)  # fail here, not at save time, if something is not serialisable
     demos = DemoSet(
-        pos=np.stack([p for p, _ in kept]),
-        quat=np.stack([q for _, q in kept]),
+        pos=np.stack([p for p, _, _ in kept]),
+        quat=np.stack([q for _, q, _ in kept]),
         dt=expert.duration_s / (expert.num_samples - 1),
         goal_pos=goal.pos.copy(),
         goal_quat=goal.quat.copy(),
@@ -399,11 +455,15 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
         config=config,
         residual_pos_m=np.array([a.residual_pos_m for a in kept_attempts]),
         residual_rot_deg=np.array([a.residual_rot_deg for a in kept_attempts]),
+        stiffness=None if goal_k is None else np.stack([k for _, _, k in kept]),
+        goal_stiffness=goal_k,
     )
     return Collection(demos=demos, attempts=attempts, wall_s=time.perf_counter() - wall)
 
 
 UNREACHABLE_PREFIX = "reset failed"
+STIFFNESS_GOAL_RTOL: float = 1e-9
+"""A kept demo's final commanded stiffness equals the goal stiffness to this (max |K - K_goal| / max |K_goal|)."""
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,8 @@ Arrays only (no simulator). Stiffness matrices K are (..., 3, 3), symmetric posi
   demos coincide (at the goal Sigma = 0 exactly, so K_M = clip(alpha / eps I), the goal stiffness shared by
   every demo). alpha (N m) sets the scale: alpha / sigma^2 N/m for a spread of sigma m per axis.
 - Log-Euclidean distance of two stiffness profiles (as on the LASA SPD data):
-      d(S, S_hat) = 1/M sum_m ||logm(S_m) - logm(S_hat_m)||_F.
+      d(S, S_hat) = 1/M sum_m ||logm(S_m) - logm(S_hat_m)||_F,
+  and resampling in time along Log-Euclidean geodesics (`log_euclidean_resample`, used for recorded demos).
 """
 
 from __future__ import annotations
@@ -136,6 +137,33 @@ def log_euclidean_mean(stiffness: npt.ArrayLike) -> FloatArray:
     return np.asarray(spd.expm_sym(np.asarray(spd.logm(k)).mean(axis=0)))
 
 
+def log_euclidean_resample(times: npt.ArrayLike, stiffness: npt.ArrayLike, new_times: npt.ArrayLike) -> FloatArray:
+    """Resample a stiffness profile in time along Log-Euclidean geodesics (SPD at every new sample):
+        K(t) = expm((1 - s) logm(K_k) + s logm(K_k+1)),   s = (t - t_k) / (t_k+1 - t_k),   t_k <= t <= t_k+1.
+
+    Args:
+        times: (K,) strictly increasing sample times, seconds (K >= 2).
+        stiffness: (K, d, d) SPD matrices at ``times``.
+        new_times: (L,) query times (clipped to [times[0], times[-1]]).
+
+    Returns:
+        (L, d, d) SPD matrices.
+
+    Raises:
+        RFlowError: mismatched shapes, non-increasing times, a matrix that is not SPD.
+    """
+    t = np.asarray(times, dtype=np.float64)
+    k = spd.check_spd(np.asarray(stiffness, dtype=np.float64), "stiffness")
+    if t.ndim != 1 or t.size < 2 or k.ndim != 3 or k.shape[0] != t.size:
+        raise RFlowError(f"resampling needs times (K>=2,) and stiffness (K, d, d), got {t.shape} and {k.shape}")
+    if np.any(np.diff(t) <= 0.0):
+        raise RFlowError("resampling needs strictly increasing times")
+    logs = np.asarray(spd.logm(k)).reshape(t.size, -1)
+    tn = np.clip(np.asarray(new_times, dtype=np.float64), t[0], t[-1])
+    resampled = np.stack([np.interp(tn, t, logs[:, i]) for i in range(logs.shape[1])], axis=-1)
+    return np.asarray(spd.expm_sym(resampled.reshape(tn.shape + k.shape[1:])))
+
+
 def profile_distance(demo: npt.ArrayLike, generated: npt.ArrayLike) -> FloatArray:
     """Mean Log-Euclidean distance 1/M sum_m ||logm(S_m) - logm(S_hat_m)||_F of profiles (..., M, d, d) -> (...).
 
@@ -155,5 +183,6 @@ __all__ = [
     "position_covariance",
     "variability_stiffness",
     "log_euclidean_mean",
+    "log_euclidean_resample",
     "profile_distance",
 ]

@@ -1,5 +1,8 @@
 """`pih demos`: record scripted peg-in-hole demonstrations in physics (or check the expert's success rate).
 
+The expert commands and records its translational stiffness schedule (envs/demos.py, envs/stiffness_schedule.py):
+the demo file's ``stiffness``, learned with `pih train --stiffness expert`.
+
     pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--video runs/demos.mp4]
     pih demos --check 100 --seed 0            # success rate of the scripted expert over 100 starts
     pih demos --import rec.npz --tool-offset franka-tcp --dt 0.001 --out demos.npz [--snap-goal]
@@ -11,6 +14,8 @@ import argparse
 import os
 import time
 from pathlib import Path
+
+import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -109,5 +114,10 @@ def main(args: argparse.Namespace) -> int:
           f"attempts; {sum(executed) / len(executed):.2f} s per attempt")
     print(f"settled residual before snapping to the goal: max {max(demos.residual_pos_m) * 1e3:.4f} mm, "
           f"{max(demos.residual_rot_deg):.4f} deg")
+    if demos.stiffness is not None:
+        lam = np.linalg.eigvalsh(demos.stiffness)
+        print(f"stiffness commanded and recorded (envs/stiffness_schedule.py): eigenvalues {lam.min():.0f} to "
+              f"{lam.max():.0f} N/m, every demo ending at the goal stiffness with eigenvalues "
+              f"{', '.join(f'{v:.0f}' for v in np.linalg.eigvalsh(demos.goal_stiffness))} N/m")
     return 0
 

@@ -2,6 +2,7 @@
 
     pih sweep --model runs/default/model --clearance-mm 1,0.5,0.2,0.1 --hole-error-mm 0,0.5,1,2 \\
         --episodes 30 --seed 0 --out runs/sweep [--chamfer-mm 0,1] [--hole-error-deg 0,1] [--pos-range 0.05] \\
+        [--stiffness learned,constant:500,constant:1500,constant:4000] \\
         [--workers 2] [--backend ray --ray-address HOST:PORT] [--resume | --overwrite]
 
 Every cell (the product of the axes) runs the same K seeded starts (envs/execution/sweep.py). Writes, in --out:
@@ -52,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     axes.add_argument("--chamfer-mm", help="chamfer widths in mm")
     axes.add_argument("--hole-error-deg", help="hole-pose angle errors in deg")
     axes.add_argument("--pos-range", help="start position ranges in m")
+    axes.add_argument("--stiffness", help="commanded translational stiffness per cell: 'learned' (a skill from "
+                                          "`pih train --stiffness`) or 'constant:K' (K I, K > 0 in N/m), e.g. "
+                                          "learned,constant:500,constant:1500,constant:4000")
     parser.add_argument("--episodes", type=int, default=30, help="episodes per cell (default 30)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the starts and perturbations (default 0)")
     parser.add_argument("--mode", choices=MODES, default=d.mode, help=f"skill execution (default {d.mode})")
@@ -89,9 +93,24 @@ def parse_values(option: str, text: str | None, scale: float) -> tuple[float, ..
     return tuple(values)
 
 
+def parse_stiffness(text: str | None) -> tuple[str, ...]:
+    """Comma-separated stiffness settings ("learned", "constant:K"). Raises EnvError naming the option."""
+    from envs.execution.policy import StiffnessSetting
+
+    if text is None:
+        return ()
+    values = tuple(item.strip() for item in text.split(","))
+    for item in values:
+        try:
+            StiffnessSetting.parse(item)
+        except EnvError as err:
+            raise EnvError(f"--stiffness {text!r}: {err}") from None
+    return values
+
+
 def base_config(args: argparse.Namespace) -> EvaluationConfig:
     """The EvaluationConfig every cell derives from. Raises EnvError on a bad option."""
-    swept = {name[2:].replace("-", "_") for name, _ in AXIS_OPTIONS.values()}
+    swept = {name[2:].replace("-", "_") for name, _ in AXIS_OPTIONS.values()} | {"stiffness"}
     task = task_from_args(argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in swept}))
     explicit_scene = task.scene_fields() if args.preset else {}
     return EvaluationConfig(
@@ -111,7 +130,7 @@ def main(args: argparse.Namespace) -> int:
     from envs.execution.figures import plot_success_map
 
     axes = SweepAxes(**{name: parse_values(option, getattr(args, option[2:].replace("-", "_")), scale)
-                        for name, (option, scale) in AXIS_OPTIONS.items()})
+                        for name, (option, scale) in AXIS_OPTIONS.items()}, stiffness=parse_stiffness(args.stiffness))
     if not isinstance(args.episodes, int) or args.episodes < 1:
         raise EnvError(f"--episodes {args.episodes}: need at least 1")
     if args.resume and args.overwrite:
@@ -149,7 +168,7 @@ def main(args: argparse.Namespace) -> int:
     for summary in result.summaries:
         low, high = summary["success_rate_ci95"]
         force = summary["median_peak_wrist_force_n"]
-        settings = ", ".join(f"{k} {v:g}" for k, v in summary["settings"].items())
+        settings = ", ".join(f"{k} {v}" if isinstance(v, str) else f"{k} {v:g}" for k, v in summary["settings"].items())
         print(f"{settings}: {summary['successes']}/{summary['episodes']} seated [{100 * low:.0f}, {100 * high:.0f}] %, "
               f"contact {100 * summary['contact_rate']:.0f} %, "
               f"median peak wrist force {'-' if force is None else f'{force:.1f} N'}")

@@ -3,7 +3,7 @@
 Writes a checkpoint directory (rflow.skill_io): the models (weights.pt, loaded with weights_only=True, and
 model.json with normalisation and goal), skill.json (demo metadata: shape, clearance, SHA-256 of the demo
 file, demo start poses, training config and loss history), demos.npz (a subsampled copy of the demos for
-figures) and loss.png. Built in DIR.tmp-XXXX and renamed into place.
+figures, with the demos' stiffness for a stiffness skill) and loss.png. Built in DIR.tmp-XXXX and renamed into place.
 """
 
 from __future__ import annotations
@@ -172,7 +172,8 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     demos = load_demos(demos_path)
     check_demo_scene(demos, demos_path)
     pos, quat = take_every(demos.pos, subsample), take_every(demos.quat, subsample)
-    k = None if stiffness is None else take_every(demo_stiffness(demos, stiffness, bounds, demos_path), subsample)
+    k_demo = None if stiffness is None else demo_stiffness(demos, stiffness, bounds, demos_path)
+    k = None if k_demo is None else take_every(k_demo, subsample)
     dt = demos.dt * subsample
     wall = time.perf_counter()
     skill = fit_pose_skill(pos, quat, dt, cfg, "joint" if joint or k is not None else "separate", progress,
@@ -201,8 +202,9 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     step = max(1, demos.num_samples // PREVIEW_SAMPLES)
 
     def write_preview(path: Path) -> None:
+        stiffness_preview = {} if k_demo is None else {"stiffness": take_every(k_demo, step)}
         np.savez(path, pos=take_every(demos.pos, step), quat=take_every(demos.quat, step),
-                 dt=np.float64(demos.dt * step))
+                 dt=np.float64(demos.dt * step), **stiffness_preview)
 
     histories = {name: rec["history"] for name, rec in skill.training.items()}
     extra = {"demos.npz": write_preview, "loss.png": lambda path: plot_loss(histories, path)}

@@ -53,13 +53,15 @@ def test_bad_stiffness_is_refused_with_one_line(tmp_path, kind, words):
     assert not list(tmp_path.iterdir())  # nothing half-written
 
 
-def test_pih_train_refuses_a_file_with_bad_stiffness(tmp_path, capsys):
-    demos = _broken("not_pd")
+@pytest.mark.parametrize("kind,words", [("not_pd", "positive definite"), ("nan", "NaN"),
+                                        ("off_goal", "does not end at the goal stiffness")])
+def test_pih_train_refuses_a_file_with_bad_stiffness(tmp_path, capsys, kind, words):
+    demos = _broken(kind)
     path = tmp_path / "bad.npz"
     np.savez(path, pos=demos.pos, quat=demos.quat, dt=demos.dt, goal_pos=demos.goal_pos, goal_quat=demos.goal_quat,
              shape=np.str_(demos.shape), clearance_m=demos.clearance_m, config_json=np.str_("{}"),
              stiffness=demos.stiffness, goal_stiffness=demos.goal_stiffness)
     assert main(["train", "--demos", str(path), "--out", str(tmp_path / "ck"), "--stiffness", "expert"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("pih train: error:") and "positive definite" in err and "\n" not in err
+    assert err.startswith("pih train: error:") and words in err and "\n" not in err
     assert not (tmp_path / "ck").exists()

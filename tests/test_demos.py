@@ -14,12 +14,16 @@ from envs.demos import (
     ExpertConfig,
     collect_demos,
     demo_episode_config,
+    execute_demo,
+    finalize_demo,
     plan_expert_path,
     scene_config_from_demos,
 )
 from envs.env import PegInHoleEnv
 from envs.errors import EnvError
+from controllers.impedance import full_stiffness
 from envs.poses import Pose, StartRegion, quat_angle_rad, quat_from_rotvec, quat_mul
+from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
 
 OPENING = np.array([0.6, 0.0, 0.2])
 AXIS = np.array([0.0, 0.0, 1.0])
@@ -129,3 +133,51 @@ def test_collection_gives_up_when_no_start_is_reachable() -> None:
     env = PegInHoleEnv(episode_config=demo_episode_config(expert))
     with pytest.raises(EnvError, match="only 0 of 1 demos succeeded in 3 attempts"):
         collect_demos(1, seed=0, expert=expert, env=env)
+
+
+@pytest.mark.slow
+def test_collected_demos_carry_spd_stiffness_from_free_space_to_the_goal_stiffness(collection, tmp_path) -> None:
+    demos = collection.demos
+    goal_k = StiffnessSchedule().goal_stiffness([0.0, 0.0, 1.0])  # the default hole points up
+    assert demos.stiffness.shape == (2, 300, 3, 3) and np.allclose(demos.goal_stiffness, goal_k)
+    assert np.linalg.eigvalsh(demos.stiffness).min() > 0.0
+    assert np.array_equal(demos.stiffness[:, -1], np.broadcast_to(goal_k, (2, 3, 3)))
+    np.testing.assert_allclose(demos.stiffness[:, 0], np.broadcast_to(1500.0 * np.eye(3), (2, 3, 3)))
+    loaded = load_demos(save_demos(tmp_path / "demos.npz", demos))
+    assert np.array_equal(loaded.stiffness, demos.stiffness)
+
+
+@pytest.mark.slow
+def test_expert_commands_the_schedule_at_the_measured_pose_and_records_it(monkeypatch) -> None:
+    expert = ExpertConfig(num_samples=50)
+    env = PegInHoleEnv(episode_config=demo_episode_config(expert))
+    commanded, measured = [], []
+    real_step = env.step
+
+    def spy(target, stiffness=None):
+        measured.append(env.observation.tcp.pos.copy())
+        commanded.append(stiffness)
+        return real_step(target, stiffness)
+
+    monkeypatch.setattr(env, "step", spy)
+    attempt = execute_demo(env, env.sample_start(np.random.default_rng(0)), expert)
+    assert attempt.ok, attempt.reason
+    schedule = np.stack([expert_stiffness(p, env.hole.pos, env.hole_axis, expert.stiffness) for p in measured])
+    k_rot = env.controller.config.rotational_stiffness
+    assert all(np.allclose(c, full_stiffness(k, k_rot)) for c, k in zip(commanded, schedule))
+    assert np.allclose(attempt.stiffness[:-1], schedule) and attempt.stiffness.shape[0] == attempt.times.size
+    assert np.linalg.eigvalsh(schedule).min() < 0.5 * expert.stiffness.free_n_m  # it did go compliant
+
+
+def test_finalize_resamples_the_recorded_stiffness_and_ends_at_the_goal_stiffness() -> None:
+    times = np.linspace(0.0, CONFIG.duration_s, 11)
+    pos = np.tile(GOAL.pos, (11, 1))
+    quat = np.tile(GOAL.quat, (11, 1))
+    stiffness = np.stack([np.diag([1500.0 * (1 - s) + 300.0 * s] * 2 + [1000.0]) for s in np.linspace(0, 1, 11)])
+    attempt = DemoAttempt(START, True, "ok", times, pos, quat, pos, 0.0, 0.0, 0.0, stiffness)
+    goal_k = np.diag([300.0, 300.0, 1000.0])
+    _, _, k = finalize_demo(attempt, GOAL, ExpertConfig(num_samples=101), goal_k)
+    assert k.shape == (101, 3, 3) and np.array_equal(k[-1], goal_k) and np.allclose(k[0], stiffness[0])
+    assert np.linalg.eigvalsh(k).min() >= 300.0 - 1e-9
+    no_k = DemoAttempt(START, True, "ok", times, pos, quat, pos, 0.0, 0.0, 0.0)
+    assert finalize_demo(no_k, GOAL, ExpertConfig(num_samples=101))[2] is None

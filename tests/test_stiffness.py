@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rflow.errors import RFlowError
-from rflow.stiffness import (StiffnessBounds, VariabilityConfig, clip_eigenvalues, log_euclidean_mean,
+from rflow.stiffness import (StiffnessBounds, VariabilityConfig, clip_eigenvalues, log_euclidean_mean, log_euclidean_resample,
                              position_covariance, profile_distance, variability_stiffness)
 
 BOUNDS = StiffnessBounds(100.0, 3000.0)
@@ -83,3 +83,27 @@ def test_profile_distance_of_scaled_profiles_is_log_of_the_scale():
 def test_log_euclidean_mean_of_commuting_matrices_is_the_geometric_mean():
     a, b = np.diag([100.0, 400.0, 900.0]), np.diag([400.0, 100.0, 100.0])
     assert np.allclose(log_euclidean_mean(np.stack([a, b])), np.diag([200.0, 200.0, 300.0]))
+
+
+def test_log_euclidean_resample_is_exact_at_the_samples_and_geometric_between_them():
+    a, b = np.diag([100.0, 400.0, 1000.0]), np.diag([400.0, 100.0, 1000.0])
+    out = log_euclidean_resample([0.0, 2.0], np.stack([a, b]), [0.0, 1.0, 2.0, 5.0])
+    assert np.allclose(out[0], a) and np.allclose(out[2], b) and np.allclose(out[3], b)  # clipped to the range
+    assert np.allclose(out[1], np.diag([200.0, 200.0, 1000.0]))  # sqrt(100 * 400)
+
+
+def test_log_euclidean_resample_stays_spd_between_non_commuting_samples():
+    rng = np.random.default_rng(0)
+    basis = [np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(5)]
+    k = np.stack([u @ np.diag([100.0, 1000.0, 3000.0]) @ u.T for u in basis])
+    out = log_euclidean_resample(np.arange(5.0), k, np.linspace(0.0, 4.0, 97))
+    assert np.linalg.eigvalsh(out).min() > 99.0 and np.linalg.eigvalsh(out).max() < 3001.0
+    assert np.allclose(out, np.swapaxes(out, -1, -2))
+
+
+def test_log_euclidean_resample_rejects_unordered_times_and_non_spd():
+    k = np.stack([np.eye(3), 2.0 * np.eye(3)])
+    with pytest.raises(RFlowError, match="increasing"):
+        log_euclidean_resample([1.0, 0.0], k, [0.5])
+    with pytest.raises(RFlowError, match="positive definite"):
+        log_euclidean_resample([0.0, 1.0], np.stack([np.eye(3), -np.eye(3)]), [0.5])

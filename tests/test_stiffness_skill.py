@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.policy import (ClosedLoopPolicy, OpenLoopPolicy, StiffnessSetting, full_stiffness,
-                                   generate_plan)
+from envs.execution.policy import ClosedLoopPolicy, OpenLoopPolicy, StiffnessSetting, generate_plan
 from envs.poses import Pose
-from controllers.impedance import validate_stiffness
+from controllers.impedance import full_stiffness, validate_stiffness
 from rflow.errors import RFlowError
 from rflow.generate import rollout
 from rflow.skill_io import POSE_STIFFNESS, fit_pose_skill, load_skill, save_skill, stiffness_reproduction
@@ -212,3 +211,43 @@ def test_pih_evaluate_bad_stiffness_exits_2_before_any_episode(tmp_path, capsys,
     err = capsys.readouterr().err.strip()
     assert err.startswith("pih evaluate: error:") and words in err and "\n" not in err
     assert not out.exists()
+
+
+def test_episode_records_the_learned_stiffness_it_commanded(trained):
+    from envs.env import EpisodeConfig, PegInHoleEnv
+    from envs.execution.episode import StartPose, run_episode
+    from skill_fixtures import GOAL_POS, GOAL_QUAT
+
+    skill, _ = trained
+    env = PegInHoleEnv(episode_config=EpisodeConfig(time_limit_s=0.2))
+    policy = ClosedLoopPolicy(skill, stiffness=StiffnessSetting.parse("learned"))
+    start = StartPose(0, 0, Pose(GOAL_POS + np.array([-0.05, 0.0, 0.2]), GOAL_QUAT))
+    record, trace = run_episode(env, policy, start, record_trace=True)
+    assert record.steps > 1 and trace.stiffness.shape == (record.steps + 1, 3, 3)
+    assert np.allclose(trace.stiffness[1], skill.bound_stiffness(skill.start_stiffness)[0])  # the first step's
+    lam = np.linalg.eigvalsh(trace.stiffness[1:])
+    assert (record.min_stiffness_n_m, record.max_stiffness_n_m) == pytest.approx((lam.min(), lam.max()))
+    assert record.final_stiffness_eig_n_m == pytest.approx(lam[-1].tolist())
+    assert not np.allclose(trace.stiffness[-1], trace.stiffness[1])  # the state was integrated, not held
+
+
+def test_stiffness_figure_is_written_and_refuses_malformed_curves(tmp_path):
+    from envs.execution.figures import StiffnessCurve, plot_stiffness
+
+    demos = stiffness_demos(n=2, m=20)
+    curves = [StiffnessCurve(demos.dt * np.arange(20), k) for k in demos.stiffness]
+    assert plot_stiffness(curves, curves[:1], tmp_path / "k.png").stat().st_size > 0
+    with pytest.raises(EnvError, match="stiffness curve"):
+        StiffnessCurve(np.arange(3.0), np.ones((3, 3)))
+
+
+@pytest.mark.parametrize("extra,words", [(["--stiffness-figure", "k.txt"], "must end in .png"),
+                                         (["--stiffness-figure", "k.png", "--figure", "k.png"], "is also --figure")])
+def test_pih_evaluate_bad_stiffness_figure_exits_2_before_any_episode(tmp_path, capsys, monkeypatch, extra, words):
+    monkeypatch.chdir(tmp_path)
+    model = save_skill(tmp_path / "ck", tiny_skill())
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", "--model", str(model), "--episodes", "1", "--json", str(out), *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pih evaluate: error:") and words in err and "\n" not in err
+    assert not out.exists() and not (tmp_path / "k.png").exists()

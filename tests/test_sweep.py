@@ -101,3 +101,36 @@ def test_a_missing_checkpoint_leaves_nothing_behind(tmp_path) -> None:
     argv = ["sweep", "--model", str(tmp_path / "missing"), "--clearance-mm", "1", "--episodes", "1",
             "--out", str(out), "--quiet"]
     assert cli.main(argv) == 2 and not out.exists()
+
+
+def test_stiffness_is_an_axis_and_each_cell_commands_its_own() -> None:
+    cells = sweep_cells(EvaluationConfig(), SweepAxes(hole_error_m=(0.001,), stiffness=("learned", "constant:500")))
+    assert [c.settings for c in cells] == [{"hole_error_m": 0.001, "stiffness": "learned"},
+                                           {"hole_error_m": 0.001, "stiffness": "constant:500"}]
+    assert [c.config.stiffness for c in cells] == ["learned", "constant:500"]
+
+
+def test_sweep_over_stiffness_records_it_and_resume_needs_the_same_axis(model_dir, tmp_path, capsys) -> None:
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--model", str(model_dir), "--stiffness", "constant:500,constant:2000", "--episodes", "1",
+            "--time-limit", "0.1", "--workers", "1", "--out", str(out), "--quiet"]
+    assert cli.main(argv) == 0
+    result = json.loads((out / "sweep.json").read_text())
+    assert [c["settings"]["stiffness"] for c in result["cells"]] == ["constant:500", "constant:2000"]
+    by_cell = {r["cell"]: r for r in result["per_episode"]}
+    assert (by_cell[0]["min_stiffness_n_m"], by_cell[0]["max_stiffness_n_m"]) == pytest.approx((500.0, 500.0))
+    assert (by_cell[1]["min_stiffness_n_m"], by_cell[1]["max_stiffness_n_m"]) == pytest.approx((2000.0, 2000.0))
+    capsys.readouterr()
+    other = [a if a != "constant:500,constant:2000" else "constant:500,constant:3000" for a in argv]
+    assert cli.main(other + ["--resume"]) == 2  # the journal is of another sweep
+    assert "\n" not in capsys.readouterr().err.strip()
+
+
+@pytest.mark.parametrize("spec, words", [("constant:0,learned", "positive"), ("constant:-1", "positive"),
+                                         ("soft", "learned"), ("learned", "needs a skill trained")])
+def test_bad_stiffness_axis_exits_2_before_any_work(model_dir, tmp_path, capsys, spec, words) -> None:
+    out = tmp_path / "sweep"
+    code = cli.main(["sweep", "--model", str(model_dir), "--stiffness", spec, "--episodes", "1", "--out", str(out),
+                     "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and words in err and "\n" not in err and not out.exists()

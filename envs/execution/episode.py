@@ -64,6 +64,10 @@ class EpisodeRecord:
         peak_wrist_force_n, median_wrist_force_n: |F| of the wrist F/T sensor (zeroed for the tool load).
         peak_sustained_wrist_force_n: largest |F| held for the force limit's window (what the limit compares).
         peak_wrist_torque_nm, median_wrist_torque_nm: |tau| of the wrist F/T sensor.
+        min_stiffness_n_m, max_stiffness_n_m: smallest and largest eigenvalue of the translational stiffness
+            commanded over the episode (N/m; the controller's default when the policy commands none).
+        start_stiffness_eig_n_m, final_stiffness_eig_n_m: eigenvalues (ascending, N/m) of the translational
+            stiffness commanded at the first and the last control step.
         final_pos, final_quat: measured peg_tip pose at the end.
         steps: control steps run.
         wall_s: wall-clock seconds.
@@ -92,6 +96,10 @@ class EpisodeRecord:
     median_wrist_force_n: float = float("nan")
     peak_wrist_torque_nm: float = float("nan")
     median_wrist_torque_nm: float = float("nan")
+    min_stiffness_n_m: float = float("nan")
+    max_stiffness_n_m: float = float("nan")
+    start_stiffness_eig_n_m: list[float] | None = None
+    final_stiffness_eig_n_m: list[float] | None = None
     final_pos: list[float] | None = None
     final_quat: list[float] | None = None
     steps: int = 0
@@ -116,6 +124,8 @@ class EpisodeTrace:
         times_s, pos, quat: measured peg_tip poses.
         cmd_pos, cmd_quat: commanded poses (row 0 repeats the start).
         force_n: contact force magnitude.
+        stiffness: (K, 3, 3) translational stiffness commanded for the step ending at each row (row 0: the
+            first step's), N/m, world frame.
     """
 
     times_s: FloatArray
@@ -124,6 +134,7 @@ class EpisodeTrace:
     cmd_pos: FloatArray
     cmd_quat: FloatArray
     force_n: FloatArray
+    stiffness: FloatArray
 
 
 # --------------------------------------------------------------------------------------------- episode
@@ -148,6 +159,7 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
     rec = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
                         perturbation=start.perturbation.to_dict())
     rows: list[tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, float]] = []
+    commanded: list[FloatArray] = []  # translational stiffness of every step
     try:
         try:
             obs = env.reset(start_pose=start.pose, perturbation=start.perturbation)
@@ -161,10 +173,12 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
             on_step(env)
         step = 0
         result = None
+        default_k = env.controller.config.translational_stiffness * np.eye(3)
         while not env.done:
             command = policy.command(step, env.observation.tcp)
             target = feedforward_pose(env, command, feedforward_gain)
             result = env.step(target, command_stiffness(env, command))
+            commanded.append(default_k if command.stiffness is None else np.asarray(command.stiffness, dtype=float))
             step += 1
             if record_trace:
                 o = result.obs
@@ -195,6 +209,10 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
         for key, value in env.stats.summary().items():
             setattr(rec, key, float("nan") if value is None else float(value))
         rec.touched = bool(rec.peak_contact_force_n > CONTACT_THRESHOLD_N)
+        if commanded:
+            eig = np.linalg.eigvalsh(np.stack(commanded))
+            rec.min_stiffness_n_m, rec.max_stiffness_n_m = float(eig.min()), float(eig.max())
+            rec.start_stiffness_eig_n_m, rec.final_stiffness_eig_n_m = eig[0].tolist(), eig[-1].tolist()
     except Exception as err:  # an episode must never abort the batch
         last = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         where = f" at {Path(last.filename).name}:{last.lineno}" if last else ""
@@ -205,5 +223,7 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
     trace = None
     if record_trace and rows:
         t, p, q, cp, cq, f = zip(*rows)
-        trace = EpisodeTrace(np.array(t), np.array(p), np.array(q), np.array(cp), np.array(cq), np.array(f))
+        k = np.stack(commanded[:1] + commanded) if commanded else np.full((len(rows), 3, 3), np.nan)
+        trace = EpisodeTrace(np.array(t), np.array(p), np.array(q), np.array(cp), np.array(cq), np.array(f),
+                             k[:len(rows)])
     return rec, trace

@@ -4,6 +4,8 @@
 - `plot_skill`: like the paper's peg-in-hole figure: (a) positions in 3-D, (b) orientation projected on
   the tangent space at the goal, Log_g(q) (3 components) against time; demonstrations thin grey,
   generated plans dashed black, executed (measured) trajectories thick red.
+- `plot_stiffness`: eigenvalues of the translational stiffness against time, demonstrated (thin grey) beside
+  commanded in executed episodes (thick red), one panel per eigenvalue (smallest to largest).
 - `plot_outcomes`: final position / angle errors of every episode, successes and failures apart.
 - `plot_success_map`: success rate over two sweep axes (`pih sweep`).
 """
@@ -137,6 +139,51 @@ def plot_skill(demos: Sequence[PoseCurve], plans: Sequence[PoseCurve], executed:
     return _save(fig, path)
 
 
+@dataclass(frozen=True)
+class StiffnessCurve:
+    """A translational stiffness profile for plotting: times (K,) s, stiffness (K, 3, 3) N/m (SPD)."""
+
+    times_s: FloatArray
+    stiffness: FloatArray
+
+    def __post_init__(self) -> None:
+        t, k = np.asarray(self.times_s, dtype=float), np.asarray(self.stiffness, dtype=float)
+        if t.ndim != 1 or k.shape != (t.size, 3, 3):
+            raise EnvError(f"a stiffness curve needs times (K,) and stiffness (K, 3, 3); got {t.shape}, {k.shape}")
+
+
+def plot_stiffness(demos: Sequence[StiffnessCurve], executed: Sequence[StiffnessCurve],
+                   path: str | os.PathLike[str], title: str = "") -> Path:
+    """Eigenvalues lambda_1 <= lambda_2 <= lambda_3 of K(t) against time, demonstrated beside executed.
+
+    Args:
+        demos: the demonstrations' stiffness profiles.
+        executed: the stiffness commanded in executed episodes.
+        path: PNG to write.
+        title: figure title.
+
+    Returns:
+        The written path.
+    """
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=True)
+    for label, curves, style in (("demonstrations", demos, DEMO_STYLE), ("executed", executed, EXEC_STYLE)):
+        for i, c in enumerate(curves):
+            lam = np.linalg.eigvalsh(np.asarray(c.stiffness, dtype=float))
+            for k, ax in enumerate(axes):
+                ax.plot(c.times_s, lam[:, k], label=label if i == 0 else None, **style)
+    for k, ax in enumerate(axes):
+        ax.set_yscale("log")
+        ax.set_xlabel("time (s)")
+        ax.set_title(f"({chr(ord('a') + k)}) eigenvalue {k + 1} of K")
+        ax.grid(alpha=0.3, which="both")
+    axes[0].set_ylabel("stiffness (N/m)")
+    axes[0].legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def plot_outcomes(records: Sequence[Mapping[str, Any]], path: str | os.PathLike[str], title: str = "") -> Path:
     """Scatter of final position error (mm) against final angle error (deg) of every episode.
 
@@ -168,7 +215,19 @@ AXIS_LABELS: Mapping[str, tuple[str, float]] = {
     "chamfer_m": ("chamfer (mm)", 1e3),
     "hole_error_deg": ("hole-pose error (deg)", 1.0),
     "pos_range_m": ("start range (cm)", 1e2),
+    "stiffness": ("stiffness (N/m)", 1.0),
 }
+
+
+def _axis_values(cells: Sequence[Mapping[str, Any]], axis: str) -> list[Any]:
+    """The values of a sweep axis: numbers ascending, texts (stiffness settings) in the order of the cells."""
+    values = list(dict.fromkeys(c["settings"][axis] for c in cells))
+    return values if any(isinstance(v, str) for v in values) else sorted(values)
+
+
+def _axis_tick(axis: str, value: Any) -> str:
+    """A tick label of a sweep axis value, in the unit of AXIS_LABELS."""
+    return value if isinstance(value, str) else f"{value * AXIS_LABELS[axis][1]:g}"
 
 
 def plot_success_map(cells: Sequence[Mapping[str, Any]], rows: str, columns: str, path: str | os.PathLike[str],
@@ -192,11 +251,12 @@ def plot_success_map(cells: Sequence[Mapping[str, Any]], rows: str, columns: str
         raise EnvError(f"every cell needs settings {rows!r} and {columns!r}")
     others = sorted({k for c in cells for k in c["settings"]} - {rows, columns})
     panels = sorted({tuple(c["settings"][k] for k in others) for c in cells})
-    row_values = sorted({c["settings"][rows] for c in cells}, reverse=True)
-    col_values = sorted({c["settings"][columns] for c in cells})
+    row_values = _axis_values(cells, rows)
+    row_values = row_values if isinstance(row_values[0], str) else row_values[::-1]  # numbers grow upwards
+    col_values = _axis_values(cells, columns)
     fig, axes = plt.subplots(1, len(panels), figsize=(1.4 * len(col_values) * len(panels) + 2.5,
                                                       1.0 * len(row_values) + 1.8), squeeze=False)
-    (row_label, row_scale), (col_label, col_scale) = AXIS_LABELS[rows], AXIS_LABELS[columns]
+    row_label, col_label = AXIS_LABELS[rows][0], AXIS_LABELS[columns][0]
     image = None
     for ax, panel in zip(axes[0], panels):
         grid = np.full((len(row_values), len(col_values)), np.nan)
@@ -213,12 +273,12 @@ def plot_success_map(cells: Sequence[Mapping[str, Any]], rows: str, columns: str
             ax.text(j, i, text, ha="center", va="center", fontsize=7,
                     color="white" if grid[i, j] < 50 else "black")
         image = ax.imshow(grid, vmin=0.0, vmax=100.0, cmap="viridis", aspect="auto")
-        ax.set_xticks(range(len(col_values)), [f"{v * col_scale:g}" for v in col_values])
-        ax.set_yticks(range(len(row_values)), [f"{v * row_scale:g}" for v in row_values])
+        ax.set_xticks(range(len(col_values)), [_axis_tick(columns, v) for v in col_values])
+        ax.set_yticks(range(len(row_values)), [_axis_tick(rows, v) for v in row_values])
         ax.set_xlabel(col_label)
         ax.set_ylabel(row_label)
         if others:
-            ax.set_title(", ".join(f"{AXIS_LABELS[k][0]} {v * AXIS_LABELS[k][1]:g}" for k, v in zip(others, panel)),
+            ax.set_title(", ".join(f"{AXIS_LABELS[k][0]} {_axis_tick(k, v)}" for k, v in zip(others, panel)),
                          fontsize=9)
     if image is not None:
         fig.colorbar(image, ax=axes[0].tolist(), label="seated (%)", shrink=0.9)

@@ -1,5 +1,8 @@
 """Success maps: one skill evaluated over a grid of task settings (clearance x hole-pose error x ...).
 
+The commanded translational stiffness is an axis too ("learned", "constant:K"; envs.execution.policy.
+StiffnessSetting), so the learned variable stiffness and constant ones run over the same starts and settings.
+
 Every cell of the grid (the Cartesian product of the axes) is an EvaluationConfig derived from a base one;
 all cells use the same K start poses and per-episode perturbation draws (common random numbers: the seeds
 do not depend on the cell, so cells differ only by their setting). The unit of work is one episode of one
@@ -26,13 +29,14 @@ from envs.execution.evaluate import (
     failure_kinds,
     finite_max,
     finite_median,
+    finite_min,
     record_from_dict,
     wilson_interval,
 )
 from envs.perturbation import PerturbationRanges
 
-AXES: tuple[str, ...] = ("clearance_m", "hole_error_m", "chamfer_m", "hole_error_deg", "pos_range_m")
-"""Sweepable settings, in the order cells are enumerated."""
+AXES: tuple[str, ...] = ("clearance_m", "hole_error_m", "chamfer_m", "hole_error_deg", "pos_range_m", "stiffness")
+"""Sweepable settings, in the order cells are enumerated (all numbers but "stiffness", a StiffnessSetting text)."""
 
 
 @dataclass(frozen=True)
@@ -41,6 +45,7 @@ class SweepAxes:
 
     Attributes:
         clearance_m, hole_error_m, chamfer_m, hole_error_deg, pos_range_m: values per axis.
+        stiffness: commanded stiffness per cell, "learned" or "constant:K" (K in N/m).
     """
 
     clearance_m: tuple[float, ...] = ()
@@ -48,6 +53,7 @@ class SweepAxes:
     chamfer_m: tuple[float, ...] = ()
     hole_error_deg: tuple[float, ...] = ()
     pos_range_m: tuple[float, ...] = ()
+    stiffness: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in AXES:
@@ -65,11 +71,11 @@ class Cell:
     """One grid point: its index, its settings (axis -> value) and the evaluation it runs."""
 
     index: int
-    settings: dict[str, float]
+    settings: dict[str, float | str]
     config: EvaluationConfig = field(repr=False)
 
 
-def cell_config(base: EvaluationConfig, settings: dict[str, float]) -> EvaluationConfig:
+def cell_config(base: EvaluationConfig, settings: dict[str, float | str]) -> EvaluationConfig:
     """``base`` with the cell's settings applied (validated by EvaluationConfig).
 
     Raises:
@@ -81,7 +87,7 @@ def cell_config(base: EvaluationConfig, settings: dict[str, float]) -> Evaluatio
         hole_error_deg=settings.get("hole_error_deg", ranges.hole_error_deg),
         grasp_offset_m=ranges.grasp_offset_m,
     )
-    scene = {k: settings[k] for k in ("clearance_m", "chamfer_m", "pos_range_m") if k in settings}
+    scene = {k: settings[k] for k in ("clearance_m", "chamfer_m", "pos_range_m", "stiffness") if k in settings}
     return replace(base, perturbations=ranges, **scene)
 
 
@@ -96,7 +102,7 @@ def sweep_cells(base: EvaluationConfig, axes: SweepAxes) -> list[Cell]:
         raise EnvError("a sweep needs at least one axis with values (e.g. --clearance-mm 1,0.5,0.2)")
     cells = []
     for index, values in enumerate(itertools.product(*(getattr(axes, n) for n in names))):
-        settings = dict(zip(names, (float(v) for v in values)))
+        settings = {n: v if n == "stiffness" else float(v) for n, v in zip(names, values)}
         cells.append(Cell(index, settings, cell_config(base, settings)))
     return cells
 
@@ -172,6 +178,8 @@ def cell_summary(cell: Cell, records: Sequence[dict[str, Any]]) -> dict[str, Any
         "median_peak_wrist_force_n": finite_median(r.peak_wrist_force_n for r in ok),
         "max_peak_wrist_force_n": finite_max(r.peak_wrist_force_n for r in ok),
         "median_peak_contact_force_n": finite_median(r.peak_contact_force_n for r in parsed),
+        "min_stiffness_n_m": finite_min(r.min_stiffness_n_m for r in parsed),
+        "max_stiffness_n_m": finite_max(r.max_stiffness_n_m for r in parsed),
         "contact_rate": sum(r.touched for r in parsed) / max(len(parsed), 1),
         "failures_by_kind": failure_kinds(parsed),
     }
