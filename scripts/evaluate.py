@@ -1,7 +1,8 @@
 """`pih evaluate`: execute a trained skill from seeded perturbed starts in physics and score it.
 
     pih evaluate --model runs/default/model --episodes 100 --seed 0 --json runs/eval.json \\
-        [--mode closed-loop|open-loop] [--workers 2] [--video runs/eval.mp4] [--figure runs/eval.png]
+        [--mode closed-loop|open-loop] [--workers 2] [--video runs/eval.mp4] [--figure runs/eval.png] \\
+        [--stiffness learned|constant:K] [--stiffness-figure runs/stiffness.png]
 
 Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range (box)
 and +-rot-range (ball) -- see envs/execution/evaluate.py. Success is the physics check on the measured peg_tip pose. Prints a summary table.
@@ -72,18 +73,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", default="front", help="camera of --video (front, side, top, closeup, wrist)")
     parser.add_argument("--figure", type=Path,
                         help="write the demos / generated / executed figure of the chosen episodes here (PNG)")
+    parser.add_argument("--stiffness-figure", type=Path,
+                        help="write the eigenvalues of the stiffness commanded in the chosen episodes against time, "
+                             "beside the demos' (PNG)")
     parser.add_argument("--journal", type=Path,
                         help="append each finished episode here (JSON Lines; default <json>.journal.jsonl with --json)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run recorded in --journal: only its missing episodes are run")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace existing outputs (--json, --video, --figure and the journal) of an earlier run")
+                        help="replace existing outputs (--json, --video, --figure, --stiffness-figure and the journal) "
+                             "of an earlier run")
     parser.add_argument("--backend", choices=BACKENDS, default=d.backend,
                         help="process: local worker processes (default); ray: Ray actors (pip install -e '.[cluster]')")
     parser.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray on all cores)")
     parser.add_argument("--unit-timeout", type=float, default=d.unit_timeout_s,
                         help=f"wall-clock seconds per episode before its worker is killed and the episode "
                              f"recorded 'wall_timeout'; 0 = no limit (default {d.unit_timeout_s:g})")
+    parser.add_argument("--no-contact-adaptation", action="store_true",
+                        help="closed loop: run the bare learned flow, without the axial push, frame shift and rotational "
+                             "compliance near the hole (envs/execution/adaptation.py; the ablation)")
     parser.add_argument("--stiffness",
                         help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`) or "
                              "'constant:K' (K I, K > 0 in N/m); default: the controller's")
@@ -109,7 +117,8 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
         time_limit_s=args.time_limit, **evaluation_task_fields(args),
         shape=args.shape, hole_at_goal=args.hole_at_goal, workers=args.workers,
         unit_timeout_s=None if args.unit_timeout == 0 else args.unit_timeout, backend=args.backend,
-        ray_address=args.ray_address, stiffness=args.stiffness)
+        ray_address=args.ray_address, stiffness=args.stiffness,
+        contact_adaptation=not args.no_contact_adaptation)
 
 
 def journal_path(args: argparse.Namespace) -> Path | None:
@@ -186,11 +195,15 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
     check_output("--json", args.json, ".json", args.overwrite or args.resume)
     check_output("--video", args.video, ".mp4", args.overwrite)
     check_output("--figure", args.figure, ".png", args.overwrite)
+    check_output("--stiffness-figure", args.stiffness_figure, ".png", args.overwrite)
+    figures = [p.resolve() for p in (args.figure, args.stiffness_figure) if p is not None]
+    if len(set(figures)) < len(figures):
+        raise EnvError(f"--stiffness-figure {args.stiffness_figure} is also --figure")
     journal = journal_path(args)
     if args.resume and journal is None:
         raise EnvError("--resume needs the journal of the earlier run: give --journal or --json")
     if journal is not None:
-        outputs = {p.resolve() for p in (args.json, args.video, args.figure) if p is not None}
+        outputs = {p.resolve() for p in (args.json, args.video, args.figure, args.stiffness_figure) if p is not None}
         if journal.resolve() in outputs:
             raise EnvError(f"--journal {journal} is also another output")
         if str(journal.parent) and not journal.parent.is_dir():
@@ -200,7 +213,7 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
         if journal.exists() and not (args.resume or args.overwrite):
             raise EnvError(f"journal {journal} already exists: use --resume to continue that run, "
                            "--overwrite to start again, or another --journal")
-    if args.video is not None or args.figure is not None:
+    if args.video is not None or args.figure is not None or args.stiffness_figure is not None:
         check_video_episodes(args.video_episodes, config.episodes)
     if args.video is not None:
         check_camera(args.camera)
@@ -249,19 +262,22 @@ def choose_episodes(result: EvaluationResult, spec: str, failures: int = 1) -> l
 
 
 def render_and_plot(model_dir: Path, config: EvaluationConfig, result: EvaluationResult, episodes: Sequence[int],
-                    video: Path | None, figure: Path | None, camera: str = "front") -> dict[str, Any]:
-    """Replay ``episodes`` once (deterministic physics) to render an MP4 and/or draw the skill figure.
+                    video: Path | None, figure: Path | None, camera: str = "front",
+                    stiffness_figure: Path | None = None) -> dict[str, Any]:
+    """Replay ``episodes`` once (deterministic physics) to render an MP4 and/or draw the skill and stiffness
+    figures.
 
     Returns:
-        {"video": path or None, "figure": path or None, "replayed": [...]} for the summary.
+        {"video": path or None, "figure": path or None, "stiffness_figure": path or None, "replayed": [...]}
+        for the summary.
     """
     from envs.execution.evaluate import evaluation_starts, replay_episodes
     from envs.execution.policy import generate_plan
     from envs.video import EpisodeVideo, VideoConfig
     from rflow.skill_io import load_skill
 
-    out: dict[str, Any] = {"video": None, "figure": None, "replayed": list(episodes)}
-    if not episodes or (video is None and figure is None):
+    out: dict[str, Any] = {"video": None, "figure": None, "stiffness_figure": None, "replayed": list(episodes)}
+    if not episodes or (video is None and figure is None and stiffness_figure is None):
         return out
     skill = load_skill(model_dir)
     meta = skill.metadata["demo_starts"]
@@ -292,7 +308,29 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         out["video"] = str(holder["video"].close())
     if figure is not None:
         out["figure"] = str(plot_episodes(model_dir, skill, replays, starts, figure, config))
+    if stiffness_figure is not None:
+        out["stiffness_figure"] = str(plot_episode_stiffness(model_dir, replays, starts, stiffness_figure, config))
     return out
+
+
+def plot_episode_stiffness(model_dir: Path, replays: Sequence[Any], starts: Sequence[StartPose], path: Path,
+                           config: EvaluationConfig) -> Path:
+    """The stiffness figure: the demos' stiffness (from the checkpoint's demos.npz, present for a stiffness
+    skill) beside the stiffness commanded in the replayed episodes."""
+    import numpy as np
+
+    from envs.execution.figures import StiffnessCurve, plot_stiffness
+
+    demos = []
+    preview = model_dir / "demos.npz"
+    if preview.is_file():
+        with np.load(preview, allow_pickle=False) as data:
+            if "stiffness" in data.files:
+                k, dt = data["stiffness"], float(data["dt"])
+                demos = [StiffnessCurve(dt * np.arange(k.shape[1]), k[n]) for n in range(k.shape[0])]
+    executed = [StiffnessCurve(trace.times_s, trace.stiffness) for _, trace in replays if trace is not None]
+    title = f"stiffness {config.stiffness or 'controller default'} ({config.mode}): episodes {[s.index for s in starts]}"
+    return plot_stiffness(demos, executed, path, title)
 
 
 def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: Sequence[StartPose], path: Path,
@@ -346,11 +384,14 @@ def main(args: argparse.Namespace) -> int:
     chosen = choose_episodes(result, args.video_episodes)
     figure_episodes = choose_episodes(result, args.video_episodes, failures=0)
     if chosen == figure_episodes:
-        extras = render_and_plot(args.model, config, result, chosen, args.video, args.figure, args.camera)
-    else:  # 'auto': the figure shows successes only, the video also the first failure
+        extras = render_and_plot(args.model, config, result, chosen, args.video, args.figure, args.camera,
+                                 args.stiffness_figure)
+    else:  # 'auto': the figures show successes only, the video also the first failure
         extras = render_and_plot(args.model, config, result, chosen, args.video, None, args.camera)
-        extras["figure"] = render_and_plot(args.model, config, result, figure_episodes, None, args.figure)["figure"]
-    for key, episodes in (("video", chosen), ("figure", figure_episodes)):
+        figures = render_and_plot(args.model, config, result, figure_episodes, None, args.figure,
+                                  stiffness_figure=args.stiffness_figure)
+        extras.update(figure=figures["figure"], stiffness_figure=figures["stiffness_figure"])
+    for key, episodes in (("video", chosen), ("figure", figure_episodes), ("stiffness_figure", figure_episodes)):
         if extras[key]:
             print(f"wrote {extras[key]} (episodes {episodes})")
     if not args.quiet:

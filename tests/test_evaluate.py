@@ -22,7 +22,7 @@ from envs.execution.evaluate import (
     wilson_interval,
 )
 from envs.poses import Pose, quat_angle_rad
-from envs.execution.policy import ClosedLoopPolicy
+from envs.execution.policy import ClosedLoopPolicy, StiffnessSetting
 from rflow.skill_io import save_skill
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 
@@ -139,3 +139,27 @@ def test_batch_keeps_order_and_count_with_two_workers(skill, tmp_path):
     config = EvaluationConfig(episodes=3, time_limit_s=0.05, workers=2)
     result = evaluate(tmp_path / "ck", config, progress=False)
     assert [r.index for r in result.records] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("setting", [None, "constant:600"])
+def test_episode_records_the_commanded_stiffness(skill, env, setting):
+    policy = ClosedLoopPolicy(skill, stiffness=None if setting is None else StiffnessSetting.parse(setting))
+    expected = env.controller.config.translational_stiffness if setting is None else 600.0
+    start = StartPose(0, 0, Pose(GOAL_POS + np.array([-0.05, 0.0, 0.2]), GOAL_QUAT))
+    record, trace = run_episode(env, policy, start, record_trace=True)
+    assert (record.min_stiffness_n_m, record.max_stiffness_n_m) == pytest.approx((expected, expected))
+    assert record.final_stiffness_eig_n_m == pytest.approx([expected] * 3)
+    assert trace.stiffness.shape == (trace.pos.shape[0], 3, 3) and np.allclose(trace.stiffness, expected * np.eye(3))
+
+
+def test_learned_stiffness_result_reports_the_demos_reproduction():
+    metadata = {"stiffness": {"source": "expert", "log_euclidean_mean": 0.25, "log_euclidean_per_demo": [0.2, 0.3],
+                              "clip_fraction": 0.0}}
+    records = [EpisodeRecord(0, 0, [0.0] * 3, [1.0, 0, 0, 0], min_stiffness_n_m=300.0, max_stiffness_n_m=1500.0)]
+    learned = EvaluationResult(EvaluationConfig(episodes=1, stiffness="learned"), records, 1.0, metadata=metadata)
+    data = learned.to_dict()
+    assert data["stiffness_reproduction"]["log_euclidean_mean"] == 0.25
+    assert (data["statistics"]["min_stiffness_n_m"], data["statistics"]["max_stiffness_n_m"]) == (300.0, 1500.0)
+    assert "Log-Euclidean" in learned.summary_table() and "0.250" in learned.summary_table()
+    constant = EvaluationResult(EvaluationConfig(episodes=1, stiffness="constant:500"), records, 1.0, metadata=metadata)
+    assert constant.to_dict()["stiffness_reproduction"] is None and "Log-Euclidean" not in constant.summary_table()

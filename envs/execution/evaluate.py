@@ -42,6 +42,7 @@ from envs.perturbation import PerturbationRanges, sample_perturbation
 from envs.poses import Pose, StartRegion, format_pose, mean_quat, sample_start_poses
 from envs.sorter import check_chamfer, check_clearance
 from envs.task import DEFAULT_PRESET, PRESETS
+from envs.execution.adaptation import ContactAdaptation
 from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose, run_episode
 from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting, make_policy
 
@@ -79,6 +80,12 @@ def finite_max(values: Iterable[float | None]) -> float | None:
     """Largest finite value (None when there is none)."""
     kept = [x for x in values if x is not None and math.isfinite(x)]
     return float(np.max(kept)) if kept else None
+
+
+def finite_min(values: Iterable[float | None]) -> float | None:
+    """Smallest finite value (None when there is none)."""
+    kept = [x for x in values if x is not None and math.isfinite(x)]
+    return float(np.min(kept)) if kept else None
 
 
 def failure_kinds(records: Iterable[EpisodeRecord]) -> dict[str, int]:
@@ -121,6 +128,8 @@ class EvaluationConfig:
         ray_address: HOST:PORT of a Ray cluster (None: a local Ray instance on all cores).
         stiffness: the translational stiffness commanded ("learned": the skill's, "constant:K": K I in N/m;
             None: the controller's default), see envs.execution.policy.StiffnessSetting.
+        contact_adaptation: closed loop: adapt to the contact near the hole (axial push, frame shift, rotational
+            compliance; envs.execution.adaptation); False runs the bare learned flow (the ablation).
     """
 
     episodes: int = 100
@@ -146,6 +155,7 @@ class EvaluationConfig:
     backend: str = "process"
     ray_address: str | None = None
     stiffness: str | None = None
+    contact_adaptation: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.episodes, int) or self.episodes < 1:
@@ -345,12 +355,26 @@ class EvaluationResult:
             "max_sustained_wrist_force_n_successes": top(r.peak_sustained_wrist_force_n for r in ok),
             "median_peak_wrist_force_n": med(r.peak_wrist_force_n for r in self.records),
             "median_peak_wrist_torque_nm": med(r.peak_wrist_torque_nm for r in self.records),
+            "min_stiffness_n_m": finite_min(r.min_stiffness_n_m for r in self.records),
+            "max_stiffness_n_m": top(r.max_stiffness_n_m for r in self.records),
             "failures_by_kind": kinds,
             "median_episode_wall_s": med(r.wall_s for r in self.records),
         }
 
+    @property
+    def stiffness_reproduction(self) -> dict[str, Any] | None:
+        """With the learned stiffness: how the skill reproduces the demos' stiffness, from skill.json (written
+        by `pih train --stiffness`: mean Log-Euclidean distance of the stiffness generated from each demo's
+        start to the demo's, per demo, and how often the eigenvalue clip acted); None otherwise."""
+        record = self.metadata.get("stiffness")
+        if self.config.stiffness != "learned" or not isinstance(record, dict):
+            return None
+        keys = ("source", "log_euclidean_mean", "log_euclidean_per_demo", "clip_fraction")
+        return {k: record[k] for k in keys if k in record}
+
     def to_dict(self) -> dict[str, Any]:
-        """The JSON record: config, success rate with its Wilson interval, statistics, episodes."""
+        """The JSON record: config, success rate with its Wilson interval, statistics, the learned stiffness's
+        reproduction of the demos' (`stiffness_reproduction`), episodes."""
         low, high = self.interval
         return {
             "model": self.model_dir,
@@ -365,6 +389,7 @@ class EvaluationResult:
             "success_rate_ci95": [low, high],
             "goal_mismatch_mm": self.goal_mismatch_mm,
             "statistics": self.statistics(),
+            "stiffness_reproduction": self.stiffness_reproduction,
             "wall_s": self.wall_s,
             "per_episode": [r.to_dict() for r in self.records],
         }
@@ -400,11 +425,22 @@ class EvaluationResult:
              f"{fmt(s['median_peak_wrist_force_n_successes'], 'N', 1)} / "
              f"{fmt(s['max_peak_wrist_force_n_successes'], 'N', 1)} (held for the limit window: max "
              f"{fmt(s['max_sustained_wrist_force_n_successes'], 'N', 1)})"),
+            ("commanded stiffness", f"{self.config.stiffness or 'controller default'}, eigenvalues "
+                                    f"{fmt(s['min_stiffness_n_m'], 'N/m', 0)} to {fmt(s['max_stiffness_n_m'], 'N/m', 0)}"),
+            *self._reproduction_rows(),
             ("failures", ", ".join(f"{k}: {v}" for k, v in s["failures_by_kind"].items()) or "none"),
             ("wall time", f"{self.wall_s:.1f} s ({self.config.workers} worker(s))"),
         ]
         width = max(len(k) for k, _ in rows)
         return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+    def _reproduction_rows(self) -> list[tuple[str, str]]:
+        rec = self.stiffness_reproduction
+        if rec is None or "log_euclidean_mean" not in rec:
+            return []
+        per_demo = ", ".join(f"{d:.3f}" for d in rec.get("log_euclidean_per_demo", []))
+        return [("stiffness vs demos (Log-Euclidean)", f"mean {rec['log_euclidean_mean']:.3f} (per demo {per_demo}; "
+                                                       f"generated from each demo's start)")]
 
 
 @dataclass(frozen=True)
@@ -435,7 +471,9 @@ def build_setup(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
     if config.hole_at_goal:
         check_goal_reachable(env)
     stiffness = None if config.stiffness is None else StiffnessSetting.parse(config.stiffness)
-    policy = make_policy(skill, config.mode, config.lookahead_s, config.time_limit_s, config.speed, stiffness)
+    adaptation = ContactAdaptation() if config.contact_adaptation else ContactAdaptation.off()
+    policy = make_policy(skill, config.mode, config.lookahead_s, config.time_limit_s, config.speed, stiffness,
+                         adaptation)
     return skill, env, policy
 
 
@@ -595,6 +633,7 @@ __all__ = [
     "build_setup",
     "check_goal_reachable",
     "evaluate",
+    "finite_min",
     "journal_run",
     "record_from_dict",
     "replay_episodes",

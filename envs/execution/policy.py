@@ -30,8 +30,8 @@ the skill's start stiffness and is integrated alongside, one exact flow step of 
 ``speed``) per control step from [measured pose, K]. Open loop, K is generated with the trajectory. Either
 way the commanded K is the generated one with its eigenvalues clipped to the skill's [k_min, k_max]
 (`PoseSkill.bound_stiffness`, counted in ``stiffness_clipped_steps``). `StiffnessSetting` chooses between
-that learned stiffness, a constant isotropic K, or none (the controller's default); `full_stiffness` makes
-the 6x6 matrix for env.step.
+that learned stiffness, a constant isotropic K, or none (the controller's default);
+`controllers.impedance.full_stiffness` makes the 6x6 matrix for env.step.
 """
 
 from __future__ import annotations
@@ -42,8 +42,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from controllers.impedance import full_stiffness
 from envs.errors import EnvError
-from envs.poses import Pose, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
+from envs.execution.adaptation import ContactAdaptation, ContactAdapter
+from envs.poses import Pose, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
 from rflow.errors import RFlowError
 from rflow.generate import next_point, rollout
 from rflow.skill_io import PoseSkill
@@ -51,12 +53,6 @@ from rflow.skill_io import PoseSkill
 FloatArray = npt.NDArray[np.float64]
 
 MODES: tuple[str, ...] = ("closed-loop", "open-loop")
-DEFAULT_PUSH_LIMIT_M: float = 0.01
-"""Closed loop: largest integral push offset (15 N at the default 1500 N/m; see ClosedLoopPolicy)."""
-DEFAULT_PUSH_LIMIT_RAD: float = 0.0
-"""Closed loop: largest integral push rotation (off; see ClosedLoopPolicy)."""
-DEFAULT_PUSH_LEAK_S: float = 5.0
-"""Closed loop: leak time constant tau of the integral push."""
 DEFAULT_LOOKAHEAD_S: float = 0.05
 """Closed-loop lookahead along the learned flow (tuned on the default scene, see envs/execution/evaluate.py)."""
 
@@ -73,6 +69,8 @@ class Command:
         accel: (6,) [a (m/s^2); alpha (rad/s^2)] of the skill there, for inertia feed-forward.
         stiffness: (3, 3) translational stiffness to command (N/m, world frame, SPD), or None for the
             controller's default; pass ``full_stiffness(stiffness, k_rot)`` to env.step.
+        rotational_stiffness: rotational stiffness to command (N m/rad; closed loop near the hole, see
+            envs.execution.adaptation), or None for the controller's default.
         push: (6,) [m; rad] world-frame offset added to the anchor (closed loop: the integral of the velocity
             error, see `ClosedLoopPolicy`), zero otherwise.
     """
@@ -83,6 +81,7 @@ class Command:
     accel: FloatArray = field(default_factory=lambda: np.zeros(6))
     stiffness: FloatArray | None = None
     push: FloatArray = field(default_factory=lambda: np.zeros(6))
+    rotational_stiffness: float | None = None
 
 
 STIFFNESS_KINDS: tuple[str, ...] = ("learned", "constant")
@@ -121,17 +120,6 @@ class StiffnessSetting:
         """Raise EnvError when "learned" is asked of a skill without a stiffness model."""
         if self.kind == "learned" and not skill.has_stiffness:
             raise EnvError("stiffness 'learned' needs a skill trained with `pih train --stiffness ...`")
-
-
-def full_stiffness(k_trans: npt.ArrayLike, k_rot: float | npt.ArrayLike) -> FloatArray:
-    """The 6x6 Cartesian stiffness [[K_t, 0], [0, K_r]] (N/m, N m/rad) for env.step, from the translational
-    block K_t (3, 3) and the rotational block K_r (a scalar: K_r I, e.g. the controller's default
-    ImpedanceConfig.rotational_stiffness; or (3, 3))."""
-    k = np.zeros((6, 6))
-    k[:3, :3] = np.asarray(k_trans, dtype=np.float64)
-    rot = np.asarray(k_rot, dtype=np.float64)
-    k[3:, 3:] = rot * np.eye(3) if rot.ndim == 0 else rot
-    return k
 
 
 def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.ArrayLike, dt: float) -> FloatArray:
@@ -269,41 +257,19 @@ def _commanded_stiffness(setting: StiffnessSetting | None, learned: FloatArray |
 
 
 class ClosedLoopPolicy:
-    """Command the flow's pose ``lookahead_s`` ahead of the measured peg_tip pose (module docstring).
-
-    Integral push. Anchored at the measured pose, the feed-forward makes the impedance force D (xi_d - v): when
-    the walls stop the peg (v = 0) it pushes with only D xi_d (~1 N here), which static friction in a tight hole
-    holds. The policy therefore also integrates the velocity error into a push offset, with a leak so that it
-    winds down once the peg moves again (no overshoot past the goal):
-        e_{k+1} = sat((1 - T / tau) e_k + (xi_d - v) T),   |e_p| <= ``push_limit_m``, |e_r| <= ``push_limit_rad``,
-    added to the anchor: a virtual reference that keeps moving at the flow's twist while the peg is held, so the
-    force grows toward K tau xi_d (at most K push_limit); in free space v ~ xi_d and e stays near 0. It is a
-    leaky-PI velocity loop on the learned flow; the flow is still queried at the measured pose every step.
-    (Integrating only the error along the flow's direction did worse: 1 of 7 hard starts instead of 2, pegs
-    pushed past the hole.) The rotational part is off by default (``push_limit_rad`` = 0): a hole turned or
-    tilted against the demos needs the peg to yield to the walls in rotation, which a push toward the
-    demonstrated orientation would fight (0 of 7 hard starts with a 2 deg limit).
+    """Command the flow's pose ``lookahead_s`` ahead of the measured peg_tip pose (module docstring), with the
+    contact adaptation of `envs.execution.adaptation` near the hole: the flow is queried at x - delta (delta
+    the frame shift the walls impose), its pose shifted back by + delta, the axial push added to the anchor,
+    and the rotational stiffness lowered within the adaptation radius.
 
     For a stiffness skill the stiffness state K is integrated alongside (module docstring) whatever
     ``stiffness`` commands, since the joint model's pose part is conditioned on it.
     """
 
     def __init__(self, skill: PoseSkill, lookahead_s: float = DEFAULT_LOOKAHEAD_S, speed: float = 1.0,
-                 stiffness: StiffnessSetting | None = None, push_limit_m: float = DEFAULT_PUSH_LIMIT_M,
-                 push_limit_rad: float = DEFAULT_PUSH_LIMIT_RAD, push_leak_s: float = DEFAULT_PUSH_LEAK_S):
+                 stiffness: StiffnessSetting | None = None, adaptation: ContactAdaptation = ContactAdaptation()):
         if not (np.isfinite(lookahead_s) and lookahead_s > 0.0):
             raise EnvError(f"lookahead {lookahead_s} s must be > 0")
-        for name, value in (("push limit (m)", push_limit_m), ("push limit (rad)", push_limit_rad)):
-            if not (np.isfinite(value) and value >= 0.0):
-                raise EnvError(f"{name} {value} must be a finite number >= 0")
-        if not (np.isfinite(push_leak_s) and push_leak_s > 0.0):
-            raise EnvError(f"push leak time {push_leak_s} s must be > 0")
-        self.push_limit_m = float(push_limit_m)
-        self.push_limit_rad = float(push_limit_rad)
-        self.push_leak_s = float(push_leak_s)
-        self._push = np.zeros(6)
-        self._previous: Pose | None = None
-        self._period_s = 0.0
         if not (np.isfinite(speed) and speed > 0.0):
             raise EnvError(f"speed factor {speed} must be > 0")
         if stiffness is not None:
@@ -312,16 +278,18 @@ class ClosedLoopPolicy:
         self.lookahead_s = float(lookahead_s)
         self.speed = float(speed)
         self.stiffness = stiffness
+        self.adapter = ContactAdapter(adaptation, skill.goal_pos, rotate(skill.goal_quat, [0.0, 0.0, 1.0]))
         self.stiffness_state: FloatArray | None = None
         self.stiffness_clipped_steps = 0
+        self._period_s = 0.0
         self._flow_period_s = 0.0
 
     def reset(self, start: Pose, period_s: float) -> None:
-        """Start an episode: the stiffness state (stiffness skills) starts at the skill's start stiffness."""
+        """Start an episode: no push or frame shift; the stiffness state (stiffness skills) starts at the
+        skill's start stiffness."""
         self._flow_period_s = float(period_s) * self.speed
         self._period_s = float(period_s)
-        self._push = np.zeros(6)
-        self._previous = None
+        self.adapter.reset()
         self.stiffness_state = self.skill.start_stiffness if self.skill.has_stiffness else None
         self.stiffness_clipped_steps = 0
 
@@ -329,13 +297,16 @@ class ClosedLoopPolicy:
         """Target for control step ``step`` (from 0) given the measured peg_tip pose x: the flow's pose
         x_1 = Phi(L) x, L = ``lookahead_s``; the twist and acceleration at x from the flow poses x, x_1 and
         x_2 = Phi(2L) x (xi_1 = (x_1 - x)/L, xi_2 = (x_2 - x_1)/L, a = (xi_2 - xi_1)/L, xi = xi_1 - a L/2),
-        both time-scaled by ``speed`` (xi * s, a * s^2)."""
+        both time-scaled by ``speed`` (xi * s, a * s^2). The flow is queried in the frame shifted by the
+        contact adaptation's delta (x - delta in, + delta out)."""
         step_s = self.lookahead_s
         k = self.stiffness_state
-        p1, q1, k1 = skill_state_step(self.skill, measured.pos, measured.quat, k, step_s)
+        delta = self.adapter.frame
+        query = np.asarray(measured.pos, dtype=np.float64) - delta
+        p1, q1, k1 = skill_state_step(self.skill, query, measured.quat, k, step_s)
         p2, q2 = skill_step(self.skill, p1, q1, step_s, k1)
         q1 = q1 / np.linalg.norm(q1)
-        here = Pose(pos=np.asarray(measured.pos, dtype=np.float64), quat=on_goal_hemisphere(measured.quat, q1))
+        here = Pose(pos=query, quat=on_goal_hemisphere(measured.quat, q1))
         xi1 = pose_twist(here.pos, here.quat, p1, q1, step_s)
         xi2 = pose_twist(p1, q1, p2, on_goal_hemisphere(q2, q1), step_s)
         accel = (xi2 - xi1) / step_s
@@ -344,23 +315,13 @@ class ClosedLoopPolicy:
         if k is not None:
             learned, clipped = self.skill.bound_stiffness(k)
             self.stiffness_clipped_steps += int(clipped)
-            self.stiffness_state = skill_state_step(self.skill, measured.pos, measured.quat, k, self._flow_period_s)[2]
-        self._integrate_push(here, self.speed * twist)
-        return Command(Pose(pos=p1, quat=q1), self.speed * twist, here, self.speed**2 * accel,
-                       _commanded_stiffness(self.stiffness, learned), self._push.copy())
-
-    def _integrate_push(self, here: Pose, twist: FloatArray) -> None:
-        """e += (xi_d - v) T with v from the last two measured poses, then saturate (class docstring)."""
-        if self._previous is not None and (self.push_limit_m > 0.0 or self.push_limit_rad > 0.0):
-            velocity = pose_twist(self._previous.pos, self._previous.quat, here.pos,
-                                  on_goal_hemisphere(here.quat, self._previous.quat), self._period_s)
-            self._push *= max(0.0, 1.0 - self._period_s / self.push_leak_s)
-            self._push += (twist - velocity) * self._period_s
-            for part, limit in ((slice(0, 3), self.push_limit_m), (slice(3, 6), self.push_limit_rad)):
-                norm = float(np.linalg.norm(self._push[part]))
-                if norm > limit:
-                    self._push[part] *= limit / norm
-        self._previous = here
+            self.stiffness_state = skill_state_step(self.skill, query, measured.quat, k, self._flow_period_s)[2]
+        self.adapter.update(measured.pos, self.speed * twist[:3], self._period_s)
+        push = np.concatenate([self.adapter.push, np.zeros(3)])
+        anchor = Pose(pos=here.pos + delta, quat=here.quat)
+        return Command(Pose(pos=p1 + delta, quat=q1), self.speed * twist, anchor, self.speed**2 * accel,
+                       _commanded_stiffness(self.stiffness, learned), push,
+                       self.adapter.rotational_stiffness(measured.pos))
 
 
 class OpenLoopPolicy:
@@ -413,15 +374,16 @@ class OpenLoopPolicy:
 
 
 def make_policy(skill: PoseSkill, mode: str, lookahead_s: float = DEFAULT_LOOKAHEAD_S,
-                duration_s: float = 20.0, speed: float = 1.0,
-                stiffness: StiffnessSetting | None = None) -> ClosedLoopPolicy | OpenLoopPolicy:
-    """The policy of ``mode`` ("closed-loop" or "open-loop"), commanding ``stiffness`` (None: the default).
+                duration_s: float = 20.0, speed: float = 1.0, stiffness: StiffnessSetting | None = None,
+                adaptation: ContactAdaptation = ContactAdaptation()) -> ClosedLoopPolicy | OpenLoopPolicy:
+    """The policy of ``mode`` ("closed-loop" or "open-loop"), commanding ``stiffness`` (None: the default);
+    closed loop with the contact ``adaptation`` (open loop plays the plan as generated).
 
     Raises:
         EnvError: unknown mode, "learned" stiffness for a skill without one.
     """
     if mode == "closed-loop":
-        return ClosedLoopPolicy(skill, lookahead_s, speed, stiffness)
+        return ClosedLoopPolicy(skill, lookahead_s, speed, stiffness, adaptation)
     if mode == "open-loop":
         return OpenLoopPolicy(skill, duration_s, speed, stiffness)
     raise EnvError(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
@@ -439,10 +401,14 @@ def impedance_damping_lead(env: Any, twist: npt.ArrayLike, accel: npt.ArrayLike 
 
 def command_stiffness(env: Any, command: Command) -> FloatArray | None:
     """The 6x6 stiffness to pass to ``env.step`` with ``command``: `full_stiffness` of the command's translational
-    stiffness and the controller's default rotational stiffness, or None (the default) when it has none."""
-    if command.stiffness is None:
+    stiffness and rotational stiffness, each the controller's default where the command has none; None (the
+    default) when it has neither."""
+    if command.stiffness is None and command.rotational_stiffness is None:
         return None
-    return full_stiffness(command.stiffness, env.controller.config.rotational_stiffness)
+    config = env.controller.config
+    k_trans = config.translational_stiffness * np.eye(3) if command.stiffness is None else command.stiffness
+    k_rot = config.rotational_stiffness if command.rotational_stiffness is None else command.rotational_stiffness
+    return full_stiffness(k_trans, k_rot)
 
 
 MAX_SPEED_M_S: float = 0.5
