@@ -53,14 +53,17 @@ from envs.poses import (
 from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
 from envs.sensing import PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
+from envs.geometry import as_vector, quat_to_mat
 from envs.success import (
     MIN_ENTRY_DEPTH_M,
     Assessment,
+    HoleFrame,
     InsertionState,
+    PegFootprint,
     SuccessConfig,
     SuccessTracker,
-    assess_insertion,
-    insertion_state,
+    frame_assessment,
+    frame_state,
 )
 
 FloatArray = npt.NDArray[np.float64]
@@ -226,6 +229,24 @@ class StepResult:
     info: dict[str, Any]
 
 
+def _block(indices: Sequence[int]) -> slice:
+    """The slice of consecutive indices (views instead of copies in the step loop).
+
+    Raises:
+        EnvError: indices that are not one ascending consecutive block.
+    """
+    first = int(indices[0])
+    if list(indices) != list(range(first, first + len(indices))):
+        raise EnvError(f"arm dof addresses {list(indices)} are not one consecutive block")
+    return slice(first, first + len(indices))
+
+
+def _all_finite(values: FloatArray) -> bool:
+    """Every entry is finite: a finite sum proves it in one reduction; a non-finite one (or an overflow) is
+    checked entry by entry."""
+    return math.isfinite(values.sum()) or bool(np.all(np.isfinite(values)))
+
+
 def _site_pose(data: mujoco.MjData, site_id: int) -> Pose:
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, data.site_xmat[site_id])
@@ -266,16 +287,17 @@ class PegInHoleEnv:
             raise EnvError(f"control_period_s={episode_config.control_period_s} is not a multiple of the "
                            f"physics timestep {timestep} s")
         self.n_substeps = int(round(ratio))
+        self._timestep = timestep
         ids = self.scene.ids
         self.tcp_site = ids.tcp_site
         self.peg_tip_site = ids.peg_tip_site
         self.flange_site = ids.flange_site
         self.grasped = self.scene.config.peg_mode == "grasped"
         self._arm_qpos = np.asarray(ids.arm_qpos_adr)
-        self._arm_dof = np.asarray(ids.arm_dof_adr)
+        self._arm_dof = _block(ids.arm_dof_adr)
         self._finger_qpos = np.asarray(ids.finger_qpos_adr, dtype=int)
         self._finger_dof = np.asarray(ids.finger_dof_adr, dtype=int)
-        self._peg_section = peg_cross_section(self.shape)
+        self._peg_footprint = PegFootprint.of(peg_cross_section(self.shape))
         key_qpos = self.model.key_qpos[ids.home_key] if ids.home_key is not None else self.model.qpos0
         self.q_home = key_qpos.copy()
         self.q_nominal = key_qpos[self._arm_qpos].copy()
@@ -293,6 +315,11 @@ class PegInHoleEnv:
         self.contacts = PegContacts(self.model, ids.peg_geoms, ids.finger_geoms)
         self._velocity = np.zeros(6)
         self._jac_load = np.zeros((3, self.model.nv))
+        self._jac_load_arm = self._jac_load[:, self._arm_dof]  # a view: the arm's dofs are one contiguous block
+        self._hand_body = ids.hand_body
+        d = self.data  # views of the tcp position and z axis and of the arm's applied forces (one MjData)
+        self._load_views = (d.site_xpos[self.tcp_site], d.site_xmat[self.tcp_site].reshape(3, 3)[:, 2],
+                            d.qfrc_applied[self._arm_dof])
         self._load_weight = self.model.body_mass[ids.peg_body] * np.asarray(self.model.opt.gravity)  # m g
         nominal_hole_pos, nominal_hole_quat = self.scene.hole_pose(self.shape)
         self.nominal_hole = Pose(pos=nominal_hole_pos, quat=nominal_hole_quat)
@@ -396,6 +423,7 @@ class PegInHoleEnv:
             pos, quat = perturbed_frame(spec.pos, spec.quat, hole_pos, hole_quat, perturbation)
             holes[shape] = replace(spec, pos=tuple(float(v) for v in pos), quat=tuple(float(v) for v in quat))
         self._holes = holes
+        self._hole_frames = {shape: HoleFrame.of(spec) for shape, spec in holes.items()}  # once per episode
         self._hole_pos = np.array([spec.pos for spec in holes.values()])
         self._hole_axes = np.array([rotate(spec.quat, [0.0, 0.0, 1.0]) for spec in holes.values()])
         target = holes[self.shape]
@@ -465,10 +493,10 @@ class PegInHoleEnv:
         """qfrc_applied on the arm = -J_c^T m g for the grasped peg's nominal centre of mass (module docstring)."""
         if not self.grasped:
             return
-        data = self.data
-        point = data.site_xpos[self.tcp_site] - data.site_xmat[self.tcp_site].reshape(3, 3)[:, 2] * (PEG_LENGTH_M / 2)
-        mujoco.mj_jac(self.model, data, self._jac_load, None, point, self.scene.ids.hand_body)
-        data.qfrc_applied[self._arm_dof] = -(self._load_weight @ self._jac_load[:, self._arm_dof])
+        data, (tcp_pos, tcp_axis, applied) = self.data, self._load_views
+        point = tcp_pos - tcp_axis * (PEG_LENGTH_M / 2)
+        mujoco.mj_jac(self.model, data, self._jac_load, None, point, self._hand_body)
+        applied[:] = -(self._load_weight @ self._jac_load_arm)
 
     def step(self, target: Pose | Sequence[npt.ArrayLike], stiffness: npt.ArrayLike | None = None) -> StepResult:
         """Hold the commanded tcp pose for one control period under impedance control.
@@ -531,18 +559,18 @@ class PegInHoleEnv:
         total, single = self.contacts.normal_forces(self.data)
         stats.peak_contact_force_n = max(stats.peak_contact_force_n, total)
         stats.peak_single_contact_n = max(stats.peak_single_contact_n, single)
-        wrench = self.wrist.wrench(self.data)
-        force = math.sqrt(wrench[0] ** 2 + wrench[1] ** 2 + wrench[2] ** 2)
-        torque = math.sqrt(wrench[3] ** 2 + wrench[4] ** 2 + wrench[5] ** 2)
+        fx, fy, fz, tx, ty, tz = self.wrist.wrench(self.data).tolist()
+        force = math.sqrt(fx ** 2 + fy ** 2 + fz ** 2)
+        torque = math.sqrt(tx ** 2 + ty ** 2 + tz ** 2)
         stats.peak_wrist_force_n = max(stats.peak_wrist_force_n, force)
         stats.peak_wrist_torque_nm = max(stats.peak_wrist_torque_nm, torque)
         window = self._force_window
-        window[self._window_index % len(window)] = force
+        size = len(window)
+        window[self._window_index % size] = force
         self._window_index += 1
-        if self._window_index >= len(window):
+        if self._window_index >= size:
             stats.peak_sustained_wrist_force_n = max(stats.peak_sustained_wrist_force_n, min(window))
-        dt = float(self.model.opt.timestep)
-        self._above_limit_s = self._above_limit_s + dt if force > self.config.force_limit_n else 0.0
+        self._above_limit_s = self._above_limit_s + self._timestep if force > self.config.force_limit_n else 0.0
         if self._above_limit_s >= self.config.force_limit_window_s - 1e-12 and self._above_limit_s > 0.0:
             stats.force_limit_time_s = stats.force_limit_time_s or self._steps * self.control_period_s
             return True
@@ -565,20 +593,22 @@ class PegInHoleEnv:
 
     def _instability(self) -> str | None:
         """Describe a physics failure after a control period, or None."""
-        now = f"t={self._steps * self.control_period_s:.3f} s"
         counts = self._bad_warning_counts()
         fired = [w.name for w, new, old in zip(_BAD_STATE_WARNINGS, counts, self._warning_counts) if new > old]
         self._warning_counts = counts
         if fired:
-            return f"MuJoCo warning {', '.join(fired)} at {now} (MuJoCo reset the state)"
+            return f"MuJoCo warning {', '.join(fired)} at {self._now()} (MuJoCo reset the state)"
         data = self.data
-        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))
-                and np.all(np.isfinite(data.qacc))):
-            return f"non-finite state at {now}"
+        if not (_all_finite(data.qpos) and _all_finite(data.qvel) and _all_finite(data.qacc)):
+            return f"non-finite state at {self._now()}"
         speed = float(np.max(np.abs(data.qvel[self._arm_dof])))
         if speed > self.config.max_joint_speed_rad_s:
-            return f"joint speed {speed:.1f} rad/s exceeds {self.config.max_joint_speed_rad_s} rad/s at {now}"
+            return f"joint speed {speed:.1f} rad/s exceeds {self.config.max_joint_speed_rad_s} rad/s at {self._now()}"
         return None
+
+    def _now(self) -> str:
+        """The episode time for messages."""
+        return f"t={self._steps * self.control_period_s:.3f} s"
 
     def _deepest_penetration(self) -> float:
         data = self.data
@@ -598,17 +628,27 @@ class PegInHoleEnv:
         Shortcut, exact: a peg_tip is in a hole only deeper than MIN_ENTRY_DEPTH_M below its opening, so
         while it is above every opening (depth_h = -(p - p_h) . z_h <= MIN_ENTRY_DEPTH_M for all holes h)
         only the target hole's state is computed, and otherwise only the holes it is below the opening of.
+
+        Raises:
+            EnvError: a given pose that is not 3 + 4 finite numbers, or a zero quaternion.
         """
-        tip = _site_pose(self.data, self.peg_tip_site) if peg_tip is None else peg_tip
+        if peg_tip is None:
+            tip = _site_pose(self.data, self.peg_tip_site)
+            return self._assess(tip.pos, quat_to_mat(tip.quat), speed_m_s)
+        pos = as_vector(peg_tip.pos, 3, "peg_tip_pos")
+        return self._assess(pos, quat_to_mat(as_vector(peg_tip.quat, 4, "peg_tip_quat")), speed_m_s)
+
+    def _assess(self, pos: FloatArray, rot: FloatArray, speed_m_s: float | None) -> Assessment:
+        """`assess` of a checked peg_tip position (3,) and rotation matrix (3, 3) with the episode's hole frames."""
         speed = self.peg_speed_m_s() if speed_m_s is None else speed_m_s
-        depths = -np.einsum("hi,hi->h", tip.pos - self._hole_pos, self._hole_axes)
+        depths = -np.einsum("hi,hi->h", pos - self._hole_pos, self._hole_axes)
         if np.all(depths <= MIN_ENTRY_DEPTH_M):
-            state = insertion_state(tip.pos, tip.quat, self._holes[self.shape], speed_m_s=speed)
+            state = frame_state(pos, rot, self._hole_frames[self.shape], speed_m_s=speed)
             return Assessment(None, state, False)
-        candidates = {shape: hole for (shape, hole), depth in zip(self._holes.items(), depths)
+        candidates = {shape: frame for (shape, frame), depth in zip(self._hole_frames.items(), depths)
                       if depth > MIN_ENTRY_DEPTH_M or shape == self.shape}  # only these can hold the peg_tip
-        return assess_insertion(tip.pos, tip.quat, candidates, self.shape, self.scene.config.insertion_depth_m,
-                                self.config.success, self._peg_section, speed)
+        return frame_assessment(pos, rot, candidates, self.shape, self.scene.config.insertion_depth_m,
+                                self.config.success, self._peg_footprint, speed)
 
     def _observe(self, track: bool = True) -> Observation:
         data = self.data
@@ -618,7 +658,7 @@ class PegInHoleEnv:
         peg_tip = _site_pose(data, self.peg_tip_site)
         finite = np.all(np.isfinite(peg_tip.pos)) and np.all(np.isfinite(peg_tip.quat))
         if finite and np.linalg.norm(peg_tip.quat) > 0.5:
-            assessment = self.assess(peg_tip)
+            assessment = self._assess(peg_tip.pos, quat_to_mat(peg_tip.quat), None)
         else:
             nan_state = InsertionState(np.nan, np.nan, np.nan, np.nan, False)
             assessment = Assessment(None, nan_state, False)

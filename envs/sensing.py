@@ -52,6 +52,15 @@ class WristSensor:
         self._mass = float(self._masses.sum())
         self._gravity = np.asarray(model.opt.gravity, dtype=np.float64).copy()
         self._weight = -self._mass * self._gravity  # -M g, constant
+        self._views: tuple = ()  # (data, its arrays read here), built once per MjData
+
+    def _data_views(self, data: mujoco.MjData) -> tuple:
+        """Views of the arrays of ``data`` a reading uses: site rotation (3, 3), site position, body centres of
+        mass, force and torque readings (refreshed when another MjData comes)."""
+        if not self._views or self._views[0] is not data:
+            self._views = (data, data.site_xmat[self.site].reshape(3, 3), data.site_xpos[self.site], data.xipos,
+                           data.sensordata[self._force], data.sensordata[self._torque])
+        return self._views
 
     def wrench(self, data: mujoco.MjData) -> FloatArray:
         """[F_ext (N); tau_ext (N m)] (6,) in the sensor frame (a new array).
@@ -59,14 +68,14 @@ class WristSensor:
         With M the carried mass and c its centre of mass: F_0 = -M g, tau_0 = -M (c - s) x g (world), rotated
         into the sensor frame.
         """
-        rot = data.site_xmat[self.site].reshape(3, 3)
-        lever = self._masses @ data.xipos[self._bodies] - self._mass * data.site_xpos[self.site]  # M (c - s)
-        gx, gy, gz = self._gravity
-        lx, ly, lz = lever
-        moment = -np.array([ly * gz - lz * gy, lz * gx - lx * gz, lx * gy - ly * gx])
+        _, rot, site_pos, xipos, force, torque = self._data_views(data)
+        lever = self._masses @ xipos[self._bodies] - self._mass * site_pos  # M (c - s)
+        gx, gy, gz = self._gravity.tolist()
+        lx, ly, lz = lever.tolist()
         out = np.empty(6)
-        out[:3] = self._weight @ rot - data.sensordata[self._force]
-        out[3:] = moment @ rot - data.sensordata[self._torque]
+        out[3:] = (-(ly * gz - lz * gy), -(lz * gx - lx * gz), -(lx * gy - ly * gx))  # -(lever x g)
+        out[3:] = out[3:] @ rot - torque
+        out[:3] = self._weight @ rot - force
         return out
 
 

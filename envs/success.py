@@ -22,7 +22,7 @@ thresholds of their own. The commanded pose is never consulted.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
@@ -31,6 +31,8 @@ import numpy.typing as npt
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, as_vector, edge_lines, quat_to_mat, twist_angle_deg
 from envs.shapes import CrossSection
+
+FloatArray = npt.NDArray[np.float64]
 
 MIN_ENTRY_DEPTH_M: float = 0.002
 """The peg_tip counts as inside a hole only this far below the opening: a peg lying on the top face
@@ -141,8 +143,48 @@ def wrap_symmetric_deg(angle_deg: float, symmetry_order: int) -> float:
     if symmetry_order == 0:
         return 0.0
     period = 360.0 / symmetry_order
-    wrapped = float(np.mod(angle_deg + period / 2.0, period) - period / 2.0)
-    return period / 2.0 if np.isclose(wrapped, -period / 2.0) else wrapped
+    half = period / 2.0
+    wrapped = (float(angle_deg) + half) % period - half  # Python's float % is numpy's mod (sign of the divisor)
+    return half if abs(wrapped + half) <= 1e-8 + 1e-5 * half else wrapped  # np.isclose(wrapped, -half)
+
+
+@dataclass(frozen=True)
+class HoleFrame:
+    """A hole with what scoring needs of it computed once (per episode, not per pose): its position p_H, its
+    rotation R_H and the lines {n_i . x <= d_i} of its walls in the hole frame (empty without a polygon).
+
+    Build it with `HoleFrame.of`.
+    """
+
+    spec: HoleSpec
+    pos: FloatArray
+    rot: FloatArray
+    wall_normals: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    wall_offsets: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    @classmethod
+    def of(cls, hole: HoleSpec) -> "HoleFrame":
+        """The frame of ``hole`` (its quaternion normalised, as `insertion_state` does)."""
+        pos = np.asarray(hole.pos, dtype=np.float64).copy()
+        if not hole.polygon:
+            return cls(hole, pos, quat_to_mat(hole.quat))
+        normals, offsets = edge_lines(np.asarray(hole.polygon, dtype=np.float64))
+        return cls(hole, pos, quat_to_mat(hole.quat), normals, offsets)
+
+
+@dataclass(frozen=True)
+class PegFootprint:
+    """A peg's cross-section with its tip-face vertices [v_k; 0] (k, 3) stacked once (prism pegs)."""
+
+    section: CrossSection
+    corners: FloatArray
+
+    @classmethod
+    def of(cls, peg: CrossSection) -> "PegFootprint":
+        """The footprint of ``peg`` (no corners for a round peg)."""
+        if peg.is_round:
+            return cls(peg, np.zeros((0, 3)))
+        return cls(peg, np.column_stack([peg.polygon, np.zeros(len(peg.polygon))]))
 
 
 def insertion_state(peg_tip_pos: npt.ArrayLike, peg_tip_quat: npt.ArrayLike, hole: HoleSpec,
@@ -160,18 +202,36 @@ def insertion_state(peg_tip_pos: npt.ArrayLike, peg_tip_quat: npt.ArrayLike, hol
         EnvError: if the pose is not 3 + 4 finite numbers or the quaternion is zero.
     """
     pos = as_vector(peg_tip_pos, 3, "peg_tip_pos")
-    rot_hole = quat_to_mat(hole.quat)
-    rot_peg = rot_hole.T @ quat_to_mat(as_vector(peg_tip_quat, 4, "peg_tip_quat"))
-    rot_rel = rot_peg @ R_FLIP_X
-    offset = rot_hole.T @ (pos - np.asarray(hole.pos, dtype=np.float64))
+    rot = quat_to_mat(as_vector(peg_tip_quat, 4, "peg_tip_quat"))
+    return frame_state(pos, rot, HoleFrame.of(hole), None if peg is None else PegFootprint.of(peg), speed_m_s)
+
+
+def _hole_offset(pos: FloatArray, frame: HoleFrame) -> FloatArray:
+    """r = R_H^T (p_P - p_H): the peg_tip in the hole frame."""
+    return frame.rot.T @ (pos - frame.pos)
+
+
+def _inside(offset: FloatArray, hole: HoleSpec) -> tuple[float, float, bool]:
+    """(depth, lateral, in_hole) of a peg_tip at ``offset`` in the hole frame (module docstring)."""
     depth = float(-offset[2])
     lateral = float(np.hypot(offset[0], offset[1]))
+    return depth, lateral, MIN_ENTRY_DEPTH_M < depth <= hole.depth_m + FLOOR_SLACK_M and lateral <= hole.inradius_m
+
+
+def frame_state(pos: FloatArray, rot: FloatArray, frame: HoleFrame, peg: PegFootprint | None = None,
+                speed_m_s: float = float("nan")) -> InsertionState:
+    """`insertion_state` of a checked peg_tip pose: position ``pos`` (3,) and rotation matrix ``rot`` (3, 3) in
+    the world, against a precomputed hole frame (no validation: the caller's inputs are finite)."""
+    hole = frame.spec
+    rot_peg = frame.rot.T @ rot
+    rot_rel = rot_peg @ R_FLIP_X
+    offset = _hole_offset(pos, frame)
+    depth, lateral, in_hole = _inside(offset, hole)
     tilt = float(np.rad2deg(np.arccos(np.clip(rot_rel[2, 2], -1.0, 1.0))))
     yaw = wrap_symmetric_deg(twist_angle_deg(rot_rel), hole.symmetry_order)
-    in_hole = MIN_ENTRY_DEPTH_M < depth <= hole.depth_m + FLOOR_SLACK_M and lateral <= hole.inradius_m
     penetration = float("nan")
     if peg is not None and depth > hole.chamfer_m:
-        penetration = wall_penetration_m(offset, rot_peg, hole, peg)
+        penetration = _wall_penetration(offset, rot_peg, frame, peg)
     return InsertionState(depth, lateral, tilt, yaw, bool(in_hole), penetration, float(speed_m_s))
 
 
@@ -185,20 +245,27 @@ def wall_penetration_m(tip: npt.NDArray[np.float64], rot_peg: npt.NDArray[np.flo
     """
     if not hole.polygon:
         raise EnvError(f"hole {hole.shape!r} has no polygon to check the walls against")
+    return _wall_penetration(tip, rot_peg, HoleFrame.of(hole), PegFootprint.of(peg))
+
+
+def _wall_penetration(tip: FloatArray, rot_peg: FloatArray, frame: HoleFrame, peg: PegFootprint) -> float:
+    """`wall_penetration_m` with the hole's wall lines and the peg's corners precomputed."""
+    hole, section = frame.spec, peg.section
+    if not hole.polygon:
+        raise EnvError(f"hole {hole.shape!r} has no polygon to check the walls against")
     up = -rot_peg[:, 2]  # along the peg from the tip toward the hand
     level = -hole.chamfer_m
     if up[2] <= 1e-9:  # the peg points up out of the hole: it cannot be inside
         return float("inf")
-    if peg.is_round:
+    if section.is_round:
         crossing = tip + up * (level - tip[2]) / up[2]
         cos_tilt = up[2]
         radial = max(float(np.hypot(*tip[:2])), float(np.hypot(*crossing[:2])))
-        return radial + peg.radius_m / cos_tilt - hole.inradius_m
-    corners = tip + np.column_stack([peg.polygon, np.zeros(len(peg.polygon))]) @ rot_peg.T
+        return radial + section.radius_m / cos_tilt - hole.inradius_m
+    corners = tip + peg.corners @ rot_peg.T
     rise = np.maximum(level - corners[:, 2], 0.0) / up[2]
     points = np.vstack([corners, corners + rise[:, None] * up])[:, :2]
-    normals, offsets = edge_lines(np.asarray(hole.polygon, dtype=np.float64))
-    return float(np.max(points @ normals.T - offsets))
+    return float(np.max(points @ frame.wall_normals.T - frame.wall_offsets))
 
 
 def criteria_hold(state: InsertionState, target_depth_m: float, config: SuccessConfig) -> bool:
@@ -229,9 +296,20 @@ def assess_insertion(
     """
     if target not in holes:
         raise EnvError(f"target hole {target!r} is not among the holes {sorted(holes)}")
-    inside = [shape for shape, hole in holes.items() if insertion_state(peg_tip_pos, peg_tip_quat, hole).in_hole]
+    pos = as_vector(peg_tip_pos, 3, "peg_tip_pos")
+    rot = quat_to_mat(as_vector(peg_tip_quat, 4, "peg_tip_quat"))
+    frames = {shape: HoleFrame.of(hole) for shape, hole in holes.items()}
+    return frame_assessment(pos, rot, frames, target, target_depth_m, config, PegFootprint.of(peg), speed_m_s)
+
+
+def frame_assessment(pos: FloatArray, rot: FloatArray, frames: Mapping[str, HoleFrame], target: str,
+                     target_depth_m: float, config: SuccessConfig, peg: PegFootprint,
+                     speed_m_s: float) -> Assessment:
+    """`assess_insertion` of a checked peg_tip pose (``pos`` (3,), ``rot`` (3, 3), world) against precomputed
+    hole frames that contain ``target`` (no validation)."""
+    inside = [shape for shape, frame in frames.items() if _inside(_hole_offset(pos, frame), frame.spec)[2]]
     hole = target if target in inside else (inside[0] if inside else None)
-    state = insertion_state(peg_tip_pos, peg_tip_quat, holes[target], peg, speed_m_s)
+    state = frame_state(pos, rot, frames[target], peg, speed_m_s)
     inserted = hole == target and criteria_hold(state, target_depth_m, config)
     return Assessment(hole, state, inserted)
 

@@ -1,5 +1,7 @@
 """Tests of envs.success: insertion state in the hole frame, seated inside the walls at rest, wrong hole, hold."""
 
+from dataclasses import astuple
+
 import numpy as np
 import pytest
 
@@ -7,10 +9,13 @@ from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, mat_to_quat, quat_to_mat, rot_z
 from envs.shapes import hole_inradius_m, hole_polygon, peg_cross_section
 from envs.success import (
+    HoleFrame,
     HoleSpec,
+    PegFootprint,
     SuccessConfig,
     SuccessTracker,
     assess_insertion,
+    frame_assessment,
     insertion_state,
     wrap_symmetric_deg,
 )
@@ -205,3 +210,29 @@ def test_bad_success_config_is_rejected(field):
         SuccessConfig(**{field: -1.0})
     with pytest.raises(EnvError, match=field):
         SuccessConfig(**{field: float("nan")})
+
+
+def test_precomputed_frames_score_exactly_like_the_public_functions():
+    """frame_assessment with HoleFrame / PegFootprint built once gives bit-identical results to assess_insertion."""
+    rng = np.random.default_rng(3)
+    frames = {shape: HoleFrame.of(spec) for shape, spec in HOLES.items()}
+    footprint = PegFootprint.of(SQUARE)
+    for _ in range(50):
+        offset = rng.uniform([-0.002, -0.002, -0.045], [0.002, 0.002, 0.005])
+        pos, quat = peg_tip(HOLES["square"], offset, rng.uniform(0, 3), rng.uniform(-20, 20))
+        expected = assess((pos, quat), speed=0.001)
+        got = frame_assessment(pos, quat_to_mat(quat), frames, "square", TARGET_DEPTH_M, CONFIG, footprint, 0.001)
+        assert got.hole == expected.hole and got.inserted == expected.inserted
+        assert np.array_equal(np.array(astuple(got.state), dtype=float), np.array(astuple(expected.state), dtype=float),
+                              equal_nan=True)
+
+
+def test_wrap_symmetric_deg_matches_numpy_mod_and_isclose_bit_for_bit():
+    """The scalar wrap equals np.mod(a + p/2, p) - p/2 with the -p/2 -> p/2 rule of np.isclose."""
+    rng = np.random.default_rng(4)
+    for order in (1, 3, 4, 6):
+        period = 360.0 / order
+        for angle in np.concatenate([rng.uniform(-720.0, 720.0, 500), period * np.arange(-4, 5) / 2.0 + 1e-9]):
+            wrapped = float(np.mod(angle + period / 2.0, period) - period / 2.0)
+            expected = period / 2.0 if np.isclose(wrapped, -period / 2.0) else wrapped
+            assert wrap_symmetric_deg(float(angle), order) == expected
