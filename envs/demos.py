@@ -20,7 +20,11 @@ inertia, so a fast vertical motion drags the peg sideways by ~0.013 mm per mm/s 
 minimum-jerk peak speed of a plain descent that exceeds the 0.5 mm half clearance.
 Every demo lasts the same T = T_approach + T_entry + T_insert + T_hold (7 s by default), so all demos
 share one sampling time dt = T / (M - 1).
-The impedance controller executes the path; the MEASURED tcp pose is recorded every control step
+The impedance controller executes the path with the velocity and inertia feed-forward of its own pose lead
+(x_cmd = x_plan + K^-1 (D(q) xi + Lambda(q) xi_dot), controllers.impedance.pose_lead, xi the plan's twist by
+central differences), so the compliant arm follows the plan instead of lagging and swinging beside it (without
+it the peg reached the opening 0.3-0.4 mm beside the axis, a bias every learned skill then copied). The
+MEASURED tcp pose is recorded every control step
 and resampled to M samples on a uniform grid (positions linearly, quaternions by slerp).
 
 A demo is kept only if the success tracker declared success and the settled pose (mean over the last
@@ -244,6 +248,19 @@ def settled_pose(times: FloatArray, pos: FloatArray, quat: FloatArray, window_s:
     return Pose(pos=pos[keep].mean(axis=0), quat=mean_quat(quat[keep]))
 
 
+def plan_twists(pos: FloatArray, quat: FloatArray, period_s: float) -> tuple[FloatArray, FloatArray]:
+    """The planned path's twist xi_k = [dp/dt; omega] and its rate (K, 6) each, by central differences over the
+    sampling period (omega_k = rotvec(q_{k+1} conj(q_{k-1})) / 2T, one-sided at the ends)."""
+    v = np.gradient(pos, period_s, axis=0)
+    nxt = np.concatenate([quat[1:], quat[-1:]])
+    prv = np.concatenate([quat[:1], quat[:-1]])
+    span = np.full(len(quat), 2.0 * period_s)
+    span[0] = span[-1] = period_s
+    omega = quat_to_rotvec(quat_mul(nxt, quat_conj(prv))) / span[:, None]
+    twist = np.concatenate([v, omega], axis=1)
+    return twist, np.gradient(twist, period_s, axis=0)
+
+
 def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
                  on_step: Callable[[StepResult], None] | None = None) -> DemoAttempt:
     """Run the scripted expert from ``start`` in physics and judge the result (never raises for a failure).
@@ -282,12 +299,15 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
     k_rot = env.controller.config.rotational_stiffness
     commanded: list[FloatArray] = []
     result: StepResult | None = None
+    twist, accel = plan_twists(cmd_pos, cmd_quat, period)
     for k in range(num_steps):
         stiffness = None
         if schedule is not None:
             commanded.append(expert_stiffness(pos[-1], env.hole.pos, env.hole_axis, schedule))
             stiffness = full_stiffness(commanded[-1], k_rot)
-        result = env.step((cmd_pos[k], cmd_quat[k]), stiffness)
+        lead = env.controller.pose_lead(env.data, twist[k], accel[k], stiffness)
+        lead_quat = quat_mul(quat_from_rotvec(lead[3:]), cmd_quat[k])
+        result = env.step((cmd_pos[k] + lead[:3], lead_quat / np.linalg.norm(lead_quat)), stiffness)
         if on_step is not None:
             on_step(result)
         times.append(result.obs.time_s)
