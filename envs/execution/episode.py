@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.execution.policy import command_stiffness, feedforward_pose
+from envs.execution.policy import command_stiffness, led_pose
 from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
 
@@ -176,8 +176,9 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
         default_k = env.controller.config.translational_stiffness * np.eye(3)
         while not env.done:
             command = policy.command(step, env.observation.tcp)
-            target = feedforward_pose(env, command, feedforward_gain)
-            result = env.step(target, command_stiffness(env, command))
+            stiffness = command_stiffness(env, command)
+            target = led_pose(env, command, feedforward_gain, stiffness)  # = feedforward_pose, stiffness made once
+            result = env.step(target, stiffness)
             commanded.append(default_k if command.stiffness is None else np.asarray(command.stiffness, dtype=float))
             step += 1
             if record_trace:

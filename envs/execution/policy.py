@@ -36,6 +36,7 @@ that learned stiffness, a constant isotropic K, or none (the controller's defaul
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -45,7 +46,7 @@ import numpy.typing as npt
 from controllers.impedance import full_stiffness
 from envs.errors import EnvError
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
-from envs.poses import Pose, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
+from envs.poses import Pose, quat_conj, quat_mul, quat_to_rotvec, rotate
 from rflow.errors import RFlowError
 from rflow.generate import next_point, rollout
 from rflow.skill_io import PoseSkill
@@ -124,16 +125,76 @@ class StiffnessSetting:
 
 def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.ArrayLike, dt: float) -> FloatArray:
     """Finite-difference twist [(p1 - p0)/dt; rotvec(q1 conj(q0))/dt] (6,) or (..., 6), world frame."""
-    v = (np.asarray(p1, float) - np.asarray(p0, float)) / dt
+    p0, q0, p1, q1 = (np.asarray(a, dtype=np.float64) for a in (p0, q0, p1, q1))
+    if p0.shape == p1.shape == (3,) and q0.shape == q1.shape == (4,):  # one pose pair: the control-loop path
+        return _pose_twist_single(p0.tolist(), q0.tolist(), p1.tolist(), q1.tolist(), np.float64(dt))
+    v = (p1 - p0) / dt
     w = quat_to_rotvec(quat_mul(q1, quat_conj(q0))) / dt
     return np.concatenate([v, w], axis=-1)
+
+
+# One pose in Python floats: the arithmetic of envs.poses (quat_mul, quat_conj, quat_to_rotvec, quat_from_rotvec)
+# and of np.linalg.norm over the last axis (a left-to-right sum of squares), operation for operation, so the
+# results are the same to the bit (tests/test_policy_single_pose.py); the transcendental functions are numpy's own
+# ufuncs, which are what the array versions call. Tiny arrays cost more in numpy call overhead than in arithmetic.
+
+def _quat_mul_single(a: list[float], b: list[float]) -> list[float]:
+    """Hamilton product a * b of two quaternions (w, x, y, z), as rflow.manifolds.sphere.quat_mul computes it."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
+
+
+def _quat_to_rotvec_single(q: list[float]) -> list[float]:
+    """envs.poses.quat_to_rotvec of one quaternion."""
+    w, x, y, z = q
+    sign = -1.0 if w < 0.0 else 1.0
+    ux, uy, uz = x * sign, y * sign, z * sign
+    norm_u = math.sqrt(ux * ux + uy * uy + uz * uz)
+    angle = 2.0 * float(np.arctan2(norm_u, abs(w)))
+    scale = angle / norm_u if norm_u > 1e-12 else 2.0
+    return [scale * ux, scale * uy, scale * uz]
+
+
+def _quat_from_rotvec_single(r: list[float]) -> list[float]:
+    """envs.poses.quat_from_rotvec of one rotation vector."""
+    x, y, z = r
+    angle = math.sqrt(x * x + y * y + z * z)
+    half = 0.5 * angle
+    scale = float(np.sin(half)) / angle if angle > 1e-12 else 0.5
+    return [float(np.cos(half)), scale * x, scale * y, scale * z]
+
+
+def _pose_twist_single(p0: list[float], q0: list[float], p1: list[float], q1: list[float],
+                       dt: np.float64) -> FloatArray:
+    """`pose_twist` of one pose pair (dt a numpy float: dividing by 0 gives inf as the array version does)."""
+    w0, x0, y0, z0 = q0
+    w = _quat_to_rotvec_single(_quat_mul_single(q1, [w0, -x0, -y0, -z0]))
+    return np.array([(p1[0] - p0[0]) / dt, (p1[1] - p0[1]) / dt, (p1[2] - p0[2]) / dt,
+                     w[0] / dt, w[1] / dt, w[2] / dt])
 
 
 def on_goal_hemisphere(quat: npt.ArrayLike, goal_quat: npt.ArrayLike) -> FloatArray:
     """Quaternion(s) (..., 4) sign-flipped where needed so that q . g >= 0."""
     q = np.array(quat, dtype=np.float64)
-    sign = np.where(np.sum(q * np.asarray(goal_quat, dtype=np.float64), axis=-1) < 0.0, -1.0, 1.0)
+    g = np.asarray(goal_quat, dtype=np.float64)
+    if q.shape == g.shape == (4,):  # one quaternion: the control-loop path
+        w, x, y, z = q.tolist()
+        a, b, c, d = g.tolist()
+        return -q if w * a + x * b + y * c + z * d < 0.0 else q
+    sign = np.where(np.sum(q * g, axis=-1) < 0.0, -1.0, 1.0)
     return q * sign[..., None]
+
+
+def _unit(q: FloatArray) -> FloatArray:
+    """q / np.linalg.norm(q, axis=-1, keepdims=True), with one quaternion (4,) in Python floats."""
+    if q.shape == (4,):
+        w, x, y, z = q.tolist()
+        return q / math.sqrt(w * w + x * x + y * y + z * z)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def skill_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, horizon_s: float,
@@ -167,8 +228,7 @@ def skill_state_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, 
     if not (np.isfinite(horizon_s) and horizon_s > 0.0):
         raise EnvError(f"flow horizon {horizon_s} s must be > 0")
     p = np.asarray(pos, dtype=np.float64)
-    q = on_goal_hemisphere(quat, skill.goal_quat)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = _unit(on_goal_hemisphere(quat, skill.goal_quat))
     try:
         if skill.layout == "joint":
             return skill.split_point(next_point(skill.models["joint"], skill.joint_point(p, q, stiffness), horizon_s))
@@ -421,7 +481,8 @@ def limit_twist(twist: npt.ArrayLike, max_speed_m_s: float = MAX_SPEED_M_S,
                 max_angular_speed_rad_s: float = MAX_ANGULAR_SPEED_RAD_S) -> FloatArray:
     """The twist scaled by one factor <= 1 so that |v| <= max_speed and |omega| <= max_angular_speed."""
     xi = np.asarray(twist, dtype=np.float64)
-    speed, spin = float(np.linalg.norm(xi[:3])), float(np.linalg.norm(xi[3:]))
+    v, w = xi[:3], xi[3:]
+    speed, spin = math.sqrt(v.dot(v)), math.sqrt(w.dot(w))  # = np.linalg.norm (sqrt of the dot product)
     factor = min(1.0, max_speed_m_s / speed if speed > 0 else 1.0, max_angular_speed_rad_s / spin if spin > 0 else 1.0)
     return xi * factor
 
@@ -443,9 +504,20 @@ def feedforward_pose(env: Any, command: Command, gain: float = 1.0) -> Pose:
     stiffness commanded with it (`command_stiffness`); with gain 0 the command's pose."""
     if gain == 0.0:
         return command.pose
+    return led_pose(env, command, gain, command_stiffness(env, command))
+
+
+def led_pose(env: Any, command: Command, gain: float, stiffness: FloatArray | None) -> Pose:
+    """`feedforward_pose` given the command's 6x6 stiffness as made by `command_stiffness(env, command)` (the
+    episode loop makes it once and passes the same matrix to ``env.step``)."""
+    if gain == 0.0:
+        return command.pose
     twist = limit_twist(command.twist)
-    scale = float(np.linalg.norm(twist) / np.linalg.norm(command.twist)) if np.any(command.twist) else 1.0
+    raw = np.asarray(command.twist, dtype=np.float64)
+    scale = float(np.sqrt(twist.dot(twist)) / np.sqrt(raw.dot(raw))) if raw.any() else 1.0  # ratio of the norms
     accel = limit_accel(scale * command.accel)
-    lead = gain * impedance_damping_lead(env, twist, accel, command_stiffness(env, command)) + command.push
-    quat = quat_mul(quat_from_rotvec(lead[3:]), command.anchor.quat)
-    return Pose(pos=command.anchor.pos + lead[:3], quat=quat / np.linalg.norm(quat))
+    lead = (gain * impedance_damping_lead(env, twist, accel, stiffness) + command.push).tolist()
+    anchor = command.anchor
+    quat = np.array(_quat_mul_single(_quat_from_rotvec_single(lead[3:]),
+                                     np.asarray(anchor.quat, dtype=np.float64).tolist()))
+    return Pose(pos=anchor.pos + np.array(lead[:3]), quat=quat / math.sqrt(quat.dot(quat)))
