@@ -532,7 +532,7 @@ class PegInHoleEnv:
             with np.errstate(all="ignore"):
                 ran = self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_arm, self.n_substeps,
                                            before_substep=self._compensate_tool_load, after_substep=self._sense)
-            force_limited = ran < self.n_substeps
+            force_limited = ran < self.n_substeps or self.stats.force_limit_time_s is not None  # also on the last substep
         except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
             problem = f"controller failed ({type(err).__name__}: {err})"
         self._steps += 1

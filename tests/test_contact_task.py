@@ -89,6 +89,24 @@ def test_force_limit_ends_a_hard_push(scene) -> None:
     assert result.reason == REASON_FORCE_LIMIT and env.stats.peak_wrist_force_n > 40.0
 
 
+def test_force_limit_reached_on_the_last_substep_ends_the_episode(scene, monkeypatch) -> None:
+    """A wrist force held above the limit for exactly the window, ending on a control period's last physics step
+    and gone right after, still ends the episode (the sensor is faked: 100 N on substeps 6-10 of step 1)."""
+    env = make_env(scene)
+    env.reset(start_pose=above(env))
+    real, calls = env.wrist.wrench, [0]
+
+    def wrench(data):
+        calls[0] += 1
+        out = np.array(real(data), dtype=float)
+        out[:3] = [0.0, 0.0, 100.0] if 6 <= calls[0] <= 10 else 0.0
+        return out
+
+    monkeypatch.setattr(env.wrist, "wrench", wrench)
+    result = env.step(above(env))
+    assert calls[0] > env.n_substeps and result.done and result.reason == REASON_FORCE_LIMIT
+
+
 def test_a_short_force_spike_does_not_end_the_episode(scene) -> None:
     """The same push with a limit that must be exceeded for 10 s never triggers within 1 s."""
     env = make_env(scene, force_limit_window_s=10.0)

@@ -8,6 +8,10 @@ one exact latent step of length ``lookahead_s`` (rflow.generate.next_point), sep
 and orientation models (or once for a joint model). A lookahead longer than the control period makes up
 for the tracking lag of the compliant arm: the target leads the measured pose by ~lookahead of motion.
 
+Near the hole the closed loop adapts to the contact (`envs.execution.adaptation`, not in the paper): an axial
+integral push, a shift of the skill's frame onto the real hole when the walls refuse the flow's sideways
+motion, and rotational compliance; `ContactAdaptation.off()` runs the bare flow.
+
 Open loop (`OpenLoopPolicy`, the paper's robot experiment): the whole trajectory is generated once from
 the measured start pose (rflow.generate.rollout, one point per control period, holding the goal after
 convergence) and tracked in time.
@@ -72,7 +76,7 @@ class Command:
             controller's default; pass ``full_stiffness(stiffness, k_rot)`` to env.step.
         rotational_stiffness: rotational stiffness to command (N m/rad; closed loop near the hole, see
             envs.execution.adaptation), or None for the controller's default.
-        push: (6,) [m; rad] world-frame offset added to the anchor (closed loop: the integral of the velocity
+        push: (6,) [m; rad] world-frame offset added to the anchor (closed loop: the axial integral of the velocity
             error, see `ClosedLoopPolicy`), zero otherwise.
     """
 
