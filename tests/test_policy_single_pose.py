@@ -1,11 +1,7 @@
-"""The closed loop's one-pose paths (envs.execution.policy) give the batched quaternion maps' results to the bit,
-and the memo of validate_stiffness never lets a bad matrix through."""
+"""The closed loop's one-pose paths (envs.execution.policy) give the batched quaternion maps' results to the bit."""
 
 import numpy as np
-import pytest
 
-from controllers.errors import ControllerError
-from controllers.impedance import full_stiffness, validate_stiffness
 from envs.execution import policy
 from envs.poses import quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
 
@@ -47,28 +43,3 @@ def test_single_hemisphere_and_unit_are_the_batched_ones_to_the_bit():
 def test_batched_hemisphere_still_flips_each_row():
     q = np.array([[1.0, 0.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0]])
     assert np.array_equal(policy.on_goal_hemisphere(q, [1.0, 0.0, 0.0, 0.0]), [[1.0, 0, 0, 0], [1.0, 0, 0, 0]])
-
-
-@pytest.mark.parametrize("bad", [np.diag([1.0, 1.0, 1.0, 1.0, 1.0, -1.0]), np.full((6, 6), np.nan),
-                                 np.triu(np.ones((6, 6))) + np.eye(6)])
-def test_validate_stiffness_rejects_a_bad_matrix_right_after_a_good_one(bad):
-    good = full_stiffness(1500.0 * np.eye(3), 5.0)
-    assert validate_stiffness(good) is not None
-    assert validate_stiffness(good.copy()) is not None  # the memo's path
-    with pytest.raises(ControllerError):
-        validate_stiffness(bad)
-
-
-def test_validate_stiffness_rechecks_a_matrix_changed_in_place():
-    k = full_stiffness(1500.0 * np.eye(3), 5.0)
-    validate_stiffness(k)
-    k[5, 5] = -1.0
-    with pytest.raises(ControllerError):
-        validate_stiffness(k)
-
-
-def test_validate_stiffness_checks_the_shape_before_the_memo():
-    k = full_stiffness(1500.0 * np.eye(3), 5.0)
-    validate_stiffness(k)
-    with pytest.raises(ControllerError):
-        validate_stiffness(k.reshape(36))  # the same bytes, the wrong shape
