@@ -6,6 +6,8 @@ position in metres and a quaternion mapping the body frame to the world frame.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +62,42 @@ def quat_to_rotvec(q: npt.ArrayLike) -> FloatArray:
     angle = 2.0 * np.arctan2(norm_u, np.abs(w))
     scale = np.where(norm_u > 1e-12, angle / np.where(norm_u > 1e-12, norm_u, 1.0), 2.0)
     return scale * u
+
+
+# One quaternion in Python floats (the closed loop's hot path): the arithmetic of quat_mul, quat_to_rotvec and
+# quat_from_rotvec above and of np.linalg.norm over the last axis (a left-to-right sum of squares), operation for
+# operation, so the results are the same to the bit (tests/test_policy_single_pose.py); the transcendental
+# functions are numpy's own ufuncs, which are what the array versions call. Tiny arrays cost more in numpy call
+# overhead than in arithmetic.
+
+def quat_mul_one(a: list[float], b: list[float]) -> list[float]:
+    """Hamilton product a * b of two quaternions (w, x, y, z), as rflow.manifolds.sphere.quat_mul computes it."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
+
+
+def quat_to_rotvec_one(q: list[float]) -> list[float]:
+    """`quat_to_rotvec` of one quaternion."""
+    w, x, y, z = q
+    sign = -1.0 if w < 0.0 else 1.0
+    ux, uy, uz = x * sign, y * sign, z * sign
+    norm_u = math.sqrt(ux * ux + uy * uy + uz * uz)
+    angle = 2.0 * float(np.arctan2(norm_u, abs(w)))
+    scale = angle / norm_u if norm_u > 1e-12 else 2.0
+    return [scale * ux, scale * uy, scale * uz]
+
+
+def quat_from_rotvec_one(r: list[float]) -> list[float]:
+    """`quat_from_rotvec` of one rotation vector."""
+    x, y, z = r
+    angle = math.sqrt(x * x + y * y + z * z)
+    half = 0.5 * angle
+    scale = float(np.sin(half)) / angle if angle > 1e-12 else 0.5
+    return [float(np.cos(half)), scale * x, scale * y, scale * z]
 
 
 def quat_angle_rad(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:

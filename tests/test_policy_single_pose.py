@@ -1,9 +1,10 @@
-"""The closed loop's one-pose paths (envs.execution.policy) give the batched quaternion maps' results to the bit."""
+"""The one-quaternion maps (envs.poses) and the closed loop's one-pose paths (envs.execution.policy) give the
+batched maps' results to the bit."""
 
 import numpy as np
 
 from envs.execution import policy
-from envs.poses import quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
+from envs.poses import quat_conj, quat_from_rotvec, quat_from_rotvec_one, quat_mul, quat_mul_one, quat_to_rotvec
 
 
 def _pairs(n: int = 2000):
@@ -26,7 +27,7 @@ def test_single_pose_twist_is_the_batched_one_to_the_bit():
 def test_single_quat_from_rotvec_product_is_the_batched_one_to_the_bit():
     for i, (p0, q0, _, _) in enumerate(_pairs()):
         r = p0 * 10.0 ** -(i % 15)  # rotation vectors from ~1 rad down to ~1e-14 rad
-        single = policy._quat_mul_single(policy._quat_from_rotvec_single(r.tolist()), q0.tolist())
+        single = quat_mul_one(quat_from_rotvec_one(r.tolist()), q0.tolist())
         assert np.array(single).tobytes() == quat_mul(quat_from_rotvec(r), q0).tobytes()
 
 

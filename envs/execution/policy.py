@@ -50,7 +50,8 @@ import numpy.typing as npt
 from controllers.impedance import full_stiffness
 from envs.errors import EnvError
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
-from envs.poses import Pose, quat_conj, quat_mul, quat_to_rotvec, rotate
+from envs.poses import (Pose, quat_conj, quat_from_rotvec_one, quat_mul, quat_mul_one, quat_to_rotvec,
+                         quat_to_rotvec_one, rotate)
 from rflow.errors import RFlowError
 from rflow.generate import next_point, rollout
 from rflow.skill_io import PoseSkill
@@ -137,46 +138,11 @@ def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.
     return np.concatenate([v, w], axis=-1)
 
 
-# One pose in Python floats: the arithmetic of envs.poses (quat_mul, quat_conj, quat_to_rotvec, quat_from_rotvec)
-# and of np.linalg.norm over the last axis (a left-to-right sum of squares), operation for operation, so the
-# results are the same to the bit (tests/test_policy_single_pose.py); the transcendental functions are numpy's own
-# ufuncs, which are what the array versions call. Tiny arrays cost more in numpy call overhead than in arithmetic.
-
-def _quat_mul_single(a: list[float], b: list[float]) -> list[float]:
-    """Hamilton product a * b of two quaternions (w, x, y, z), as rflow.manifolds.sphere.quat_mul computes it."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
-
-
-def _quat_to_rotvec_single(q: list[float]) -> list[float]:
-    """envs.poses.quat_to_rotvec of one quaternion."""
-    w, x, y, z = q
-    sign = -1.0 if w < 0.0 else 1.0
-    ux, uy, uz = x * sign, y * sign, z * sign
-    norm_u = math.sqrt(ux * ux + uy * uy + uz * uz)
-    angle = 2.0 * float(np.arctan2(norm_u, abs(w)))
-    scale = angle / norm_u if norm_u > 1e-12 else 2.0
-    return [scale * ux, scale * uy, scale * uz]
-
-
-def _quat_from_rotvec_single(r: list[float]) -> list[float]:
-    """envs.poses.quat_from_rotvec of one rotation vector."""
-    x, y, z = r
-    angle = math.sqrt(x * x + y * y + z * z)
-    half = 0.5 * angle
-    scale = float(np.sin(half)) / angle if angle > 1e-12 else 0.5
-    return [float(np.cos(half)), scale * x, scale * y, scale * z]
-
-
 def _pose_twist_single(p0: list[float], q0: list[float], p1: list[float], q1: list[float],
                        dt: np.float64) -> FloatArray:
     """`pose_twist` of one pose pair (dt a numpy float: dividing by 0 gives inf as the array version does)."""
     w0, x0, y0, z0 = q0
-    w = _quat_to_rotvec_single(_quat_mul_single(q1, [w0, -x0, -y0, -z0]))
+    w = quat_to_rotvec_one(quat_mul_one(q1, [w0, -x0, -y0, -z0]))
     return np.array([(p1[0] - p0[0]) / dt, (p1[1] - p0[1]) / dt, (p1[2] - p0[2]) / dt,
                      w[0] / dt, w[1] / dt, w[2] / dt])
 
@@ -522,6 +488,6 @@ def led_pose(env: Any, command: Command, gain: float, stiffness: FloatArray | No
     accel = limit_accel(scale * command.accel)
     lead = (gain * impedance_damping_lead(env, twist, accel, stiffness) + command.push).tolist()
     anchor = command.anchor
-    quat = np.array(_quat_mul_single(_quat_from_rotvec_single(lead[3:]),
+    quat = np.array(quat_mul_one(quat_from_rotvec_one(lead[3:]),
                                      np.asarray(anchor.quat, dtype=np.float64).tolist()))
     return Pose(pos=anchor.pos + np.array(lead[:3]), quat=quat / math.sqrt(quat.dot(quat)))
