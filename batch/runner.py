@@ -293,6 +293,15 @@ class _Worker:
         self.process.join(5.0)
         self.conn.close()
 
+    def stop(self) -> None:
+        """End an idle worker by asking it to return (so its exit handlers release what it holds, e.g. the
+        semaphores of its locks); kill it if it is busy or does not end within a second."""
+        if self.ready and self.unit is None and self.process.is_alive():
+            with contextlib.suppress(OSError, ValueError):
+                self.conn.send(None)
+                self.process.join(1.0)
+        self.kill()
+
 
 def _run_in_processes(todo: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Work, failure: Failure,
                       config: BatchConfig, record: Callable[[str, dict], None]) -> None:
@@ -356,4 +365,4 @@ def _run_in_processes(todo: Sequence[tuple[str, Any]], setup: Any, init: Init, w
             workers = [w for w in workers if w is not None]
     finally:
         for w in workers:
-            w.kill()
+            w.stop()

@@ -354,7 +354,7 @@ def subsample(trajectories: npt.ArrayLike, factor: int) -> np.ndarray:
 
 def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: Any = None,
                    layout: str = "separate", progress: bool = True, stiffness: npt.ArrayLike | None = None,
-                   bounds: StiffnessBounds | None = None) -> PoseSkill:
+                   bounds: StiffnessBounds | None = None, workers: int = 1) -> PoseSkill:
     """Train the models of a pose skill on peg_tip demonstrations (rflow.train.fit per model).
 
     Args:
@@ -369,6 +369,8 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
             learned inside the joint model (layout "joint" only).
         bounds: [k_min, k_max] of the stiffness (default `StiffnessBounds()`); every demonstrated
             stiffness must lie inside, and the skill clips generated stiffness to them.
+        workers: with 2 or more and the separate layout, the two models train at the same time in two
+            processes (`rflow.fit_processes`; the same weights, bit for bit, in about half the time on 2 cores).
 
     Returns:
         The PoseSkill, with ``training`` holding each model's config and loss history, and with stiffness
@@ -402,10 +404,21 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
         data = {"position": (p, "euclidean"), "orientation": (q, "sphere")}
     models: dict[str, RiemannianFlow] = {}
     training: dict[str, Any] = {}
-    for name, (demos, manifold) in data.items():
+    if workers > 1 and len(data) > 1:
+        from rflow.fit_processes import fit_in_processes
+
         if progress:
-            print(f"training the {name} model ({np.asarray(demos).shape[0]} demos x {np.asarray(demos).shape[1]} samples)")
-        model, history = fit(demos, manifold, dt, cfg, progress=progress)
+            print(f"training the {' and '.join(data)} models in {min(workers, len(data))} processes "
+                  f"({p.shape[0]} demos x {p.shape[1]} samples)", flush=True)
+        fitted = fit_in_processes({name: (np.asarray(demos), manifold) for name, (demos, manifold) in data.items()},
+                                  dt, cfg, workers, progress)
+    else:
+        fitted = {}
+        for name, (demos, manifold) in data.items():
+            if progress:
+                print(f"training the {name} model ({np.asarray(demos).shape[0]} demos x {np.asarray(demos).shape[1]} samples)")
+            fitted[name] = fit(demos, manifold, dt, cfg, progress=progress)
+    for name, (model, history) in fitted.items():
         models[name] = model
         training[name] = {"config": asdict(cfg), "history": asdict(history)}
     return PoseSkill(layout, models, metadata, training)

@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"keep every k-th demo sample (default {DEFAULT_SUBSAMPLE})")
     parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes (default 50)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation starts (default 0)")
-    parser.add_argument("--workers", type=int, default=2, help="evaluation processes (default 2)")
+    parser.add_argument("--workers", type=int, default=2, help="training and evaluation processes (default 2)")
     parser.add_argument("--no-video", action="store_true", help="skip the MP4")
     add_task_arguments(parser)
 
@@ -89,7 +89,7 @@ def main(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     overrides = {} if args.epochs is None else {"epochs": args.epochs}
     model_dir = train_skill(demo_path, out / "model", skill_train_config(**overrides), subsample=args.subsample,
-                            overwrite=True)  # this run's own checkpoint (a foreign folder there is refused)
+                            overwrite=True, workers=args.workers)  # this run's own checkpoint (a foreign folder there is refused)
     timings["train_s"] = time.perf_counter() - t0
 
     _step(f"3/4 evaluating {args.episodes} perturbed starts (closed loop, {args.workers} workers)")

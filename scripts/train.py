@@ -86,6 +86,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=d.seed, help=f"training seed (default {d.seed})")
     parser.add_argument("--threads", type=int, default=1,
                         help="torch threads (default 1: deterministic and polite on a shared 2-core machine)")
+    parser.add_argument("--workers", type=int, default=2,
+                        help="processes training the position and orientation models at the same time (default 2; "
+                             "1 trains them one after the other; same weights either way)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--config", metavar="FILE.json",
                         help="training hyperparameters from a config file (e.g. `pih search`'s best.json) instead of "
@@ -147,13 +150,14 @@ def demo_stiffness(demos: Any, source: str, bounds: StiffnessBounds, demos_path:
 
 def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joint: bool = False,
                 subsample: int = DEFAULT_SUBSAMPLE, progress: bool = True, stiffness: str | None = None,
-                bounds: StiffnessBounds = DEFAULT_BOUNDS, overwrite: bool = False) -> Path:
+                bounds: StiffnessBounds = DEFAULT_BOUNDS, overwrite: bool = False, workers: int = 1) -> Path:
     """Load demos, train the skill, write the checkpoint directory (see the module docstring).
 
     With ``stiffness`` ("expert" or "variability", see `demo_stiffness`) the skill is one joint model on
     R^3 x S^3 x SPD(3) whatever ``joint`` says, and skill.json's metadata["stiffness"] also records the
     source and the Log-Euclidean distance of the stiffness generated from each demo's start to the
-    demo's (rflow.skill_io.stiffness_reproduction).
+    demo's (rflow.skill_io.stiffness_reproduction). With ``workers`` >= 2 the separate models train in
+    parallel processes (`rflow.fit_processes`), to the same weights.
 
     Returns:
         The checkpoint directory.
@@ -177,7 +181,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     dt = demos.dt * subsample
     wall = time.perf_counter()
     skill = fit_pose_skill(pos, quat, dt, cfg, "joint" if joint or k is not None else "separate", progress,
-                           stiffness=k, bounds=bounds)
+                           stiffness=k, bounds=bounds, workers=workers)
     train_s = time.perf_counter() - wall
     scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None
     if k is not None:
@@ -232,9 +236,14 @@ def check_demo_scene(demos: Any, demos_path: str | Path) -> None:
 def main(args: argparse.Namespace) -> int:
     """Run `pih train`."""
     wall = time.perf_counter()
+    if args.workers < 1:
+        from rflow.errors import RFlowError
+
+        raise RFlowError(f"--workers {args.workers} must be >= 1")
     bounds = StiffnessBounds(args.k_min, args.k_max)
     out = train_skill(args.demos, args.out, train_config_from_args(args), args.joint, args.subsample,
-                      progress=not args.quiet, stiffness=args.stiffness, bounds=bounds, overwrite=args.overwrite)
+                      progress=not args.quiet, stiffness=args.stiffness, bounds=bounds, overwrite=args.overwrite,
+                      workers=args.workers)
     record = json.loads((out / "skill.json").read_text())
     losses = {name: rec["history"]["train_loss"][-1] for name, rec in record["training"].items()}
     print(f"wrote {out} ({record['layout']}: "
