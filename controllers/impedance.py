@@ -251,6 +251,23 @@ class CartesianImpedanceController:
         self._work, self._vec = kernel.work_buffers(n)
         self._last_tau = np.zeros(n)
         self._views: tuple = ()  # (data, its arrays the kernel reads), refreshed when another MjData comes
+        self._checked = self.default_stiffness  # the last stiffness `checked_stiffness` accepted (a private copy)
+
+    def checked_stiffness(self, stiffness: npt.ArrayLike | None) -> npt.NDArray[np.float64]:
+        """`validate_stiffness` of a command's stiffness (the config's when None), checked once per distinct
+        value: a closed loop commands the same matrix for many control periods, and the pose lead, the
+        environment and the control law all ask. Returns a private copy the caller must not modify.
+
+        Raises:
+            ControllerError: as `validate_stiffness`.
+        """
+        if stiffness is None:
+            return self.default_stiffness
+        if (isinstance(stiffness, np.ndarray) and stiffness.shape == (6, 6)
+                and np.array_equal(stiffness, self._checked)):  # False for NaN: then validated, and refused
+            return self._checked
+        self._checked = validate_stiffness(stiffness).copy()
+        return self._checked
 
     def reset(self, tau0: npt.ArrayLike | None = None) -> None:
         """Set the last commanded torque, the reference of the torque-rate limit.
@@ -299,7 +316,7 @@ class CartesianImpedanceController:
             ControllerError: bad twist, accel or stiffness.
         """
         xi = as_vector(twist, 6, "twist")
-        k = self.default_stiffness if stiffness is None else validate_stiffness(stiffness)
+        k = self.checked_stiffness(stiffness)
         p, w = self._modal(data, k)
         force = p @ ((2.0 * self.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) * (p.T @ xi))
         if accel is not None:
@@ -409,7 +426,7 @@ class CartesianImpedanceController:
         else:
             target[7:7 + n] = as_vector(q_nullspace, n, "q_nullspace")
             target[7 + n] = 1.0
-        return self.default_stiffness if stiffness is None else validate_stiffness(stiffness)
+        return self.checked_stiffness(stiffness)
 
     def _data_views(self, data: mujoco.MjData) -> tuple:
         """The arrays of `data` the kernel reads and writes (views, built once per MjData)."""

@@ -37,7 +37,7 @@ import numpy.typing as npt
 
 from controllers.errors import ControllerError
 from controllers.ik import IKConfig, NullspaceReference, solve_ik
-from controllers.impedance import CartesianImpedanceController, ImpedanceConfig, validate_stiffness
+from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
 from envs.errors import EnvError
 from envs.perturbation import Perturbation, PerturbationRanges, perturbed_frame, sample_perturbation
 from envs.poses import (
@@ -516,7 +516,7 @@ class PegInHoleEnv:
         pose = self._as_pose(target, "target pose")
         if stiffness is not None:
             try:
-                stiffness = validate_stiffness(stiffness)
+                stiffness = self.controller.checked_stiffness(stiffness)
             except ControllerError as err:
                 raise EnvError(f"bad stiffness: {err}") from None
         try:

@@ -8,6 +8,11 @@ of different speed compare). With a trained skill (``--model``, default runs/def
 episode figures run the skill's closed-loop policy with the flow in the loop, and "evaluation" times a
 100-episode evaluation on all local cores (episodes/s).
 
+Bare `mj_step` of the scene is not what an episode must pay: the grasp (finger contacts) and the walls add
+contacts. So the episode figures also time bare `mj_step` over the episodes' own states
+("episode_physics_steps_per_s", the ceiling of the episode's real-time factor), and section "physics_bounds"
+gives the least wall time the evaluation's physics steps allow on its workers, beside the measured one.
+
 Benchmarks are entries of ``BENCHMARKS`` (name, function(quick) -> dict of figures). Other packages add
 theirs without editing this file: every module named in ``EXTRA_BENCHMARK_MODULES`` that can be imported
 and defines ``BENCHMARKS`` (same format) is appended, e.g. the flow timings (closed-loop step, 1000-step
@@ -90,17 +95,49 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         skill, env, policy = build_setup(model, config)
         demo = skill.metadata["demo_starts"]
         starts = evaluation_starts(demo, config)
-        rates, successes = [], 0
+        rates, physics, successes = [], [], 0
         for start in starts:
-            record, _ = run_episode(env, policy, start, feedforward_gain=config.feedforward_gain)
+            states: list[np.ndarray] = []
+            record, _ = run_episode(env, policy, start, feedforward_gain=config.feedforward_gain,
+                                    on_step=lambda e: states.append(_integration_state(e)))
             rates.append(record.steps / record.wall_s)
+            physics.append(episode_physics_rate(env, states))
             successes += int(record.success)
         median = float(np.median(rates))
         period = env.control_period_s
         substeps = env.n_substeps
-        extra = {"flow_in_loop": True, "episodes": len(starts), "successes": successes}
+        bare = float(np.median(physics))
+        extra = {"flow_in_loop": True, "episodes": len(starts), "successes": successes,
+                 "episode_physics_steps_per_s": bare,
+                 "physics_realtime_factor": bare * float(env.model.opt.timestep),
+                 "ratio_to_episode_physics": median * substeps / bare}
     return {"env_steps_per_s": median, "physics_steps_per_s": median * substeps,
             "realtime_factor": median * period, **extra}
+
+
+def _integration_state(env: PegInHoleEnv) -> np.ndarray:
+    """The full physics state of the env's data (positions, velocities, controls, applied forces, mocap)."""
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    state = np.empty(mujoco.mj_stateSize(env.model, spec))
+    mujoco.mj_getState(env.model, env.data, state, spec)
+    return state
+
+
+def episode_physics_rate(env: PegInHoleEnv, states: list[np.ndarray]) -> float:
+    """Bare mj_step steps/s over an episode's own states: from each control step's state (grasp and wall contacts
+    as they were), ``env.n_substeps`` plain mj_steps with that step's controls and applied forces held, timed
+    without the state restores. This is the physics an episode cannot avoid, so its steps/s times the timestep
+    is the ceiling of ``realtime_factor``."""
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    model, data = env.model, mujoco.MjData(env.model)
+    substeps, elapsed = env.n_substeps, 0.0
+    for state in states:
+        mujoco.mj_setState(model, data, state, spec)
+        start = time.perf_counter()
+        for _ in range(substeps):
+            mujoco.mj_step(model, data)
+        elapsed += time.perf_counter() - start
+    return len(states) * substeps / elapsed if elapsed > 0 else float("nan")
 
 
 def bench_evaluation(quick: bool, model: Path | None = None) -> dict[str, Any]:
@@ -114,8 +151,11 @@ def bench_evaluation(quick: bool, model: Path | None = None) -> dict[str, Any]:
     result = evaluate(model, config, progress=False)
     wall = time.perf_counter() - start
     successes = sum(int(r.success) for r in result.records)
+    env = PegInHoleEnv()
+    settle = int(round(env.config.grasp_settle_s / float(env.model.opt.timestep)))
+    physics_steps = sum(r.steps * env.n_substeps + settle for r in result.records)
     return {"episodes": config.episodes, "workers": config.workers, "wall_s": wall,
-            "episodes_per_s": config.episodes / wall, "successes": successes}
+            "episodes_per_s": config.episodes / wall, "successes": successes, "physics_steps": physics_steps}
 
 
 def bench_render(quick: bool) -> dict[str, Any]:
@@ -215,6 +255,18 @@ def relative_to_bare(results: dict[str, Any]) -> dict[str, float]:
     return out
 
 
+def physics_bounds(results: dict[str, Any]) -> dict[str, float]:
+    """What the episodes' own physics allows, from the same run: the evaluation's least possible wall time,
+    its physics steps / (workers x bare steps/s over episode states), against the measured one. Empty without
+    the episode_steps and evaluation benchmarks."""
+    rate = results.get("episode_steps", {}).get("episode_physics_steps_per_s")
+    evaluation = results.get("evaluation", {})
+    if not rate or "physics_steps" not in evaluation:
+        return {}
+    bound = evaluation["physics_steps"] / (evaluation["workers"] * rate)
+    return {"evaluation.physics_bound_s": bound, "evaluation.wall_over_physics_bound": evaluation["wall_s"] / bound}
+
+
 def all_benchmarks() -> list[Benchmark]:
     """BENCHMARKS plus those of the importable modules in EXTRA_BENCHMARK_MODULES."""
     found = list(BENCHMARKS)
@@ -304,9 +356,12 @@ def main(args: argparse.Namespace) -> int:
             print(f"  {key:28s} {_format(value)}")
     results["machine"]["load_average_1min_end"] = os.getloadavg()[0]
     results["relative_to_bare"] = relative_to_bare(results)
-    print("relative_to_bare:")
-    for key, value in results["relative_to_bare"].items():
-        print(f"  {key:40s} {_format(value)}")
+    results["physics_bounds"] = physics_bounds(results)
+    for section in ("relative_to_bare", "physics_bounds"):
+        if results[section]:
+            print(f"{section}:")
+        for key, value in results[section].items():
+            print(f"  {key:40s} {_format(value)}")
     if args.json is not None:
         write_json(args.json, results)
         print(f"wrote {args.json}")

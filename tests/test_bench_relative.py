@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from scripts.bench import relative_to_bare
+import numpy as np
+
+from scripts.bench import _integration_state, episode_physics_rate, physics_bounds, relative_to_bare
 from scripts.cli import main
 
 
@@ -44,3 +46,26 @@ def test_bad_model_exits_2_before_any_benchmark(tmp_path: Path, capsys) -> None:
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("pih bench: error: --model") and "no_model" in err[0]
     assert not out.exists()
+
+
+def test_the_physics_bound_is_the_evaluations_steps_over_its_workers_physics_rate() -> None:
+    results = {"episode_steps": {"episode_physics_steps_per_s": 20_000.0},
+               "evaluation": {"physics_steps": 800_000, "workers": 2, "wall_s": 60.0}}
+    bounds = physics_bounds(results)
+    assert bounds["evaluation.physics_bound_s"] == pytest.approx(20.0)  # 800 k steps / (2 x 20 k/s)
+    assert bounds["evaluation.wall_over_physics_bound"] == pytest.approx(3.0)
+    assert physics_bounds({"evaluation": results["evaluation"]}) == {}
+
+
+def test_timing_the_episode_physics_leaves_the_episode_alone() -> None:
+    from envs.env import PegInHoleEnv
+
+    env = PegInHoleEnv()
+    env.reset(seed=0)
+    states = [_integration_state(env)]
+    for _ in range(3):
+        env.step(env.observation.tcp)
+        states.append(_integration_state(env))
+    before = _integration_state(env)
+    assert episode_physics_rate(env, states) > 0
+    np.testing.assert_array_equal(_integration_state(env), before)

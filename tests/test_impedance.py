@@ -279,3 +279,15 @@ def test_after_substep_returning_true_stops_the_loop(model):
     taken = controller.step(data, pos, quat, n_substeps=10, after_substep=lambda: data.time >= three_steps_s - 1e-12)
     assert taken == 3
     assert data.time == pytest.approx(three_steps_s)
+
+
+def test_a_stiffness_changed_in_place_is_checked_again(model):
+    controller = CartesianImpedanceController(model, "peg_tip")
+    k = np.diag([800.0, 800.0, 800.0, 30.0, 30.0, 30.0])
+    np.testing.assert_array_equal(controller.checked_stiffness(k), k)
+    k[2, 2] = -5.0  # the same array, no longer positive definite
+    with pytest.raises(ControllerError, match="positive definite"):
+        controller.checked_stiffness(k)
+    k[2, 2] = np.nan
+    with pytest.raises(ControllerError, match="non-finite"):
+        controller.checked_stiffness(k)
