@@ -263,9 +263,10 @@ def choose_episodes(result: EvaluationResult, spec: str, failures: int = 1) -> l
 
 def render_and_plot(model_dir: Path, config: EvaluationConfig, result: EvaluationResult, episodes: Sequence[int],
                     video: Path | None, figure: Path | None, camera: str = "front",
-                    stiffness_figure: Path | None = None) -> dict[str, Any]:
-    """Replay ``episodes`` once (deterministic physics) to render an MP4 and/or draw the skill and stiffness
-    figures.
+                    stiffness_figure: Path | None = None,
+                    figure_episodes: Sequence[int] | None = None) -> dict[str, Any]:
+    """Replay ``episodes`` once (deterministic physics) to render an MP4 of them and/or draw the skill and
+    stiffness figures of those among them in ``figure_episodes`` (default: all of them).
 
     Returns:
         {"video": path or None, "figure": path or None, "stiffness_figure": path or None, "replayed": [...]}
@@ -306,9 +307,11 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         raise
     if "video" in holder:
         out["video"] = str(holder["video"].close())
-    if figure is not None:
+    shown = [i for i, episode in enumerate(episodes) if figure_episodes is None or episode in figure_episodes]
+    replays, starts = [replays[i] for i in shown], [starts[i] for i in shown]
+    if figure is not None and replays:
         out["figure"] = str(plot_episodes(model_dir, skill, replays, starts, figure, config))
-    if stiffness_figure is not None:
+    if stiffness_figure is not None and replays:
         out["stiffness_figure"] = str(plot_episode_stiffness(model_dir, replays, starts, stiffness_figure, config))
     return out
 
@@ -381,16 +384,10 @@ def main(args: argparse.Namespace) -> int:
             print(f"pih evaluate: finished episodes are in {journal_path(args)}; continue with: {resume_command(args)}",
                   file=sys.stderr)
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
-    chosen = choose_episodes(result, args.video_episodes)
-    figure_episodes = choose_episodes(result, args.video_episodes, failures=0)
-    if chosen == figure_episodes:
-        extras = render_and_plot(args.model, config, result, chosen, args.video, args.figure, args.camera,
-                                 args.stiffness_figure)
-    else:  # 'auto': the figures show successes only, the video also the first failure
-        extras = render_and_plot(args.model, config, result, chosen, args.video, None, args.camera)
-        figures = render_and_plot(args.model, config, result, figure_episodes, None, args.figure,
-                                  stiffness_figure=args.stiffness_figure)
-        extras.update(figure=figures["figure"], stiffness_figure=figures["stiffness_figure"])
+    figure_episodes = choose_episodes(result, args.video_episodes, failures=0)  # 'auto': successes only
+    chosen = choose_episodes(result, args.video_episodes) if args.video else figure_episodes
+    extras = render_and_plot(args.model, config, result, chosen, args.video, args.figure, args.camera,
+                             args.stiffness_figure, figure_episodes=figure_episodes)
     for key, episodes in (("video", chosen), ("figure", figure_episodes), ("stiffness_figure", figure_episodes)):
         if extras[key]:
             print(f"wrote {extras[key]} (episodes {episodes})")

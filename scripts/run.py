@@ -104,11 +104,11 @@ def main(args: argparse.Namespace) -> int:
 
     _step("4/4 figures and video")
     t0 = time.perf_counter()
-    extras = render_and_plot(model_dir, config, result, choose_episodes(result, "auto", failures=0), None,
-                             out / "skill.png")
-    if not args.no_video:
-        video = render_and_plot(model_dir, config, result, choose_episodes(result, "auto"), out / "episodes.mp4", None)
-        extras["video"] = video["video"]
+    figure_episodes = choose_episodes(result, "auto", failures=0)  # the figure shows successes, the video also a failure
+    extras = render_and_plot(model_dir, config, result,
+                             figure_episodes if args.no_video else choose_episodes(result, "auto"),
+                             None if args.no_video else out / "episodes.mp4", out / "skill.png",
+                             figure_episodes=figure_episodes)
     plot_outcomes([r.to_dict() for r in result.records], out / "outcomes.png",
                   f"{result.num_success}/{len(result.records)} inserted")
     timings["figures_video_s"] = time.perf_counter() - t0

@@ -179,3 +179,17 @@ def test_ctrl_c_then_resume_gives_the_uninterrupted_json(model, tmp_path):
     b = without_wall_times(json.loads(out.read_text()))
     assert b["config"].pop("workers") == 2 and a["config"].pop("workers") == 1
     assert a == b
+
+
+def test_one_replay_renders_the_video_of_all_and_the_figure_of_the_chosen(model, tmp_path, monkeypatch):
+    import scripts.evaluate as evaluate_cli
+
+    config = EvaluationConfig(episodes=3, time_limit_s=0.05)
+    result = evaluate(model, config, progress=False)
+    plotted: list[list[int]] = []
+    monkeypatch.setattr(evaluate_cli, "plot_episodes",
+                        lambda model_dir, skill, replays, starts, path, config: plotted.append([s.index for s in starts]) or path)
+    out = evaluate_cli.render_and_plot(model, config, result, [0, 1, 2], tmp_path / "v.mp4", tmp_path / "f.png",
+                                       figure_episodes=[0, 2])
+    assert plotted == [[0, 2]]
+    assert out["replayed"] == [0, 1, 2] and Path(out["video"]).stat().st_size > 0
