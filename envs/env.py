@@ -15,10 +15,12 @@ translational Jacobian of the peg's nominal centre of mass (on the hand, half a 
 
 Every physics step the wrist F/T sensor and the peg's contacts are read (envs.sensing): their peaks over the
 episode are kept, and a wrist force above ``force_limit_n`` sustained for ``force_limit_window_s`` ends the
-episode with reason "force_limit". After each period the state is checked (NaN, MuJoCo's bad-qpos/qvel/qacc
-warnings, joint speeds) and the insertion is scored from the peg's MEASURED pose and speed (envs.success:
-seated, inside the walls, at rest, held for hold_s). An episode ends on success, at the time limit, at the force
-limit or on an instability; physics failures are recorded as the end reason, never raised.
+episode with reason "force_limit" (this per-step work and the tool load are compiled, envs.sensing_kernel; the
+peaks live in a small state array during a control period and are copied into ``stats`` at its end). After each
+period the state is checked (NaN, MuJoCo's bad-qpos/qvel/qacc warnings, joint speeds) and the insertion is scored
+from the peg's MEASURED pose and speed (envs.success: seated, inside the walls, at rest, held for hold_s). An
+episode ends on success, at the time limit, at the force limit or on an instability; physics failures are recorded
+as the end reason, never raised.
 
 ``reset`` applies a per-episode perturbation (envs.perturbation): the sorter is moved by a hole-pose error
 (mocap) and the peg is placed in the grasp with an offset along its axis, then the grasp settles for
@@ -51,6 +53,7 @@ from envs.poses import (
     validate_pose,
 )
 from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
+from envs import sensing_kernel
 from envs.sensing import PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
 from envs.geometry import as_vector, quat_to_mat
@@ -178,7 +181,8 @@ class Observation:
 
 @dataclass
 class ContactStats:
-    """Peaks over an episode at the physics rate, and control-rate samples for medians.
+    """Peaks over an episode at the physics rate, and control-rate samples for medians (the peaks are copied from
+    the compiled sense state, envs.sensing_kernel, at the end of every control period).
 
     Attributes:
         peak_contact_force_n: largest sum of the environment's normal-force magnitudes on the peg.
@@ -287,7 +291,6 @@ class PegInHoleEnv:
             raise EnvError(f"control_period_s={episode_config.control_period_s} is not a multiple of the "
                            f"physics timestep {timestep} s")
         self.n_substeps = int(round(ratio))
-        self._timestep = timestep
         ids = self.scene.ids
         self.tcp_site = ids.tcp_site
         self.peg_tip_site = ids.peg_tip_site
@@ -319,8 +322,15 @@ class PegInHoleEnv:
         self._hand_body = ids.hand_body
         d = self.data  # views of the tcp position and z axis and of the arm's applied forces (one MjData)
         self._load_views = (d.site_xpos[self.tcp_site], d.site_xmat[self.tcp_site].reshape(3, 3)[:, 2],
-                            d.qfrc_applied[self._arm_dof])
+                            np.zeros(3), d.qfrc_applied[self._arm_dof])  # ..., the peg's centre of mass (scratch)
         self._load_weight = self.model.body_mass[ids.peg_body] * np.asarray(self.model.opt.gravity)  # m g
+        # the per-physics-step sensing (sensing_kernel.sense_substep): its inputs (views of self.data, built once)
+        # and a state of peaks, force window and time above the force limit, copied into self.stats after a period
+        window = max(1, int(round(episode_config.force_limit_window_s / timestep)))
+        self._sense_state = sensing_kernel.sense_state(window)
+        self._sense_inputs = (*self.wrist.kernel_inputs(d), *self.contacts.kernel_inputs(),
+                              np.array([episode_config.force_limit_n, episode_config.force_limit_window_s, timestep],
+                                       dtype=np.float64), self._sense_state)
         nominal_hole_pos, nominal_hole_quat = self.scene.hole_pose(self.shape)
         self.nominal_hole = Pose(pos=nominal_hole_pos, quat=nominal_hole_quat)
         goal_pos, goal_quat = self.scene.goal_pose()
@@ -330,9 +340,6 @@ class PegInHoleEnv:
         self.stats = ContactStats()
         self.perturbation = Perturbation()
         self._warning_counts = np.zeros(len(_BAD_STATE_WARNINGS), dtype=int)
-        self._above_limit_s = 0.0
-        self._force_window = [0.0]
-        self._window_index = 0
         self.nullspace_failures = 0
         self._steps = 0
         self._done = True
@@ -458,9 +465,7 @@ class PegInHoleEnv:
         self.perturbation = perturbation
         self.tracker.reset()
         self.stats = ContactStats()
-        self._above_limit_s = 0.0
-        self._force_window = [0.0] * max(1, int(round(self.config.force_limit_window_s / float(self.model.opt.timestep))))
-        self._window_index = 0
+        self._sense_state[:] = 0.0
         self.nullspace_failures = 0
         self._steps = 0
         self._done = False
@@ -493,10 +498,10 @@ class PegInHoleEnv:
         """qfrc_applied on the arm = -J_c^T m g for the grasped peg's nominal centre of mass (module docstring)."""
         if not self.grasped:
             return
-        data, (tcp_pos, tcp_axis, applied) = self.data, self._load_views
-        point = tcp_pos - tcp_axis * (PEG_LENGTH_M / 2)
-        mujoco.mj_jac(self.model, data, self._jac_load, None, point, self._hand_body)
-        applied[:] = -(self._load_weight @ self._jac_load_arm)
+        tcp_pos, tcp_axis, point, applied = self._load_views
+        sensing_kernel.tool_load_point(tcp_pos, tcp_axis, PEG_LENGTH_M / 2, point)
+        mujoco.mj_jac(self.model, self.data, self._jac_load, None, point, self._hand_body)
+        sensing_kernel.tool_load_torque(self._load_weight, self._jac_load_arm, applied)
 
     def step(self, target: Pose | Sequence[npt.ArrayLike], stiffness: npt.ArrayLike | None = None) -> StepResult:
         """Hold the commanded tcp pose for one control period under impedance control.
@@ -535,6 +540,8 @@ class PegInHoleEnv:
             force_limited = ran < self.n_substeps or self.stats.force_limit_time_s is not None  # also on the last substep
         except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
             problem = f"controller failed ({type(err).__name__}: {err})"
+        finally:
+            self._copy_sense_state()
         self._steps += 1
         problem = problem or self._instability()
         obs = self._observe(track=problem is None and not force_limited)
@@ -554,27 +561,27 @@ class PegInHoleEnv:
                           info={"target": pose, "q_ref": q_ref, "step": self._steps})
 
     def _sense(self) -> bool:
-        """Update the episode's contact and wrist peaks after a physics step; True when the force limit hits."""
+        """Update the episode's contact and wrist peaks, force window and time above the force limit after a physics
+        step (sensing_kernel.sense_substep; ``_copy_sense_state`` puts them in ``stats``); True when the force limit
+        hits."""
+        data = self.data
+        contact = data.contact
+        wrist_rot, wrist_pos, xipos, force, torque, bodies, load, counted, scratch, limits, state = self._sense_inputs
+        if not sensing_kernel.sense_substep(wrist_rot, wrist_pos, xipos, force, torque, bodies, load, contact.geom,
+                                            contact.efc_address, data.efc_force, counted, scratch, limits, state):
+            return False
         stats = self.stats
-        total, single = self.contacts.normal_forces(self.data)
-        stats.peak_contact_force_n = max(stats.peak_contact_force_n, total)
-        stats.peak_single_contact_n = max(stats.peak_single_contact_n, single)
-        fx, fy, fz, tx, ty, tz = self.wrist.wrench(self.data).tolist()
-        force = math.sqrt(fx ** 2 + fy ** 2 + fz ** 2)
-        torque = math.sqrt(tx ** 2 + ty ** 2 + tz ** 2)
-        stats.peak_wrist_force_n = max(stats.peak_wrist_force_n, force)
-        stats.peak_wrist_torque_nm = max(stats.peak_wrist_torque_nm, torque)
-        window = self._force_window
-        size = len(window)
-        window[self._window_index % size] = force
-        self._window_index += 1
-        if self._window_index >= size:
-            stats.peak_sustained_wrist_force_n = max(stats.peak_sustained_wrist_force_n, min(window))
-        self._above_limit_s = self._above_limit_s + self._timestep if force > self.config.force_limit_n else 0.0
-        if self._above_limit_s >= self.config.force_limit_window_s - 1e-12 and self._above_limit_s > 0.0:
-            stats.force_limit_time_s = stats.force_limit_time_s or self._steps * self.control_period_s
-            return True
-        return False
+        stats.force_limit_time_s = stats.force_limit_time_s or self._steps * self.control_period_s
+        return True
+
+    def _copy_sense_state(self) -> None:
+        """Copy the peaks of the sense state (sensing_kernel) into ``stats``."""
+        state, stats, k = self._sense_state, self.stats, sensing_kernel
+        stats.peak_contact_force_n = float(state[k.PEAK_CONTACT])
+        stats.peak_single_contact_n = float(state[k.PEAK_SINGLE])
+        stats.peak_wrist_force_n = float(state[k.PEAK_FORCE])
+        stats.peak_wrist_torque_nm = float(state[k.PEAK_TORQUE])
+        stats.peak_sustained_wrist_force_n = float(state[k.PEAK_SUSTAINED])
 
     # ------------------------------------------------------------------------------------------- helpers
 

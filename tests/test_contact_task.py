@@ -91,20 +91,22 @@ def test_force_limit_ends_a_hard_push(scene) -> None:
 
 def test_force_limit_reached_on_the_last_substep_ends_the_episode(scene, monkeypatch) -> None:
     """A wrist force held above the limit for exactly the window, ending on a control period's last physics step
-    and gone right after, still ends the episode (the sensor is faked: 100 N on substeps 6-10 of step 1)."""
+    and gone right after, still ends the episode (the sensor is faked: its force reads 1000 N after physics steps
+    6-10 of step 1, where the arm at rest in free space reads the tool's weight)."""
     env = make_env(scene)
     env.reset(start_pose=above(env))
-    real, calls = env.wrist.wrench, [0]
+    real, calls = mujoco.mj_step2, [0]
+    force = slice(scene.ids.wrist_force_adr, scene.ids.wrist_force_adr + 3)
 
-    def wrench(data):
+    def step2(model, data):
+        real(model, data)
         calls[0] += 1
-        out = np.array(real(data), dtype=float)
-        out[:3] = [0.0, 0.0, 100.0] if 6 <= calls[0] <= 10 else 0.0
-        return out
+        if 6 <= calls[0] <= 10:
+            data.sensordata[force] = [0.0, 0.0, 1000.0]
 
-    monkeypatch.setattr(env.wrist, "wrench", wrench)
+    monkeypatch.setattr(mujoco, "mj_step2", step2)  # the controller's physics step reads it per control period
     result = env.step(above(env))
-    assert calls[0] > env.n_substeps and result.done and result.reason == REASON_FORCE_LIMIT
+    assert calls[0] == env.n_substeps and result.done and result.reason == REASON_FORCE_LIMIT
 
 
 def test_a_short_force_spike_does_not_end_the_episode(scene) -> None:

@@ -1,0 +1,277 @@
+"""The physics-rate sensing of an episode (envs.sensing, envs.env), compiled with numba (no Python work per step).
+
+Every physics step (1 kHz) the episode reads the wrist F/T sensor and the peg's contacts, keeps their peaks and
+checks the force limit; before every step it applies the grasped peg's weight as a tool load. In numpy that was
+~30 Python-level calls per step (30-40 us against ~60 us for the physics on the development machine); here each
+job is one compiled call (~3 us with its arguments) on views of MjData and preallocated buffers. Only MuJoCo's
+mj_jac stays outside (it is C already).
+
+Wrist wrench (envs.sensing), in the sensor frame S with rotation R_S, from the readings F_s, tau_s:
+
+    F_ext = -(F_s - F_0),   tau_ext = -(tau_s - tau_0),
+    F_0 = -R_S^T M g,       tau_0 = -R_S^T (M (c - s) x g),   M (c - s) = sum_b m_b c_b - M s
+
+with m_b, c_b the carried bodies' masses and centres of mass, M = sum_b m_b and s the site position.
+
+Contacts (envs.sensing): over the contacts whose geom pair is counted and that have constraint rows (efc_address
+>= 0), the sum and the largest of |f_n| = |efc_force[efc_address]| (the normal row of an elliptic cone).
+
+Per physics step (envs.env), with |F| = |F_ext| and h the timestep:
+
+    peaks     <- max(peaks, (contact sum, single contact, |F|, |tau_ext|))
+    window    <- the last W = max(1, round(force_limit_window_s / h)) values of |F| (a ring buffer)
+    sustained <- max(sustained, min(window))          once W values were read
+    above     <- above + h if |F| > force_limit_n else 0
+    limit hit <=> above >= force_limit_window_s - 1e-12 and above > 0
+
+Tool load (envs.env): qfrc_applied[arm] = -(m g)^T J_c, J_c the translational Jacobian (mj_jac) at the peg's nominal
+centre of mass p_c = p_tcp - z_tcp L / 2.
+
+Every sum is taken in the order the numpy version used (left to right for the 3-vector products, numpy's pairwise
+summation for the contact sum, four interleaved partial sums for the mass-weighted centre as numpy's matmul through
+OpenBLAS does for up to 7 bodies), so the readings, and the episode records, stayed the same to the last bit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+# The sense state: a float64 array of these slots followed by the force window (see `sense_state`).
+PEAK_CONTACT = 0
+"""Largest sum of the environment's normal forces on the peg (N)."""
+PEAK_SINGLE = 1
+"""Largest single normal force on the peg (N)."""
+PEAK_FORCE = 2
+"""Largest |F_ext| (N)."""
+PEAK_TORQUE = 3
+"""Largest |tau_ext| (N m)."""
+PEAK_SUSTAINED = 4
+"""Largest minimum of |F_ext| over a full window (N)."""
+ABOVE_LIMIT_S = 5
+"""Time |F_ext| has stayed above the force limit (s)."""
+READINGS = 6
+"""Number of |F_ext| values written to the window (an integer)."""
+WRENCH = 7
+"""The latest [F_ext; tau_ext] (6 slots)."""
+WINDOW = 13
+"""First slot of the ring buffer of the last W values of |F_ext|."""
+
+LIMIT_FORCE, LIMIT_WINDOW_S, LIMIT_TIMESTEP = 0, 1, 2
+"""Slots of the limits array: force_limit_n, force_limit_window_s, the physics timestep (s)."""
+
+_PAIRWISE_BLOCK = 128  # numpy's PW_BLOCKSIZE
+_SCRATCH_SIZE = 256
+
+
+def sense_state(window_size: int) -> np.ndarray:
+    """A zeroed sense state (the slot constants above) with a force window of ``window_size`` >= 1 values."""
+    if window_size < 1:
+        raise ValueError(f"window_size={window_size} must be >= 1")
+    return np.zeros(WINDOW + window_size)
+
+
+def contact_scratch() -> np.ndarray:
+    """Scratch for the contact forces (a larger set of contacts gets a temporary array)."""
+    return np.zeros(_SCRATCH_SIZE)
+
+
+@_jit
+def _pairwise_block(a: np.ndarray, start: int, n: int) -> float:
+    """sum(a[start:start + n]) for n <= 128 as numpy's pairwise_sum: sequential below 8 values, else eight
+    interleaved partial sums added pairwise, then the rest."""
+    if n < 8:
+        res = -0.0
+        for i in range(start, start + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[start], a[start + 1], a[start + 2], a[start + 3]
+    r4, r5, r6, r7 = a[start + 4], a[start + 5], a[start + 6], a[start + 7]
+    i = 8
+    while i < n - n % 8:
+        j = start + i
+        r0 += a[j]
+        r1 += a[j + 1]
+        r2 += a[j + 2]
+        r3 += a[j + 3]
+        r4 += a[j + 4]
+        r5 += a[j + 5]
+        r6 += a[j + 6]
+        r7 += a[j + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[start + i]
+        i += 1
+    return res
+
+
+@_jit
+def pairwise_sum(a: np.ndarray, n: int) -> float:
+    """sum(a[:n]) in numpy's pairwise order (so it equals np.sum to the last bit).
+
+    numpy splits n > 128 values into halves (the first rounded down to a multiple of 8) and recurses; here that
+    recursion runs on explicit stacks (numba caches no recursive function), allocated only for n > 128.
+    """
+    if n <= _PAIRWISE_BLOCK:
+        return _pairwise_block(a, 0, n)
+    nodes = np.empty((130, 3), np.int64)  # (start, length, children summed); depth <= 63 halvings
+    sums = np.empty(66)
+    nodes[0, 0], nodes[0, 1], nodes[0, 2] = 0, n, 0
+    top, done = 1, 0
+    while top > 0:
+        start, length, expanded = nodes[top - 1, 0], nodes[top - 1, 1], nodes[top - 1, 2]
+        if length <= _PAIRWISE_BLOCK:
+            top -= 1
+            sums[done] = _pairwise_block(a, start, length)
+            done += 1
+        elif expanded:
+            top -= 1
+            sums[done - 2] = sums[done - 2] + sums[done - 1]  # first half + second half
+            done -= 1
+        else:
+            half = length // 2
+            half -= half % 8
+            nodes[top - 1, 2] = 1
+            nodes[top, 0], nodes[top, 1], nodes[top, 2] = start + half, length - half, 0  # summed second
+            nodes[top + 1, 0], nodes[top + 1, 1], nodes[top + 1, 2] = start, half, 0  # summed first
+            top += 2
+    return sums[0]
+
+
+@_jit
+def normal_forces(geom: np.ndarray, efc_address: np.ndarray, efc_force: np.ndarray, counted: np.ndarray,
+                  scratch: np.ndarray) -> tuple[float, float]:
+    """(sum, largest) of |efc_force[efc_address[i]]| over the contacts i with counted[geom[i, 0], geom[i, 1]] and
+    efc_address[i] >= 0; (0, 0) when there are none. NaN forces make both NaN.
+
+    Args:
+        geom, efc_address: MjData.contact.geom (ncon, 2) and .efc_address (ncon,).
+        efc_force: MjData.efc_force (nefc,).
+        counted: (ngeom, ngeom) bool, the geom pairs that count (envs.sensing.PegContacts).
+        scratch: float buffer for the forces (a larger set gets a temporary array).
+    """
+    m = 0
+    for i in range(geom.shape[0]):
+        if counted[geom[i, 0], geom[i, 1]] and efc_address[i] >= 0:
+            m += 1
+    if m == 0:
+        return 0.0, 0.0
+    forces = scratch if m <= scratch.shape[0] else np.empty(m)
+    k = 0
+    largest = 0.0
+    for i in range(geom.shape[0]):
+        adr = efc_address[i]
+        if counted[geom[i, 0], geom[i, 1]] and adr >= 0:
+            f = abs(efc_force[adr])
+            forces[k] = f
+            if k == 0 or f > largest or f != f:  # as np.max: a NaN propagates
+                largest = f
+            k += 1
+    return pairwise_sum(forces, m), largest
+
+
+@_jit
+def _mass_moment(xipos: np.ndarray, bodies: np.ndarray, load: np.ndarray, axis: int) -> float:
+    """sum_b m_b c_b[axis]: four interleaved partial sums added pairwise, then the rest (numpy's matmul order)."""
+    k = bodies.shape[0]
+    blocked = k - k % 4
+    s = 0.0
+    if blocked > 0:
+        p0 = p1 = p2 = p3 = 0.0
+        for b in range(0, blocked, 4):
+            p0 += load[4 + b] * xipos[bodies[b], axis]
+            p1 += load[5 + b] * xipos[bodies[b + 1], axis]
+            p2 += load[6 + b] * xipos[bodies[b + 2], axis]
+            p3 += load[7 + b] * xipos[bodies[b + 3], axis]
+        s = (p0 + p1) + (p2 + p3)
+    for b in range(blocked, k):
+        s += load[4 + b] * xipos[bodies[b], axis]
+    return s
+
+
+@_jit
+def wrist_wrench(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, force: np.ndarray, torque: np.ndarray,
+                 bodies: np.ndarray, load: np.ndarray, out: np.ndarray) -> None:
+    """out = [F_ext; tau_ext] (module docstring), in the sensor frame.
+
+    Args:
+        rot: the site's row-major rotation matrix R_S (9,) (MjData.site_xmat row).
+        site_pos: the site's position s (3,).
+        xipos: MjData.xipos (nbody, 3), the bodies' centres of mass.
+        force, torque: the sensor readings F_s, tau_s (3,) each.
+        bodies: the carried bodies (k,).
+        load: [M, g (3), m_1 .. m_k].
+        out: output (6,).
+    """
+    mass, gx, gy, gz = load[0], load[1], load[2], load[3]
+    lx = _mass_moment(xipos, bodies, load, 0) - mass * site_pos[0]  # M (c - s)
+    ly = _mass_moment(xipos, bodies, load, 1) - mass * site_pos[1]
+    lz = _mass_moment(xipos, bodies, load, 2) - mass * site_pos[2]
+    wx, wy, wz = -mass * gx, -mass * gy, -mass * gz  # -M g (world)
+    tx, ty, tz = -(ly * gz - lz * gy), -(lz * gx - lx * gz), -(lx * gy - ly * gx)  # -M (c - s) x g (world)
+    for j in range(3):  # R_S^T v = v @ R_S
+        out[j] = ((wx * rot[j] + wy * rot[3 + j]) + wz * rot[6 + j]) - force[j]
+        out[3 + j] = ((tx * rot[j] + ty * rot[3 + j]) + tz * rot[6 + j]) - torque[j]
+
+
+@_jit
+def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, force: np.ndarray, torque: np.ndarray,
+                  bodies: np.ndarray, load: np.ndarray, geom: np.ndarray, efc_address: np.ndarray,
+                  efc_force: np.ndarray, counted: np.ndarray, scratch: np.ndarray, limits: np.ndarray,
+                  state: np.ndarray) -> bool:
+    """One physics step's update of the sense state (module docstring); True when the force limit is hit.
+
+    Args:
+        rot .. load: as in `wrist_wrench`.
+        geom .. scratch: as in `normal_forces`.
+        limits: [force_limit_n, force_limit_window_s, timestep].
+        state: the sense state (`sense_state`), updated.
+    """
+    total, single = normal_forces(geom, efc_address, efc_force, counted, scratch)
+    if total > state[PEAK_CONTACT]:  # max(peak, x) as Python's max: a NaN reading leaves the peak
+        state[PEAK_CONTACT] = total
+    if single > state[PEAK_SINGLE]:
+        state[PEAK_SINGLE] = single
+    wrench = state[WRENCH:WRENCH + 6]
+    wrist_wrench(rot, site_pos, xipos, force, torque, bodies, load, wrench)
+    f = math.sqrt(wrench[0] * wrench[0] + wrench[1] * wrench[1] + wrench[2] * wrench[2])
+    t = math.sqrt(wrench[3] * wrench[3] + wrench[4] * wrench[4] + wrench[5] * wrench[5])
+    if f > state[PEAK_FORCE]:
+        state[PEAK_FORCE] = f
+    if t > state[PEAK_TORQUE]:
+        state[PEAK_TORQUE] = t
+    window = state[WINDOW:]
+    size = window.shape[0]
+    readings = int(state[READINGS])
+    window[readings % size] = f
+    readings += 1
+    state[READINGS] = readings
+    if readings >= size:
+        lowest = window[0]
+        for i in range(1, size):  # min(window) as Python's min
+            if window[i] < lowest:
+                lowest = window[i]
+        if lowest > state[PEAK_SUSTAINED]:
+            state[PEAK_SUSTAINED] = lowest
+    above = state[ABOVE_LIMIT_S] + limits[LIMIT_TIMESTEP] if f > limits[LIMIT_FORCE] else 0.0
+    state[ABOVE_LIMIT_S] = above
+    return above >= limits[LIMIT_WINDOW_S] - 1e-12 and above > 0.0
+
+
+@_jit
+def tool_load_point(tcp_pos: np.ndarray, tcp_axis: np.ndarray, half_length: float, point: np.ndarray) -> None:
+    """point = p_tcp - z_tcp half_length, the peg's nominal centre of mass (3,)."""
+    for i in range(3):
+        point[i] = tcp_pos[i] - tcp_axis[i] * half_length
+
+
+@_jit
+def tool_load_torque(weight: np.ndarray, jac: np.ndarray, applied: np.ndarray) -> None:
+    """applied = -(m g)^T J_c: weight m g (3,), J_c the arm's columns (3, n) of the translational Jacobian."""
+    for j in range(jac.shape[1]):
+        applied[j] = -((weight[0] * jac[0, j] + weight[1] * jac[1, j]) + weight[2] * jac[2, j])

@@ -1,0 +1,133 @@
+"""The compiled physics-rate sensing (envs.sensing_kernel) against plain numpy/Python evaluations of its equations."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+import scipy.spatial.transform
+
+from envs import sensing_kernel as kernel
+from envs.errors import EnvError
+from envs.sensing import PegContacts, ToolLoad, WristSensor
+
+GRAVITY = np.array([0.0, 0.0, -9.81])
+DT, WINDOW_S, LIMIT_N = 0.001, 0.005, 40.0
+WINDOW = round(WINDOW_S / DT)
+
+
+@pytest.mark.parametrize("n_bodies", [1, 3, 4, 6, 9])  # below, at and past the four partial sums
+def test_wrist_wrench_equals_the_docstring_equations(n_bodies: int) -> None:
+    rng = np.random.default_rng(n_bodies)
+    rot = scipy.spatial.transform.Rotation.random(random_state=n_bodies).as_matrix()
+    site_pos, force, torque = rng.normal(size=3), rng.normal(0.0, 20.0, 3), rng.normal(0.0, 2.0, 3)
+    xipos = rng.normal(size=(12, 3))
+    bodies = rng.choice(12, n_bodies, replace=False)
+    masses = rng.uniform(0.1, 2.0, n_bodies)
+    gravity = GRAVITY + rng.normal(0.0, 1.0, 3)  # a general direction: every term of the cross product counts
+    mass = masses.sum()
+    centre = masses @ xipos[bodies] / mass
+    want = np.concatenate([-(force - rot.T @ (-mass * gravity)),
+                           -(torque - rot.T @ -np.cross(mass * (centre - site_pos), gravity))])
+    out = np.zeros(6)
+    kernel.wrist_wrench(rot.ravel(), site_pos, xipos, force, torque, bodies, np.concatenate([[mass], gravity, masses]),
+                        out)
+    np.testing.assert_allclose(out, want, rtol=1e-12, atol=1e-12)
+
+
+def _counted_table(ngeom: int, peg: set[int], ignored: set[int]) -> np.ndarray:
+    return np.array([[(a in peg) != (b in peg) and not ({a, b} - peg) & ignored for b in range(ngeom)]
+                     for a in range(ngeom)])
+
+
+def test_contact_forces_count_only_the_environment_on_the_peg() -> None:
+    """Peg geoms 0, 1; geom 2 a finger (ignored); 3, 4 the environment."""
+    counted = _counted_table(5, {0, 1}, {2})
+    geom = np.array([[0, 3], [2, 0], [4, 1], [3, 4], [0, 1], [1, 3], [3, 0]], dtype=np.int32)
+    efc_address = np.array([0, 3, -1, 6, 9, 12, 15], dtype=np.int32)  # [4, 1] has no constraint rows
+    efc_force = np.arange(18, dtype=float) * -1.5
+    want = [abs(efc_force[a]) for (g1, g2), a in zip(geom, efc_address)
+            if (g1 in (0, 1)) != (g2 in (0, 1)) and 2 not in (g1, g2) and a >= 0]  # pairs 0, 5, 6
+    scratch = np.full_like(kernel.contact_scratch(), 1e9)  # left over from earlier reads: must not leak in
+    total, single = kernel.normal_forces(geom, efc_address, efc_force, counted, scratch)
+    assert len(want) == 3 and (total, single) == (sum(want), max(want))
+
+
+def test_no_counted_contact_reads_zero() -> None:
+    counted = _counted_table(3, {0}, {1})
+    geom = np.array([[0, 1]], dtype=np.int32)
+    assert kernel.normal_forces(geom, np.array([0], np.int32), np.array([5.0]), counted,
+                                kernel.contact_scratch()) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 23, 128, 129, 300, 1000, 5000])
+def test_pairwise_sum_is_numpys_to_the_last_bit(n: int) -> None:
+    values = np.abs(np.random.default_rng(n).normal(size=n)) * 10.0 ** np.random.default_rng(n + 1).integers(-6, 6, n)
+    assert kernel.pairwise_sum(values, n) == np.sum(values)
+
+
+def test_more_contacts_than_the_scratch_holds_still_sum_like_numpy() -> None:
+    n = 3 * kernel.contact_scratch().size
+    forces = np.random.default_rng(0).uniform(0.0, 50.0, n)
+    geom = np.tile(np.array([[0, 1]], dtype=np.int32), (n, 1))
+    counted = _counted_table(2, {0}, set())
+    total, single = kernel.normal_forces(geom, np.arange(n, dtype=np.int32), forces, counted,
+                                         kernel.contact_scratch())
+    assert (total, single) == (np.sum(forces), np.max(forces))
+
+
+def _sense(state: np.ndarray, force_n: float) -> bool:
+    """One physics step of the fused update with a massless tool (so |F_ext| = |F_s|) and no contacts."""
+    load = np.concatenate([[0.0], GRAVITY, [0.0]])
+    empty = np.zeros((0, 2), np.int32)
+    return kernel.sense_substep(np.eye(3).ravel(), np.zeros(3), np.zeros((1, 3)), np.array([0.0, 0.0, force_n]),
+                                np.zeros(3), np.zeros(1, np.int64), load, empty, np.zeros(0, np.int32), np.zeros(0),
+                                np.zeros((1, 1), bool), kernel.contact_scratch(),
+                                np.array([LIMIT_N, WINDOW_S, DT]), state)
+
+
+def test_force_limit_fires_after_exactly_the_window_above_the_limit() -> None:
+    state = kernel.sense_state(WINDOW)
+    hits = [_sense(state, 50.0) for _ in range(WINDOW + 1)]
+    assert hits == [False] * (WINDOW - 1) + [True, True]
+
+
+def test_force_limit_restarts_when_the_force_drops() -> None:
+    state = kernel.sense_state(WINDOW)
+    forces = [50.0] * (WINDOW - 1) + [LIMIT_N] + [50.0] * (WINDOW - 1)  # exactly at the limit is not above it
+    assert not any(_sense(state, f) for f in forces)
+    assert state[kernel.ABOVE_LIMIT_S] == pytest.approx((WINDOW - 1) * DT)
+
+
+def test_sustained_force_is_the_largest_minimum_over_full_windows() -> None:
+    forces = np.random.default_rng(3).uniform(0.0, 30.0, 40)
+    state = kernel.sense_state(WINDOW)
+    for f in forces:
+        _sense(state, f)
+    want = max(min(forces[i:i + WINDOW]) for i in range(len(forces) - WINDOW + 1))
+    assert state[kernel.PEAK_SUSTAINED] == want and state[kernel.PEAK_FORCE] == max(forces)
+
+
+def test_tool_load_is_minus_the_weight_through_the_jacobian() -> None:
+    rng = np.random.default_rng(5)
+    weight, jac = rng.normal(size=3), rng.normal(size=(3, 9))
+    applied, point = np.zeros(7), np.zeros(3)
+    kernel.tool_load_torque(weight, jac[:, 1:8], applied)  # the arm's columns, a strided view
+    kernel.tool_load_point(np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.6, 0.8]), 0.05, point)
+    np.testing.assert_allclose(applied, -(jac[:, 1:8].T @ weight), rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(point, [1.0, 1.97, 2.96], rtol=0.0, atol=1e-15)
+
+
+_XML = """<mujoco><option cone="elliptic"/><worldbody><body name="hand" pos="0 0 1"><freejoint/>
+<geom size="0.05" mass="1"/><site name="ft"/></body></worldbody>
+<sensor><force site="ft"/><torque site="ft"/></sensor></mujoco>"""
+
+
+def test_inputs_the_model_does_not_have_are_refused_at_construction() -> None:
+    model = mujoco.MjModel.from_xml_string(_XML)
+    with pytest.raises(EnvError, match="torque address 4"):
+        WristSensor(model, 0, 0, 4, ToolLoad((1,)))
+    with pytest.raises(EnvError, match="bodies"):
+        WristSensor(model, 0, 0, 3, ToolLoad(()))
+    with pytest.raises(EnvError, match="geoms"):
+        PegContacts(model, (0,), (1,))
