@@ -20,6 +20,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from batch.errors import BatchError
 from batch.runner import BatchConfig, run_batch
 from rflow.errors import RFlowError
 from rflow.model import RiemannianFlow
@@ -84,8 +85,11 @@ def fit_in_processes(jobs: Mapping[str, FitJob], dt: float, config: TrainConfig,
 
     with tempfile.TemporaryDirectory(prefix="rflow-fit-") as scratch:
         units = [(name, (name, np.asarray(demos), manifold)) for name, (demos, manifold) in jobs.items()]
-        outcome = run_batch(units, _FitSetup(dt, config, scratch), _init, _fit_unit, _failure,
-                            BatchConfig(workers=min(workers, max(1, len(units)))), on_record=report)
+        try:
+            outcome = run_batch(units, _FitSetup(dt, config, scratch), _init, _fit_unit, _failure,
+                                BatchConfig(workers=min(workers, max(1, len(units)))), on_record=report)
+        except BatchError as err:  # e.g. a worker that could not start
+            raise RFlowError(f"training in processes failed: {err}") from None
         if outcome.interrupted:
             raise KeyboardInterrupt
         results: dict[str, tuple[RiemannianFlow, TrainHistory]] = {}
