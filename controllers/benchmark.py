@@ -18,6 +18,10 @@ from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
 from controllers.validation import site_id
 
 
+BARE_SEGMENT = 10
+"""Plain mj_steps timed from each recorded state of the closed loop (one control period at 1 kHz / 100 Hz)."""
+
+
 def measure_control_rate(
     model: mujoco.MjModel,
     site: int | str = "peg_mount",
@@ -28,7 +32,10 @@ def measure_control_rate(
     """Time the closed loop (mj_step1 + controller + mj_step2) against bare mj_step on one core.
 
     The arm starts at the keyframe "home" when the model has one (else qpos0) and is commanded 5 cm below its
-    start pose, so the controller runs its full law. Each repeat times n_steps of each loop; medians are reported.
+    start pose, so the controller runs its full law. Bare mj_step is timed over the same states: the closed
+    loop's state is recorded every BARE_SEGMENT steps, and from each record BARE_SEGMENT plain mj_steps are
+    timed (the restores untimed), so both loops pay for the same contacts -- an uncontrolled arm would fall and
+    touch other things. Each repeat times n_steps of each loop; medians are reported.
 
     Args:
         model: model to time (the Panda alone, or a scene with the peg).
@@ -60,17 +67,32 @@ def measure_control_rate(
         mujoco.mju_mat2Quat(quat, data.site_xmat[controller.site_id])
         return data.site_xpos[controller.site_id] - np.array([0.0, 0.0, 0.05]), quat
 
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    states: list[npt.NDArray] = []
+
+    def record() -> bool:
+        if len(states) * BARE_SEGMENT < n_steps and round(data.time / model.opt.timestep) % BARE_SEGMENT == 0:
+            state = np.empty(mujoco.mj_stateSize(model, spec))
+            mujoco.mj_getState(model, data, state, spec)
+            states.append(state)
+        return False
+
+    pos, quat = start()
+    controller.step(data, pos, quat, n_substeps=n_steps, after_substep=record)  # the states bare mj_step replays
     closed, bare = [], []
     for _ in range(repeats):
         pos, quat = start()
         t0 = time.perf_counter()
         controller.step(data, pos, quat, n_substeps=n_steps)
         closed.append(n_steps / (time.perf_counter() - t0))
-        start()
-        t0 = time.perf_counter()
-        for _ in range(n_steps):
-            mujoco.mj_step(model, data)
-        bare.append(n_steps / (time.perf_counter() - t0))
+        elapsed = 0.0
+        for state in states:
+            mujoco.mj_setState(model, data, state, spec)
+            t0 = time.perf_counter()
+            for _ in range(BARE_SEGMENT):
+                mujoco.mj_step(model, data)
+            elapsed += time.perf_counter() - t0
+        bare.append(len(states) * BARE_SEGMENT / elapsed)
     closed_rate, bare_rate = float(np.median(closed)), float(np.median(bare))
     return {
         "closed_loop_steps_per_s": closed_rate,
