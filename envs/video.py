@@ -53,6 +53,9 @@ class VideoConfig:
         max_path_segments: the path is subsampled to at most this many line segments.
         goal_axis_length_m: length of the goal frame's axes (0 hides the frame).
         shadows: render shadows (costly with a software renderer).
+        multisamples: MSAA samples per pixel (MuJoCo's ``vis.quality.offsamples``); 0, the default, renders
+            2.5x faster with Mesa's software renderer (12 vs 30 ms per 640x480 frame) at the cost of jagged
+            edges; 4 is MuJoCo's default.
     """
 
     width: int = 640
@@ -65,6 +68,7 @@ class VideoConfig:
     max_path_segments: int = 300
     goal_axis_length_m: float = 0.04
     shadows: bool = False
+    multisamples: int = 0
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
@@ -77,6 +81,8 @@ class VideoConfig:
             raise EnvError(f"VideoConfig: quality must be in [0, 10], got {self.quality}")
         if self.max_path_segments < 1:
             raise EnvError(f"VideoConfig: max_path_segments must be >= 1, got {self.max_path_segments}")
+        if not isinstance(self.multisamples, int) or not 0 <= self.multisamples <= 16:
+            raise EnvError(f"VideoConfig: multisamples must be an integer in [0, 16], got {self.multisamples!r}")
 
 
 def _gl_context(width: int, height: int) -> tuple[Any, str]:
@@ -110,14 +116,17 @@ class OffscreenRenderer:
 
     Raises EnvError when no OpenGL context can be created. Call :meth:`close` (or use ``with``).
     The model's offscreen buffer size (``vis.global_.offwidth/offheight``) is raised to the frame
-    size if smaller.
+    size if smaller, and its multisampling (``vis.quality.offsamples``) set to ``multisamples`` (render settings
+    only: physics does not read them).
     """
 
-    def __init__(self, model: mujoco.MjModel, width: int = 640, height: int = 480, max_geom: int = 10000):
+    def __init__(self, model: mujoco.MjModel, width: int = 640, height: int = 480, max_geom: int = 10000,
+                 multisamples: int = 0):
         self.model = model
         self.width, self.height = int(width), int(height)
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
+        model.vis.quality.offsamples = int(multisamples)
         self._gl, self.backend = _gl_context(self.width, self.height)
         self._context: mujoco.MjrContext | None = None
         try:
@@ -284,7 +293,7 @@ class EpisodeVideo:
         self.set_commanded_path(commanded_path)
         self._writer = Mp4Writer(path, config.fps, config.quality)
         try:
-            self._renderer = OffscreenRenderer(model, config.width, config.height)
+            self._renderer = OffscreenRenderer(model, config.width, config.height, multisamples=config.multisamples)
             self._renderer.set_camera(config.camera)
         except BaseException:
             self._writer.abort()

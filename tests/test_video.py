@@ -82,3 +82,22 @@ def test_frame_size_must_be_a_multiple_of_eight() -> None:
 def test_video_path_must_be_mp4(tmp_path: Path) -> None:
     with pytest.raises(EnvError, match=".mp4"):
         Mp4Writer(tmp_path / "clip.avi", fps=30)
+
+
+def test_multisampling_smooths_edges_without_moving_the_scene(env: PegInHoleEnv) -> None:
+    env.reset(seed=0)
+    frames = []
+    for samples in (0, 4):
+        with OffscreenRenderer(env.model, 160, 120, multisamples=samples) as renderer:
+            assert env.model.vis.quality.offsamples == samples
+            renderer.set_camera("front")
+            renderer.update_scene(env.data)
+            frames.append(renderer.render().astype(float))
+    changed = np.abs(frames[0] - frames[1]).max(axis=-1) > 8
+    assert 0.001 < changed.mean() < 0.2  # edge pixels blend; the picture is the same
+    env.model.vis.quality.offsamples = 0
+
+
+def test_bad_multisamples_are_rejected() -> None:
+    with pytest.raises(EnvError, match="multisamples"):
+        VideoConfig(multisamples=-1)
