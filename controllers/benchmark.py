@@ -18,6 +18,31 @@ from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
 from controllers.validation import site_id
 
 
+def physics_state(model: mujoco.MjModel, data: mujoco.MjData) -> npt.NDArray[np.float64]:
+    """A copy of the full physics state of ``data`` (mjSTATE_INTEGRATION: positions, velocities, controls, applied
+    forces, mocap poses), for `replayed_step_rate`."""
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    state = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, state, spec)
+    return state
+
+
+def replayed_step_rate(model: mujoco.MjModel, states: list[npt.NDArray[np.float64]], steps_per_state: int) -> float:
+    """Bare mj_step steps/s over recorded states: from each state (restored untimed, in a fresh MjData),
+    ``steps_per_state`` plain mj_steps with its controls and applied forces held. Timing physics over the states
+    a loop visited makes it pay for the same contacts as that loop."""
+    data = mujoco.MjData(model)
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    elapsed = 0.0
+    for state in states:
+        mujoco.mj_setState(model, data, state, spec)
+        t0 = time.perf_counter()
+        for _ in range(steps_per_state):
+            mujoco.mj_step(model, data)
+        elapsed += time.perf_counter() - t0
+    return len(states) * steps_per_state / elapsed if elapsed > 0 else float("nan")
+
+
 BARE_SEGMENT = 10
 """Plain mj_steps timed from each recorded state of the closed loop (one control period at 1 kHz / 100 Hz)."""
 
@@ -67,14 +92,11 @@ def measure_control_rate(
         mujoco.mju_mat2Quat(quat, data.site_xmat[controller.site_id])
         return data.site_xpos[controller.site_id] - np.array([0.0, 0.0, 0.05]), quat
 
-    spec = mujoco.mjtState.mjSTATE_INTEGRATION
     states: list[npt.NDArray] = []
 
     def record() -> bool:
         if len(states) * BARE_SEGMENT < n_steps and round(data.time / model.opt.timestep) % BARE_SEGMENT == 0:
-            state = np.empty(mujoco.mj_stateSize(model, spec))
-            mujoco.mj_getState(model, data, state, spec)
-            states.append(state)
+            states.append(physics_state(model, data))
         return False
 
     pos, quat = start()
@@ -85,14 +107,7 @@ def measure_control_rate(
         t0 = time.perf_counter()
         controller.step(data, pos, quat, n_substeps=n_steps)
         closed.append(n_steps / (time.perf_counter() - t0))
-        elapsed = 0.0
-        for state in states:
-            mujoco.mj_setState(model, data, state, spec)
-            t0 = time.perf_counter()
-            for _ in range(BARE_SEGMENT):
-                mujoco.mj_step(model, data)
-            elapsed += time.perf_counter() - t0
-        bare.append(len(states) * BARE_SEGMENT / elapsed)
+        bare.append(replayed_step_rate(model, states, BARE_SEGMENT))
     closed_rate, bare_rate = float(np.median(closed)), float(np.median(bare))
     return {
         "closed_loop_steps_per_s": closed_rate,

@@ -37,6 +37,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+from controllers.benchmark import physics_state, replayed_step_rate  # noqa: E402
 from envs.demos import ExpertConfig, demo_episode_config, plan_expert_path  # noqa: E402
 from envs.env import PegInHoleEnv  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
@@ -99,7 +100,7 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         for start in starts:
             states: list[np.ndarray] = []
             record, _ = run_episode(env, policy, start, feedforward_gain=config.feedforward_gain,
-                                    on_step=lambda e: states.append(_integration_state(e)))
+                                    on_step=lambda e: states.append(physics_state(e.model, e.data)))
             rates.append(record.steps / record.wall_s)
             physics.append(episode_physics_rate(env, states))
             successes += int(record.success)
@@ -115,29 +116,11 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
             "realtime_factor": median * period, **extra}
 
 
-def _integration_state(env: PegInHoleEnv) -> np.ndarray:
-    """The full physics state of the env's data (positions, velocities, controls, applied forces, mocap)."""
-    spec = mujoco.mjtState.mjSTATE_INTEGRATION
-    state = np.empty(mujoco.mj_stateSize(env.model, spec))
-    mujoco.mj_getState(env.model, env.data, state, spec)
-    return state
-
-
 def episode_physics_rate(env: PegInHoleEnv, states: list[np.ndarray]) -> float:
-    """Bare mj_step steps/s over an episode's own states: from each control step's state (grasp and wall contacts
-    as they were), ``env.n_substeps`` plain mj_steps with that step's controls and applied forces held, timed
-    without the state restores. This is the physics an episode cannot avoid, so its steps/s times the timestep
-    is the ceiling of ``realtime_factor``."""
-    spec = mujoco.mjtState.mjSTATE_INTEGRATION
-    model, data = env.model, mujoco.MjData(env.model)
-    substeps, elapsed = env.n_substeps, 0.0
-    for state in states:
-        mujoco.mj_setState(model, data, state, spec)
-        start = time.perf_counter()
-        for _ in range(substeps):
-            mujoco.mj_step(model, data)
-        elapsed += time.perf_counter() - start
-    return len(states) * substeps / elapsed if elapsed > 0 else float("nan")
+    """Bare mj_step steps/s over an episode's own states (one per control step, grasp and wall contacts as they
+    were; `controllers.benchmark.replayed_step_rate` with ``env.n_substeps`` steps from each). This is the physics
+    an episode cannot avoid, so its steps/s times the timestep is the ceiling of ``realtime_factor``."""
+    return replayed_step_rate(env.model, states, env.n_substeps)
 
 
 def bench_evaluation(quick: bool, model: Path | None = None) -> dict[str, Any]:

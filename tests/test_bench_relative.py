@@ -9,7 +9,8 @@ import pytest
 
 import numpy as np
 
-from scripts.bench import _integration_state, episode_physics_rate, physics_bounds, relative_to_bare
+from controllers.benchmark import physics_state
+from scripts.bench import episode_physics_rate, physics_bounds, relative_to_bare
 from scripts.cli import main
 
 
@@ -62,10 +63,10 @@ def test_timing_the_episode_physics_leaves_the_episode_alone() -> None:
 
     env = PegInHoleEnv()
     env.reset(seed=0)
-    states = [_integration_state(env)]
+    states = [physics_state(env.model, env.data)]
     for _ in range(3):
         env.step(env.observation.tcp)
-        states.append(_integration_state(env))
-    before = _integration_state(env)
+        states.append(physics_state(env.model, env.data))
+    before = physics_state(env.model, env.data)
     assert episode_physics_rate(env, states) > 0
-    np.testing.assert_array_equal(_integration_state(env), before)
+    np.testing.assert_array_equal(physics_state(env.model, env.data), before)
