@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -192,13 +192,17 @@ class OffscreenRenderer:
         self.close()
 
 
+_ORIGIN = np.zeros(3)
+_IDENTITY = np.eye(3).ravel()
+
+
 def add_segment(scene: mujoco.MjvScene, start: npt.ArrayLike, end: npt.ArrayLike, width_px: float,
                 rgba: npt.ArrayLike) -> bool:
     """Append a line user geom from ``start`` to ``end``, ``width_px`` wide; False when the scene is full."""
     if scene.ngeom >= scene.maxgeom:
         return False
     geom = scene.geoms[scene.ngeom]
-    mujoco.mjv_initGeom(geom, mujoco.mjtGeom.mjGEOM_LINE, np.zeros(3), np.zeros(3), np.eye(3).ravel(),
+    mujoco.mjv_initGeom(geom, mujoco.mjtGeom.mjGEOM_LINE, _ORIGIN, _ORIGIN, _IDENTITY,
                         np.asarray(rgba, dtype=np.float32))
     mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_LINE, width_px, np.asarray(start, dtype=float),
                          np.asarray(end, dtype=float))
@@ -207,18 +211,29 @@ def add_segment(scene: mujoco.MjvScene, start: npt.ArrayLike, end: npt.ArrayLike
     return True
 
 
+def polyline_segments(points: npt.ArrayLike, max_segments: int) -> list[tuple[FloatArray, FloatArray]]:
+    """The (start, end) pairs that draw points (K, 3) as a chain of at most ``max_segments`` line segments
+    (evenly subsampled, zero-length ones dropped): computed once per path, drawn every frame."""
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[0] < 2:
+        return []
+    idx = np.unique(np.linspace(0, pts.shape[0] - 1, min(pts.shape[0], max_segments + 1)).round().astype(int))
+    return [(pts[a], pts[b]) for a, b in zip(idx[:-1], idx[1:]) if np.linalg.norm(pts[b] - pts[a]) >= 1e-9]
+
+
 def add_polyline(scene: mujoco.MjvScene, points: npt.ArrayLike, width_px: float, rgba: npt.ArrayLike,
                  max_segments: int) -> int:
     """Draw points (K, 3) as a chain of line segments, subsampled to <= max_segments; returns the count."""
-    pts = np.asarray(points, dtype=float)
-    if pts.ndim != 2 or pts.shape[0] < 2:
-        return 0
-    idx = np.unique(np.linspace(0, pts.shape[0] - 1, min(pts.shape[0], max_segments + 1)).round().astype(int))
+    return add_segments(scene, polyline_segments(points, max_segments), width_px, rgba)
+
+
+def add_segments(scene: mujoco.MjvScene, segments: Sequence[tuple[FloatArray, FloatArray]], width_px: float,
+                 rgba: npt.ArrayLike) -> int:
+    """Draw (start, end) pairs as line geoms until the scene is full; returns the count drawn."""
+    color = np.asarray(rgba, dtype=np.float32)
     count = 0
-    for a, b in zip(idx[:-1], idx[1:]):
-        if np.linalg.norm(pts[b] - pts[a]) < 1e-9:
-            continue
-        if not add_segment(scene, pts[a], pts[b], width_px, rgba):
+    for start, end in segments:
+        if not add_segment(scene, start, end, width_px, color):
             break
         count += 1
     return count
@@ -290,6 +305,7 @@ class EpisodeVideo:
         self.config = config
         self.goal = goal
         self._path_points: FloatArray | None = None
+        self._path_segments: list[tuple[FloatArray, FloatArray]] = []
         self.set_commanded_path(commanded_path)
         self._writer = Mp4Writer(path, config.fps, config.quality)
         try:
@@ -314,11 +330,13 @@ class EpisodeVideo:
         """Replace the drawn commanded path (K, 3) (None: draw nothing)."""
         if points is None:
             self._path_points = None
+            self._path_segments = []
             return
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise EnvError(f"commanded path must have shape (K, 3), got {pts.shape}")
         self._path_points = pts
+        self._path_segments = polyline_segments(pts, self.config.max_path_segments)
 
     def new_episode(self) -> None:
         """Restart the frame clock: the next capture renders at once (for several episodes in one video)."""
@@ -344,8 +362,7 @@ class EpisodeVideo:
         start = time.perf_counter()
         scene = self._renderer.update_scene(data)
         if self.config.draw_path and self._path_points is not None:
-            add_polyline(scene, self._path_points, self.config.path_width_px, PATH_RGBA,
-                         self.config.max_path_segments)
+            add_segments(scene, self._path_segments, self.config.path_width_px, PATH_RGBA)
         if self.goal is not None and self.config.goal_axis_length_m > 0.0:
             add_frame(scene, self.goal, self.config.goal_axis_length_m, 2.0 * self.config.path_width_px)
         frame = self._renderer.render(shadows=self.config.shadows)
