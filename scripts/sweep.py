@@ -161,8 +161,13 @@ def main(args: argparse.Namespace) -> int:
         raise
     write_json_atomic(out / "sweep.json", result.to_dict())
     active = axes.active()
-    rows, columns = ("clearance_m", "hole_error_m") if {"clearance_m", "hole_error_m"} <= set(active) else (
-        (active + active)[:2] if len(active) == 1 else active[:2])
+    rows: str | None
+    if {"clearance_m", "hole_error_m"} <= set(active):
+        rows, columns = "clearance_m", "hole_error_m"
+    elif len(active) >= 2:
+        rows, columns = active[0], active[1]
+    else:  # one axis: one row of cells
+        rows, columns = None, active[0]
     plot_success_map(result.summaries, rows, columns, out / "sweep.png",
                      f"{args.model}: seated (%) over {len(cells)} cells x {args.episodes} episodes ({args.mode})")
     for summary in result.summaries:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from envs.errors import EnvError
@@ -134,3 +135,26 @@ def test_bad_stiffness_axis_exits_2_before_any_work(model_dir, tmp_path, capsys,
                      "--quiet"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and words in err and "\n" not in err and not out.exists()
+
+
+def _summary(settings: dict, rate: float) -> dict:
+    return {"settings": settings, "success_rate": rate, "success_rate_ci95": [0.0, 1.0],
+            "median_peak_wrist_force_n": None}
+
+
+def test_a_single_axis_map_is_one_full_row() -> None:
+    from envs.execution.figures import success_map
+
+    cells = [_summary({"clearance_m": c}, r) for c, r in ((0.001, 1.0), (0.0005, 0.5), (0.0002, 0.25))]
+    m = success_map(cells, None, "clearance_m")
+    assert len(m.grids) == 1 and m.grids[0].shape == (1, 3)
+    np.testing.assert_array_equal(m.grids[0], [[25.0, 50.0, 100.0]])  # columns ascending
+
+
+def test_a_two_axis_map_puts_every_cell_in_its_square() -> None:
+    from envs.execution.figures import success_map
+
+    cells = [_summary({"clearance_m": c, "hole_error_m": e}, 0.1 * i)
+             for i, (c, e) in enumerate((c, e) for c in (0.001, 0.0002) for e in (0.0, 0.001))]
+    grid = success_map(cells, "clearance_m", "hole_error_m").grids[0]
+    np.testing.assert_allclose(grid, [[0.0, 10.0], [20.0, 30.0]])  # rows: clearance descending (numbers grow upwards)

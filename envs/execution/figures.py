@@ -230,9 +230,61 @@ def _axis_tick(axis: str, value: Any) -> str:
     return value if isinstance(value, str) else f"{value * AXIS_LABELS[axis][1]:g}"
 
 
-def plot_success_map(cells: Sequence[Mapping[str, Any]], rows: str, columns: str, path: str | os.PathLike[str],
-                     title: str = "") -> Path:
-    """Heat map of the success rate over two sweep axes, one panel per combination of any other axes.
+@dataclass(frozen=True)
+class SuccessMap:
+    """The grids a success map draws: ``rows`` None for one row; per panel (a combination of the other axes'
+    values) the success rate in % (NaN where no cell) and each cell's label."""
+
+    rows: str | None
+    columns: str
+    row_values: list[Any]
+    col_values: list[Any]
+    others: list[str]
+    panels: list[tuple[Any, ...]]
+    grids: list[np.ndarray]
+    labels: list[dict[tuple[int, int], str]]
+
+
+def success_map(cells: Sequence[Mapping[str, Any]], rows: str | None, columns: str) -> SuccessMap:
+    """Arrange sweep cell summaries on a (rows x columns) grid per panel (see `plot_success_map`).
+
+    Raises:
+        EnvError: no cells, or an axis missing from the cells' settings.
+    """
+    axes_needed = [columns] if rows is None else [rows, columns]
+    if not cells or any(axis not in c["settings"] for c in cells for axis in axes_needed):
+        raise EnvError(f"every cell needs settings {', '.join(map(repr, axes_needed))}")
+    others = sorted({k for c in cells for k in c["settings"]} - {rows, columns})
+    panels = sorted({tuple(c["settings"][k] for k in others) for c in cells})
+    if rows is None:
+        row_values: list[Any] = [None]
+    else:
+        row_values = _axis_values(cells, rows)
+        row_values = row_values if isinstance(row_values[0], str) else row_values[::-1]  # numbers grow upwards
+    col_values = _axis_values(cells, columns)
+    grids, labels = [], []
+    for panel in panels:
+        grid = np.full((len(row_values), len(col_values)), np.nan)
+        texts: dict[tuple[int, int], str] = {}
+        for c in cells:
+            if tuple(c["settings"][k] for k in others) != panel:
+                continue
+            i = 0 if rows is None else row_values.index(c["settings"][rows])
+            j = col_values.index(c["settings"][columns])
+            grid[i, j] = 100.0 * c["success_rate"]
+            low, high = c["success_rate_ci95"]
+            force = c.get("median_peak_wrist_force_n")
+            texts[(i, j)] = f"{grid[i, j]:.0f}%\n[{100 * low:.0f}, {100 * high:.0f}]" + (
+                "" if force is None else f"\n{force:.1f} N")
+        grids.append(grid)
+        labels.append(texts)
+    return SuccessMap(rows, columns, row_values, col_values, others, panels, grids, labels)
+
+
+def plot_success_map(cells: Sequence[Mapping[str, Any]], rows: str | None, columns: str,
+                     path: str | os.PathLike[str], title: str = "") -> Path:
+    """Heat map of the success rate over two sweep axes (or one: ``rows`` None draws a single row), one panel
+    per combination of any other axes.
 
     Each square shows the rate in % with its 95 % Wilson interval and the median peak wrist force of the
     successes.
@@ -240,45 +292,29 @@ def plot_success_map(cells: Sequence[Mapping[str, Any]], rows: str, columns: str
     Args:
         cells: sweep cell summaries (``settings``, ``success_rate``, ``success_rate_ci95``,
             ``median_peak_wrist_force_n``).
-        rows, columns: the axes on the map's rows and columns (keys of ``settings``).
+        rows, columns: the axes on the map's rows and columns (keys of ``settings``); rows None: one row.
         path: PNG to write.
         title: figure title.
 
     Raises:
         EnvError: an axis missing from the cells' settings, or an unwritable path.
     """
-    if not cells or any(rows not in c["settings"] or columns not in c["settings"] for c in cells):
-        raise EnvError(f"every cell needs settings {rows!r} and {columns!r}")
-    others = sorted({k for c in cells for k in c["settings"]} - {rows, columns})
-    panels = sorted({tuple(c["settings"][k] for k in others) for c in cells})
-    row_values = _axis_values(cells, rows)
-    row_values = row_values if isinstance(row_values[0], str) else row_values[::-1]  # numbers grow upwards
-    col_values = _axis_values(cells, columns)
-    fig, axes = plt.subplots(1, len(panels), figsize=(1.4 * len(col_values) * len(panels) + 2.5,
-                                                      1.0 * len(row_values) + 1.8), squeeze=False)
-    row_label, col_label = AXIS_LABELS[rows][0], AXIS_LABELS[columns][0]
+    m = success_map(cells, rows, columns)
+    fig, axes = plt.subplots(1, len(m.panels), figsize=(1.4 * len(m.col_values) * len(m.panels) + 2.5,
+                                                        1.0 * len(m.row_values) + 1.8), squeeze=False)
+    row_label, col_label = ("" if rows is None else AXIS_LABELS[rows][0]), AXIS_LABELS[columns][0]
     image = None
-    for ax, panel in zip(axes[0], panels):
-        grid = np.full((len(row_values), len(col_values)), np.nan)
-        for c in cells:
-            if tuple(c["settings"][k] for k in others) != panel:
-                continue
-            i, j = row_values.index(c["settings"][rows]), col_values.index(c["settings"][columns])
-            grid[i, j] = 100.0 * c["success_rate"]
-            low, high = c["success_rate_ci95"]
-            force = c.get("median_peak_wrist_force_n")
-            text = f"{grid[i, j]:.0f}%\n[{100 * low:.0f}, {100 * high:.0f}]"
-            if force is not None:
-                text += f"\n{force:.1f} N"
-            ax.text(j, i, text, ha="center", va="center", fontsize=7,
-                    color="white" if grid[i, j] < 50 else "black")
+    for ax, panel, grid, texts in zip(axes[0], m.panels, m.grids, m.labels):
+        for (i, j), text in texts.items():
+            ax.text(j, i, text, ha="center", va="center", fontsize=7, color="white" if grid[i, j] < 50 else "black")
         image = ax.imshow(grid, vmin=0.0, vmax=100.0, cmap="viridis", aspect="auto")
-        ax.set_xticks(range(len(col_values)), [_axis_tick(columns, v) for v in col_values])
-        ax.set_yticks(range(len(row_values)), [_axis_tick(rows, v) for v in row_values])
+        ax.set_xticks(range(len(m.col_values)), [_axis_tick(columns, v) for v in m.col_values])
+        ax.set_yticks([] if rows is None else range(len(m.row_values)),
+                      [] if rows is None else [_axis_tick(rows, v) for v in m.row_values])
         ax.set_xlabel(col_label)
         ax.set_ylabel(row_label)
-        if others:
-            ax.set_title(", ".join(f"{AXIS_LABELS[k][0]} {_axis_tick(k, v)}" for k, v in zip(others, panel)),
+        if m.others:
+            ax.set_title(", ".join(f"{AXIS_LABELS[k][0]} {_axis_tick(k, v)}" for k, v in zip(m.others, panel)),
                          fontsize=9)
     if image is not None:
         fig.colorbar(image, ax=axes[0].tolist(), label="seated (%)", shrink=0.9)
