@@ -39,6 +39,8 @@ import math
 import numba
 import numpy as np
 
+from envs.errors import EnvError
+
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 # The sense state: a float64 array of these slots followed by the force window (see `sense_state`).
@@ -71,7 +73,7 @@ _SCRATCH_SIZE = 256
 def sense_state(window_size: int) -> np.ndarray:
     """A zeroed sense state (the slot constants above) with a force window of ``window_size`` >= 1 values."""
     if window_size < 1:
-        raise ValueError(f"window_size={window_size} must be >= 1")
+        raise EnvError(f"window_size={window_size} must be >= 1")
     return np.zeros(WINDOW + window_size)
 
 
