@@ -40,6 +40,13 @@ class _FitSetup:
 
 
 def _init(setup: _FitSetup) -> _FitSetup:
+    """Worker start: tqdm gets a thread lock instead of the multiprocessing lock it would make (a semaphore that
+    a worker killed on Ctrl-C would leave for the resource tracker to warn about); workers print no progress."""
+    import threading
+
+    from tqdm import tqdm
+
+    tqdm.set_lock(threading.RLock())
     return setup
 
 

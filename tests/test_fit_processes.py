@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -9,7 +16,7 @@ import torch
 from rflow.errors import RFlowError
 from rflow.fit_processes import fit_in_processes
 from rflow.skill_io import fit_pose_skill
-from tests.skill_fixtures import TINY, synthetic_demos
+from tests.skill_fixtures import TINY, synthetic_demos, write_demo_file
 
 
 def _weights(skill) -> dict[str, torch.Tensor]:
@@ -44,3 +51,42 @@ def test_workers_must_be_a_positive_integer() -> None:
     demos = synthetic_demos()
     with pytest.raises(RFlowError, match="workers=0"):
         fit_in_processes({"position": (demos.pos, "euclidean")}, demos.dt, TINY, workers=0)
+
+
+def _spawned_children(pid: int) -> list[int]:
+    kids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat, cmdline = (entry / "stat").read_text(), (entry / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"spawn_main" in cmdline:
+                kids.append(int(entry.name))
+    return kids
+
+
+def test_sigint_during_parallel_training_stops_the_workers_and_writes_nothing(tmp_path: Path) -> None:
+    demos = write_demo_file(tmp_path)
+    out = tmp_path / "model"
+    pih = str(Path(sys.executable).with_name("pih"))
+    proc = subprocess.Popen([pih, "train", "--demos", str(demos), "--out", str(out), "--workers", "2", "--epochs",
+                             "100000", "--layers", "2", "--width", "16", "--quiet"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(_spawned_children(proc.pid)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        workers = _spawned_children(proc.pid)
+        assert len(workers) == 2, proc.poll()
+        time.sleep(6.0)  # both have imported torch and are training
+        os.kill(proc.pid, signal.SIGINT)  # to the parent only (`kill -INT`): it must stop its workers itself
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stderr
+    assert "interrupted" in stderr and "leaked" not in stderr and "Traceback" not in stderr
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["demos.npz"]
+    assert not any(Path(f"/proc/{pid}").exists() and b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()
+                   for pid in workers)
