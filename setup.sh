@@ -23,4 +23,6 @@ PYTHON="${PYTHON:-python3}"
 # The CPU build first, pinned, so no resolver ever pulls CUDA wheels.
 .venv/bin/python -m pip install -q "torch==2.13.0"
 .venv/bin/python -m pip install -q -e ".[test,cluster,search]"
+# Compile the numba kernels once (cached beside their modules), so the first `pih run` does not wait ~25 s.
+MUJOCO_GL="${MUJOCO_GL:-egl}" .venv/bin/pih warmup
 echo "setup.sh: ready -- activate with: source .venv/bin/activate"

@@ -27,6 +27,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "search": ("scripts.search", "Optuna hyperparameter search of RiemannianFlow on one LASA shape"),
     "bench": ("scripts.bench", "speed benchmark: control loop, rendering, IK, flow"),
     "run": ("scripts.run", "the main job: demos -> train -> evaluate -> figures and video"),
+    "warmup": ("scripts.warmup", "compile and cache the numba kernels once (setup.sh runs it)"),
 }
 
 USER_ERRORS = (EnvError, ControllerError, RFlowError, BatchError, FileNotFoundError)
