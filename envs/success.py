@@ -243,8 +243,6 @@ def wall_penetration_m(tip: npt.NDArray[np.float64], rot_peg: npt.NDArray[np.flo
     Raises:
         EnvError: if ``hole.polygon`` is empty (a HoleSpec without geometry).
     """
-    if not hole.polygon:
-        raise EnvError(f"hole {hole.shape!r} has no polygon to check the walls against")
     return _wall_penetration(tip, rot_peg, HoleFrame.of(hole), PegFootprint.of(peg))
 
 
