@@ -280,12 +280,14 @@ def _worker_main(conn: Connection, setup: Any, init: Init, work: Work) -> None:
 
 @dataclass
 class _Worker:
-    """A spawned worker process, its pipe and the unit it is running (key, unit, start time)."""
+    """A spawned worker process, its pipe, the unit it is running (key, unit, start time) and whether it was
+    asked to end."""
 
     process: Any
     conn: Connection
     ready: bool = False
     unit: tuple[str, Any, float] | None = None
+    retired: bool = False
 
     def kill(self) -> None:
         if self.process.is_alive():
@@ -293,14 +295,29 @@ class _Worker:
         self.process.join(5.0)
         self.conn.close()
 
-    def stop(self) -> None:
-        """End an idle worker by asking it to return (so its exit handlers release what it holds, e.g. the
-        semaphores of its locks); kill it if it is busy or does not end within a second."""
-        if self.ready and self.unit is None and self.process.is_alive():
+    def retire(self) -> None:
+        """Ask an idle worker to return, so that its exit handlers release what it holds (e.g. the semaphores
+        of its locks); its interpreter then takes ~0.8 s to shut down, overlapping whatever still runs."""
+        if self.ready and self.unit is None and not self.retired and self.process.is_alive():
             with contextlib.suppress(OSError, ValueError):
                 self.conn.send(None)
-                self.process.join(1.0)
-        self.kill()
+            self.retired = True
+
+
+RETIRE_GRACE_S = 2.0
+"""How long the workers asked to return may take, together, before they are killed."""
+
+
+def _stop_all(workers: Sequence[_Worker]) -> None:
+    """Retire the idle workers (all at once, so their shutdowns overlap) and kill those that are busy or do not
+    end within RETIRE_GRACE_S."""
+    for w in workers:
+        w.retire()
+    deadline = time.monotonic() + RETIRE_GRACE_S
+    for w in workers:
+        if w.retired:
+            w.process.join(max(0.0, deadline - time.monotonic()))
+        w.kill()
 
 
 def _run_in_processes(todo: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Work, failure: Failure,
@@ -324,6 +341,8 @@ def _run_in_processes(todo: Sequence[tuple[str, Any]], setup: Any, init: Init, w
                     key, unit = queue.pop()
                     w.unit = (key, unit, time.monotonic())
                     w.conn.send((key, unit))
+                elif not queue:
+                    w.retire()  # nothing left for it: its shutdown overlaps the units still running
             timeout = None
             if config.unit_timeout_s is not None:
                 started = [w.unit[2] for w in workers if w.unit is not None]
@@ -364,5 +383,4 @@ def _run_in_processes(todo: Sequence[tuple[str, Any]], setup: Any, init: Init, w
                     workers[i] = spawn() if queue else None
             workers = [w for w in workers if w is not None]
     finally:
-        for w in workers:
-            w.stop()
+        _stop_all(workers)

@@ -56,7 +56,7 @@ from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
 from envs import sensing_kernel
 from envs.sensing import PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
-from envs.geometry import as_vector, quat_to_mat
+from envs.geometry import all_finite, as_vector, quat_to_mat, vector_norm
 from envs.success import (
     MIN_ENTRY_DEPTH_M,
     Assessment,
@@ -85,6 +85,7 @@ _BAD_STATE_WARNINGS: tuple[mujoco.mjtWarning, ...] = (
     mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQACC,
 )
+_BAD_STATE_INDICES = np.array([int(w) for w in _BAD_STATE_WARNINGS])
 
 
 @dataclass(frozen=True)
@@ -243,12 +244,6 @@ def _block(indices: Sequence[int]) -> slice:
     if list(indices) != list(range(first, first + len(indices))):
         raise EnvError(f"arm dof addresses {list(indices)} are not one consecutive block")
     return slice(first, first + len(indices))
-
-
-def _all_finite(values: FloatArray) -> bool:
-    """Every entry is finite: a finite sum proves it in one reduction; a non-finite one (or an overflow) is
-    checked entry by entry."""
-    return math.isfinite(values.sum()) or bool(np.all(np.isfinite(values)))
 
 
 def _site_pose(data: mujoco.MjData, site_id: int) -> Pose:
@@ -596,17 +591,17 @@ class PegInHoleEnv:
         return validate_pose(pos, quat, what)
 
     def _bad_warning_counts(self) -> npt.NDArray[np.int_]:
-        return np.array([self.data.warning[int(w)].number for w in _BAD_STATE_WARNINGS], dtype=int)
+        return self.data.warning.number[_BAD_STATE_INDICES]
 
     def _instability(self) -> str | None:
         """Describe a physics failure after a control period, or None."""
-        counts = self._bad_warning_counts()
-        fired = [w.name for w, new, old in zip(_BAD_STATE_WARNINGS, counts, self._warning_counts) if new > old]
+        counts, before = self._bad_warning_counts(), self._warning_counts
         self._warning_counts = counts
-        if fired:
+        if (counts > before).any():
+            fired = [w.name for w, new, old in zip(_BAD_STATE_WARNINGS, counts, before) if new > old]
             return f"MuJoCo warning {', '.join(fired)} at {self._now()} (MuJoCo reset the state)"
         data = self.data
-        if not (_all_finite(data.qpos) and _all_finite(data.qvel) and _all_finite(data.qacc)):
+        if not (all_finite(data.qpos) and all_finite(data.qvel) and all_finite(data.qacc)):
             return f"non-finite state at {self._now()}"
         speed = float(np.max(np.abs(data.qvel[self._arm_dof])))
         if speed > self.config.max_joint_speed_rad_s:
@@ -663,8 +658,7 @@ class PegInHoleEnv:
         flange = _site_pose(data, self.flange_site)
         tcp = _site_pose(data, self.tcp_site)
         peg_tip = _site_pose(data, self.peg_tip_site)
-        finite = np.all(np.isfinite(peg_tip.pos)) and np.all(np.isfinite(peg_tip.quat))
-        if finite and np.linalg.norm(peg_tip.quat) > 0.5:
+        if all_finite(peg_tip.pos) and all_finite(peg_tip.quat) and vector_norm(peg_tip.quat) > 0.5:
             assessment = self._assess(peg_tip.pos, quat_to_mat(peg_tip.quat), None)
         else:
             nan_state = InsertionState(np.nan, np.nan, np.nan, np.nan, False)
@@ -672,9 +666,9 @@ class PegInHoleEnv:
         success = self.tracker.update(time_s, assessment.inserted and track)
         wrench = self.wrist.wrench(data)
         if self._steps > 0:
-            self.stats.wrist_force_samples.append(float(np.linalg.norm(wrench[:3])))
-            self.stats.wrist_torque_samples.append(float(np.linalg.norm(wrench[3:])))
-        width = float(np.sum(data.qpos[self._finger_qpos])) if self.grasped else 0.0
+            self.stats.wrist_force_samples.append(vector_norm(wrench[:3]))
+            self.stats.wrist_torque_samples.append(vector_norm(wrench[3:]))
+        width = float(np.add.reduce(data.qpos[self._finger_qpos])) if self.grasped else 0.0
         return Observation(
             time_s=time_s,
             qpos=data.qpos[self._arm_qpos].copy(),

@@ -6,6 +6,8 @@ so the columns of ``R`` are the axes of a frame expressed in its parent frame.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -15,6 +17,17 @@ FloatArray = npt.NDArray[np.float64]
 
 R_FLIP_X: FloatArray = np.diag([1.0, -1.0, -1.0])
 """Rotation by pi about x: maps a hole frame (z up out of the hole) to the goal peg_tip frame (z down)."""
+
+
+def all_finite(values: FloatArray) -> bool:
+    """Every entry is finite: a finite sum proves it in one reduction; a non-finite one (or an overflow) is
+    checked entry by entry."""
+    return math.isfinite(values.sum()) or bool(np.all(np.isfinite(values)))
+
+
+def vector_norm(vector: FloatArray) -> float:
+    """|v| of a float vector, as np.linalg.norm computes it (sqrt of v . v), without its Python overhead."""
+    return math.sqrt(vector.dot(vector))
 
 
 def as_vector(value: npt.ArrayLike, size: int, name: str) -> FloatArray:
@@ -27,7 +40,7 @@ def as_vector(value: npt.ArrayLike, size: int, name: str) -> FloatArray:
         vector = np.asarray(value, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError) as error:
         raise EnvError(f"{name}={value!r} is not a numeric vector of length {size}") from error
-    if vector.shape != (size,) or not np.all(np.isfinite(vector)):
+    if vector.shape != (size,) or not all_finite(vector):
         raise EnvError(f"{name}={value!r} must be {size} finite numbers")
     return vector
 
@@ -39,7 +52,7 @@ def normalize_quat(quat: npt.ArrayLike, name: str = "quat") -> FloatArray:
         EnvError: if ``quat`` is not 4 finite numbers of non-negligible norm.
     """
     q = as_vector(quat, 4, name)
-    norm = float(np.linalg.norm(q))
+    norm = vector_norm(q)
     if norm < 1e-9:
         raise EnvError(f"{name}={quat!r} has zero norm and is no rotation")
     return q / norm
@@ -47,7 +60,7 @@ def normalize_quat(quat: npt.ArrayLike, name: str = "quat") -> FloatArray:
 
 def quat_to_mat(quat: npt.ArrayLike) -> FloatArray:
     """Rotation matrix of the unit quaternion q = (w, x, y, z) (normalised first)."""
-    w, x, y, z = normalize_quat(quat)
+    w, x, y, z = normalize_quat(quat).tolist()  # Python floats: the same arithmetic, without numpy scalars
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],

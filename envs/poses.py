@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from envs.geometry import all_finite, vector_norm
 from rflow.manifolds import sphere
 
 FloatArray = npt.NDArray[np.float64]
@@ -167,9 +168,9 @@ def validate_pose(pos: npt.ArrayLike, quat: npt.ArrayLike, what: str = "pose") -
         raise EnvError(f"{what}: position must have shape (3,), got {p.shape}")
     if q.shape != (4,):
         raise EnvError(f"{what}: quaternion must have shape (4,) (w, x, y, z), got {q.shape}")
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+    if not (all_finite(p) and all_finite(q)):
         raise EnvError(f"{what}: position {p.tolist()} / quaternion {q.tolist()} contain NaN or inf")
-    norm = float(np.linalg.norm(q))
+    norm = vector_norm(q)
     if abs(norm - 1.0) > QUAT_NORM_TOL:
         raise EnvError(f"{what}: quaternion {q.tolist()} is not unit (norm {norm:.6g})")
     return Pose(pos=p.copy(), quat=q / norm)

@@ -227,7 +227,7 @@ def frame_state(pos: FloatArray, rot: FloatArray, frame: HoleFrame, peg: PegFoot
     rot_rel = rot_peg @ R_FLIP_X
     offset = _hole_offset(pos, frame)
     depth, lateral, in_hole = _inside(offset, hole)
-    tilt = float(np.rad2deg(np.arccos(np.clip(rot_rel[2, 2], -1.0, 1.0))))
+    tilt = float(np.rad2deg(np.arccos(min(max(float(rot_rel[2, 2]), -1.0), 1.0))))  # = np.clip, without its overhead
     yaw = wrap_symmetric_deg(twist_angle_deg(rot_rel), hole.symmetry_order)
     penetration = float("nan")
     if peg is not None and depth > hole.chamfer_m:
@@ -305,9 +305,12 @@ def frame_assessment(pos: FloatArray, rot: FloatArray, frames: Mapping[str, Hole
                      speed_m_s: float) -> Assessment:
     """`assess_insertion` of a checked peg_tip pose (``pos`` (3,), ``rot`` (3, 3), world) against precomputed
     hole frames that contain ``target`` (no validation)."""
-    inside = [shape for shape, frame in frames.items() if _inside(_hole_offset(pos, frame), frame.spec)[2]]
-    hole = target if target in inside else (inside[0] if inside else None)
     state = frame_state(pos, rot, frames[target], peg, speed_m_s)
+    if state.in_hole:  # the target first: the other holes only matter when the peg_tip is not in it
+        hole: str | None = target
+    else:
+        hole = next((shape for shape, frame in frames.items()
+                     if shape != target and _inside(_hole_offset(pos, frame), frame.spec)[2]), None)
     inserted = hole == target and criteria_hold(state, target_depth_m, config)
     return Assessment(hole, state, inserted)
 

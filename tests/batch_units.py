@@ -1,7 +1,7 @@
 """Toy units for the batch tests: module-level functions that spawned workers and Ray actors can import.
 
-A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep"}; its record is computed from n and
-the worker context so that a correct batch gives the same records on any backend.
+A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep" | "note_pid" | "await_pid"}; its record is
+computed from n and the worker context so that a correct batch gives the same records on any backend.
 """
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import signal
 import time
+from pathlib import Path
 from typing import Any
 
 
@@ -30,7 +31,36 @@ def work(context: dict[str, Any], unit: dict[str, Any]) -> dict[str, Any]:
         raise ZeroDivisionError("unit asked to raise")
     elif action == "sleep":
         time.sleep(unit.get("seconds", 60.0))
+    elif action == "note_pid":  # write this worker's pid, return once the unit "await_pid" runs in another one
+        Path(unit["pidfile"]).write_text(str(os.getpid()))
+        _wait_for(Path(unit["started"]), unit.get("seconds", 60.0))
+    elif action == "await_pid":  # the noted worker's process must end while this unit runs
+        Path(unit["started"]).write_text(str(os.getpid()))
+        return {"n": unit["n"], "value": _ended(Path(unit["pidfile"]), unit.get("seconds", 60.0)), "reason": "ok",
+                "tuple": (1, 2)}
     return {"n": unit["n"], "value": unit["n"] ** 2 + context["offset"], "reason": "ok", "tuple": (1, 2)}
+
+
+def _wait_for(path: Path, seconds: float) -> None:
+    deadline = time.monotonic() + seconds
+    while not path.is_file() and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def _ended(pidfile: Path, seconds: float) -> bool:
+    """Whether the process whose pid ``pidfile`` holds (once written) ends -- gone or a zombie -- within
+    ``seconds`` (Linux /proc)."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if pidfile.is_file() and pidfile.read_text():
+            stat = Path(f"/proc/{pidfile.read_text()}/stat")
+            try:
+                if stat.read_text().rsplit(")", 1)[1].split()[0] == "Z":
+                    return True
+            except (FileNotFoundError, ProcessLookupError):
+                return True
+        time.sleep(0.05)
+    return False
 
 
 def failure(key: str, unit: dict[str, Any], reason: str) -> dict[str, Any]:

@@ -42,6 +42,16 @@ def test_a_dead_worker_is_one_failed_unit_and_the_batch_goes_on(action):
     assert [r["value"] for k, r in outcome.records.items() if k != "u002"] == [i * i + 7 for i in (0, 1, 3, 4, 5)]
 
 
+def test_a_worker_with_nothing_left_to_do_ends_while_the_others_run(tmp_path):
+    """Once the queue is empty an idle worker is asked to return at once (its ~1 s interpreter shutdown overlaps
+    the units still running) instead of waiting for the end of the batch."""
+    files = {"pidfile": str(tmp_path / "pid"), "started": str(tmp_path / "started")}
+    todo = [("u000", {"n": 0, "do": "note_pid", **files}), ("u001", {"n": 1, "do": "await_pid", **files})]
+    outcome = run(todo, BatchConfig(workers=2))
+    assert outcome.records["u000"]["value"] == 7
+    assert outcome.records["u001"]["value"] is True  # u000's worker ended while u001 was running
+
+
 def test_two_dead_workers_in_a_row_are_both_recorded():
     outcome = run(units(5, {0: {"do": "kill"}, 1: {"do": "kill"}}), BatchConfig(workers=2))
     assert [r["reason"] for r in outcome.records.values()] == ["worker_died"] * 2 + ["ok"] * 3

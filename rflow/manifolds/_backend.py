@@ -2,19 +2,26 @@
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numpy as np
-import torch
 
 from rflow.errors import RFlowError
 
 Array = Any  # numpy.ndarray or torch.Tensor
 
 
+def _torch() -> Any:
+    """The torch module if something imported it, else None. A tensor can only exist once torch is imported, so
+    numpy-only users of the maps (the simulator, demos, rendering, the CLI's start) never pay its import (~1.5 s)."""
+    return sys.modules.get("torch")
+
+
 def is_torch(x: Array) -> bool:
     """True when ``x`` is a torch tensor (the maps then return tensors and stay differentiable)."""
-    return isinstance(x, torch.Tensor)
+    torch = _torch()
+    return torch is not None and isinstance(x, torch.Tensor)
 
 
 def as_array(x: Any, name: str) -> Array:
@@ -24,6 +31,7 @@ def as_array(x: Any, name: str) -> Array:
         RFlowError: ``x`` is not numeric or holds NaN/inf.
     """
     if is_torch(x):
+        torch = _torch()
         if not torch.is_floating_point(x):
             x = x.to(torch.get_default_dtype())
         if not bool(torch.isfinite(x).all()):
@@ -49,23 +57,23 @@ def check_last_dims(x: Array, dims: tuple[int, ...], name: str) -> None:
 def norm(x: Array, keepdims: bool = True) -> Array:
     """Euclidean norm over the last axis."""
     if is_torch(x):
-        return torch.linalg.vector_norm(x, dim=-1, keepdim=keepdims)
+        return _torch().linalg.vector_norm(x, dim=-1, keepdim=keepdims)
     return np.linalg.norm(x, axis=-1, keepdims=keepdims)
 
 
 def xp(x: Array) -> Any:
     """The array module (numpy or torch) matching ``x`` for functions named alike in both."""
-    return torch if is_torch(x) else np
+    return _torch() if is_torch(x) else np
 
 
 def concat(parts: list[Array], like: Array) -> Array:
     """Concatenate along the last axis."""
-    return torch.cat(parts, dim=-1) if is_torch(like) else np.concatenate(parts, axis=-1)
+    return _torch().cat(parts, dim=-1) if is_torch(like) else np.concatenate(parts, axis=-1)
 
 
 def stack(parts: list[Array], like: Array) -> Array:
     """Stack along a new last axis."""
-    return torch.stack(parts, dim=-1) if is_torch(like) else np.stack(parts, axis=-1)
+    return _torch().stack(parts, dim=-1) if is_torch(like) else np.stack(parts, axis=-1)
 
 
 def swap_last(x: Array) -> Array:
@@ -75,7 +83,7 @@ def swap_last(x: Array) -> Array:
 
 def eigh(x: Array) -> tuple[Array, Array]:
     """Symmetric eigendecomposition, batched over leading axes."""
-    return torch.linalg.eigh(x) if is_torch(x) else np.linalg.eigh(x)
+    return _torch().linalg.eigh(x) if is_torch(x) else np.linalg.eigh(x)
 
 
 def max_abs(x: Array) -> float:

@@ -1,0 +1,51 @@
+"""scripts.cli: `pih` lists every subcommand but imports only the one it runs, so a command starts without
+loading the others' dependencies (torch, Optuna, Ray, ...)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from scripts.cli import SUBCOMMANDS, build_parser, chosen_command
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def imported_after(code: str) -> dict[str, object]:
+    """Run ``code`` in a fresh interpreter and report which scripts.* modules and heavy libraries it loaded."""
+    probe = (f"import sys, json\n{code}\n"
+             "print(json.dumps({'scripts': sorted(m for m in sys.modules if m.startswith('scripts.')),"
+             " 'torch': 'torch' in sys.modules, 'optuna': 'optuna' in sys.modules}))")
+    out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_building_the_parser_for_one_command_imports_only_that_command():
+    loaded = imported_after("from scripts.cli import build_parser\nbuild_parser('demos')")
+    others = {module for name, (module, _) in SUBCOMMANDS.items() if name != "demos"} - {"scripts.task_options"}
+    assert "scripts.demos" in loaded["scripts"]
+    assert not others & set(loaded["scripts"])
+    assert not loaded["torch"] and not loaded["optuna"]  # the simulator's path needs neither
+
+
+def test_the_top_level_help_lists_every_command_without_importing_them():
+    loaded = imported_after("from scripts.cli import build_parser\nprint(build_parser('').format_help())")
+    assert loaded["scripts"] == ["scripts.cli"]
+    text = build_parser("").format_help()
+    for name in SUBCOMMANDS:
+        assert name in text
+
+
+@pytest.mark.parametrize("argv, command", [(["evaluate", "--model", "m"], "evaluate"), (["-h"], ""),
+                                           ([], ""), (["-h", "train"], "train")])
+def test_the_chosen_command_is_the_first_word_that_is_not_an_option(argv, command):
+    assert chosen_command(argv) == command
+
+
+def test_a_command_still_gets_its_own_options():
+    args = build_parser("evaluate").parse_args(["evaluate", "--model", "m", "--episodes", "3"])
+    assert args.command == "evaluate" and args.episodes == 3 and callable(args._main)
