@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 from controllers import impedance_kernel as kernel
 from controllers.errors import ControllerError
+from controllers.mujoco_c import function_table
 from controllers.validation import as_unit_quaternion, as_vector, site_id
 
 PANDA_TORQUE_LIMITS_NM: tuple[float, ...] = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
@@ -251,6 +252,11 @@ class CartesianImpedanceController:
         self._work, self._vec = kernel.work_buffers(n)
         self._last_tau = np.zeros(n)
         self._views: tuple = ()  # (data, its arrays the kernel reads), refreshed when another MjData comes
+        self._fns = function_table()  # MuJoCo's C functions for the compiled physics step
+        self._tool = np.zeros(6)  # [enabled, depth, body, m g] (impedance_kernel.TOOL_*): no tool load
+        self._tool_point = np.zeros(3)
+        self._jac_tool = np.zeros((3, model.nv))
+        self._jac_tool_arm = self._jac_tool[:, self.dof_slice]
         self._checked = self.default_stiffness  # the last stiffness `checked_stiffness` accepted (a private copy)
 
     def checked_stiffness(self, stiffness: npt.ArrayLike | None) -> npt.NDArray[np.float64]:
@@ -268,6 +274,20 @@ class CartesianImpedanceController:
             return self._checked
         self._checked = validate_stiffness(stiffness).copy()
         return self._checked
+
+    def set_tool_load(self, mass_kg: float, depth_m: float) -> None:
+        """Compensate a carried tool's weight, as the robot's own gravity compensation does for a configured
+        end-effector load (outside the commanded torque and its limits): before every physics step the arm gets
+        qfrc_applied = -(m g)^T J_c, J_c the translational Jacobian at the tool's centre of mass
+        p_c = p_site - depth_m z_site on the site's body. ``mass_kg`` 0 removes it.
+
+        Raises:
+            ControllerError: a negative or non-finite mass or depth.
+        """
+        if not (np.isfinite(mass_kg) and mass_kg >= 0.0 and np.isfinite(depth_m)):
+            raise ControllerError(f"tool load: mass {mass_kg!r} kg must be finite and >= 0, depth {depth_m!r} m finite")
+        weight = float(mass_kg) * np.asarray(self.model.opt.gravity, dtype=np.float64)
+        self._tool[:] = [float(mass_kg > 0.0), float(depth_m), float(self.model.site_bodyid[self.site_id]), *weight]
 
     def reset(self, tau0: npt.ArrayLike | None = None) -> None:
         """Set the last commanded torque, the reference of the torque-rate limit.
@@ -376,15 +396,16 @@ class CartesianImpedanceController:
     ) -> int:
         """Advance the simulation n_substeps physics steps under impedance control toward a fixed target.
 
-        Each substep: before_substep(), mj_step1 (positions, velocities, mass matrix, bias), torque into data.ctrl,
-        mj_step2, after_substep(). Inputs are validated once per call, not per substep, so a caller that must act
-        between physics steps (apply a load, read a sensor) passes hooks instead of calling with n_substeps=1.
+        Each substep: before_substep(), then one compiled call (impedance_kernel.impedance_substep): the tool load
+        (`set_tool_load`) into qfrc_applied, mj_step1 (positions, velocities, mass matrix, bias), the torque into
+        data.ctrl, mj_step2; then after_substep(). Inputs are validated once per call, not per substep, so a caller
+        that must act between physics steps (read a sensor) passes hooks instead of calling with n_substeps=1.
 
         Args:
             data: MuJoCo data of `self.model`.
             target_pos, target_quat, stiffness, q_nullspace: as in `compute_torque`.
             n_substeps: number of physics steps (e.g. 10 for a 100 Hz command at 1 kHz physics).
-            before_substep: called before each physics step (e.g. to set data.qfrc_applied).
+            before_substep: called before each physics step.
             after_substep: called after each physics step; returning True stops early (e.g. a force limit).
 
         Returns:
@@ -397,16 +418,21 @@ class CartesianImpedanceController:
         if int(n_substeps) < 1:
             raise ControllerError(f"n_substeps={n_substeps!r} must be >= 1")
         k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
-        views = self._data_views(data)
-        model, step1, step2, torque = self.model, mujoco.mj_step1, mujoco.mj_step2, self._torque
-        for substep in range(int(n_substeps)):
+        _, qpos, qvel, bias, site_pos, site_mat, ctrl = self._data_views(data)
+        fns, m, d, site = self._fns, self.model._address, data._address, self.site_id
+        jac, jac_minv, target, params, last_tau, work, vec = (self._jac, self._jac_minv, self._target, self._params,
+                                                              self._last_tau, self._work, self._vec)
+        tool, point, jac_tool, jac_tool_arm = self._tool, self._tool_point, self._jac_tool, self._jac_tool_arm
+        applied = data.qfrc_applied[self.dof_slice]
+        substep = kernel.impedance_substep
+        for done in range(1, int(n_substeps) + 1):
             if before_substep is not None:
                 before_substep()
-            step1(model, data)
-            torque(data, k, views)
-            step2(model, data)
+            if substep(fns, m, d, site, jac, jac_minv, qpos, qvel, bias, site_pos, site_mat, target, k, params,
+                       last_tau, ctrl, work, vec, tool, point, jac_tool, jac_tool_arm, applied) != kernel.STATUS_OK:
+                raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed); the arm is singular")
             if after_substep is not None and after_substep():
-                return substep + 1
+                return done
         return int(n_substeps)
 
     def _validate(

@@ -4,7 +4,9 @@ At 1 kHz the law runs once per physics step, so its cost is set by call overhead
 version made ~40 Python-level calls (~60 us per step on the development machine, 3x the physics). Here the whole
 law -- Cholesky of Lambda^-1, the symmetric eigenproblem of C^T K C (cyclic Jacobi, exact to rounding for 6x6),
 the pose error, the modal damping, the dynamically consistent nullspace and the torque limits -- is one compiled
-call on preallocated buffers. Only MuJoCo's own mj_jacSite and mj_solveM stay outside (they are C already).
+call on preallocated buffers. `impedance_substep` makes a whole physics step one call: the carried tool's weight
+compensation, mj_step1, mj_jacSite, mj_solveM, the law and mj_step2, calling MuJoCo's C functions directly
+(controllers.mujoco_c).
 
 Equations (see controllers/impedance.py for the derivation):
 
@@ -21,6 +23,8 @@ import math
 
 import numba
 import numpy as np
+
+from controllers.mujoco_c import FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_jac, call_md, call_mdppi
 
 STATUS_OK = 0
 STATUS_NOT_POSITIVE_DEFINITE = 1
@@ -287,6 +291,65 @@ def impedance_torque(
         t = min(max(t, -limit), limit)
         last_tau[i] = t
         ctrl[i] = t
+    return STATUS_OK
+
+
+TOOL_ENABLED, TOOL_DEPTH, TOOL_BODY, TOOL_WEIGHT = 0, 1, 2, 3
+"""Slots of the tool-load parameters: [enabled (0/1), depth d (m), body, m g (3)]."""
+
+
+@_jit
+def tool_load_into(fns: np.ndarray, m: int, d: int, tool: np.ndarray, site_pos: np.ndarray, site_mat: np.ndarray,
+                   point: np.ndarray, jac_tool: np.ndarray, jac_tool_arm: np.ndarray, applied: np.ndarray) -> None:
+    """applied = -(m g)^T J_c (the arm's generalised forces that carry a tool of weight m g): J_c the translational
+    Jacobian (mj_jac on the tool's body) at its centre of mass p_c = p_site - d z_site, z_site the site's z axis
+    (column 2 of its rotation matrix, row-major (9,)).
+
+    Args:
+        tool: [enabled, d, body, m g (3)] (TOOL_* slots).
+        jac_tool, jac_tool_arm: a (3, nv) buffer and its view on the arm's columns (3, n).
+        applied: the arm's qfrc_applied (n,), a view of MjData.
+    """
+    depth = tool[TOOL_DEPTH]
+    for i in range(3):
+        point[i] = site_pos[i] - site_mat[3 * i + 2] * depth
+    call_jac(fns[FN_JAC], m, d, jac_tool.ctypes.data, 0, point.ctypes.data, int(tool[TOOL_BODY]))
+    wx, wy, wz = tool[TOOL_WEIGHT], tool[TOOL_WEIGHT + 1], tool[TOOL_WEIGHT + 2]
+    for j in range(jac_tool_arm.shape[1]):
+        applied[j] = -((wx * jac_tool_arm[0, j] + wy * jac_tool_arm[1, j]) + wz * jac_tool_arm[2, j])
+
+
+@_jit
+def impedance_substep(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarray, jac_minv: np.ndarray,
+                      qpos: np.ndarray, qvel: np.ndarray, qfrc_bias: np.ndarray, site_pos: np.ndarray,
+                      site_mat: np.ndarray, target: np.ndarray, stiffness: np.ndarray, params: np.ndarray,
+                      last_tau: np.ndarray, ctrl: np.ndarray, work: np.ndarray, vec: np.ndarray, tool: np.ndarray,
+                      tool_point: np.ndarray, jac_tool: np.ndarray, jac_tool_arm: np.ndarray,
+                      applied: np.ndarray) -> int:
+    """One controlled physics step: the tool load (when enabled, from the site pose of the last step, as a
+    hook before mj_step1 sees it), mj_step1, J and J M^-1 of the site (mj_jacSite, mj_solveM), the law
+    (`impedance_torque`) into ctrl, mj_step2.
+
+    Args:
+        fns: controllers.mujoco_c.function_table(); m, d: MjModel._address, MjData._address.
+        site: the controlled site; jac, jac_minv: (6, nv) C-contiguous buffers.
+        qpos .. vec: as in `impedance_torque` (site_mat (9,)).
+        tool .. applied: as in `tool_load_into`.
+
+    Returns:
+        STATUS_OK, or the law's failure status (the state is then left after mj_step1, nothing applied).
+    """
+    if tool[TOOL_ENABLED] != 0.0:
+        tool_load_into(fns, m, d, tool, site_pos, site_mat, tool_point, jac_tool, jac_tool_arm, applied)
+    call_md(fns[FN_STEP1], m, d)
+    nv = jac.shape[1]
+    call_mdppi(fns[FN_JAC_SITE], m, d, jac.ctypes.data, jac.ctypes.data + 3 * nv * 8, site)
+    call_mdppi(fns[FN_SOLVE_M], m, d, jac_minv.ctypes.data, jac.ctypes.data, 6)
+    status = impedance_torque(jac, jac_minv, qpos, qvel, qfrc_bias, site_pos, site_mat, target, stiffness, params,
+                              last_tau, ctrl, work, vec)
+    if status != STATUS_OK:
+        return status
+    call_md(fns[FN_STEP2], m, d)
     return STATUS_OK
 
 

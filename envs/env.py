@@ -11,11 +11,12 @@ period, the reference restarts from the measured posture; ``nullspace_failures``
 A grasped peg is squeezed by both fingers with the grasp force (a generalised force on each finger joint)
 and held by friction only. Its weight, which the arm's model does not contain (the peg is a separate body),
 is compensated as a known tool load, as the Franka controller does with its end-effector load setting: tau_load = -J_c^T m g, with J_c the
-translational Jacobian of the peg's nominal centre of mass (on the hand, half a peg below peg_mount).
+translational Jacobian of the peg's nominal centre of mass (on the hand, half a peg below peg_mount), applied by
+the controller before every physics step (CartesianImpedanceController.set_tool_load).
 
 Every physics step the wrist F/T sensor and the peg's contacts are read (envs.sensing): their peaks over the
 episode are kept, and a wrist force above ``force_limit_n`` sustained for ``force_limit_window_s`` ends the
-episode with reason "force_limit" (this per-step work and the tool load are compiled, envs.sensing_kernel; the
+episode with reason "force_limit" (this per-step work is compiled, envs.sensing_kernel; the
 peaks live in a small state array during a control period and are copied into ``stats`` at its end). After each
 period the state is checked (NaN, MuJoCo's bad-qpos/qvel/qacc warnings, joint speeds) and the insertion is scored
 from the peg's MEASURED pose and speed (envs.success: seated, inside the walls, at rest, held for hold_s). An
@@ -312,13 +313,9 @@ class PegInHoleEnv:
         self.wrist = WristSensor(self.model, ids.ft_site, ids.wrist_force_adr, ids.wrist_torque_adr, ToolLoad(load))
         self.contacts = PegContacts(self.model, ids.peg_geoms, ids.finger_geoms)
         self._velocity = np.zeros(6)
-        self._jac_load = np.zeros((3, self.model.nv))
-        self._jac_load_arm = self._jac_load[:, self._arm_dof]  # a view: the arm's dofs are one contiguous block
-        self._hand_body = ids.hand_body
-        d = self.data  # views of the tcp position and z axis and of the arm's applied forces (one MjData)
-        self._load_views = (d.site_xpos[self.tcp_site], d.site_xmat[self.tcp_site].reshape(3, 3)[:, 2],
-                            np.zeros(3), d.qfrc_applied[self._arm_dof])  # ..., the peg's centre of mass (scratch)
-        self._load_weight = self.model.body_mass[ids.peg_body] * np.asarray(self.model.opt.gravity)  # m g
+        d = self.data
+        if self.grasped:  # the peg's weight, a known tool load compensated by the controller (module docstring)
+            self.controller.set_tool_load(float(self.model.body_mass[ids.peg_body]), PEG_LENGTH_M / 2)
         # the per-physics-step sensing (sensing_kernel.sense_substep): its inputs (views of self.data, built once)
         # and a state of peaks, force window and time above the force limit, copied into self.stats after a period
         window = max(1, int(round(episode_config.force_limit_window_s / timestep)))
@@ -486,17 +483,7 @@ class PegInHoleEnv:
         """Hold the start pose while the grasp forces build up (``grasp_settle_s``)."""
         steps = int(round(self.config.grasp_settle_s / float(self.model.opt.timestep)))
         if steps > 0:
-            self.controller.step(self.data, start.pos, start.quat, None, q_ref, steps,
-                                 before_substep=self._compensate_tool_load)
-
-    def _compensate_tool_load(self) -> None:
-        """qfrc_applied on the arm = -J_c^T m g for the grasped peg's nominal centre of mass (module docstring)."""
-        if not self.grasped:
-            return
-        tcp_pos, tcp_axis, point, applied = self._load_views
-        sensing_kernel.tool_load_point(tcp_pos, tcp_axis, PEG_LENGTH_M / 2, point)
-        mujoco.mj_jac(self.model, self.data, self._jac_load, None, point, self._hand_body)
-        sensing_kernel.tool_load_torque(self._load_weight, self._jac_load_arm, applied)
+            self.controller.step(self.data, start.pos, start.quat, None, q_ref, steps)
 
     def step(self, target: Pose | Sequence[npt.ArrayLike], stiffness: npt.ArrayLike | None = None) -> StepResult:
         """Hold the commanded tcp pose for one control period under impedance control.
@@ -531,7 +518,7 @@ class PegInHoleEnv:
         try:
             with np.errstate(all="ignore"):
                 ran = self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_arm, self.n_substeps,
-                                           before_substep=self._compensate_tool_load, after_substep=self._sense)
+                                           after_substep=self._sense)
             force_limited = ran < self.n_substeps or self.stats.force_limit_time_s is not None  # also on the last substep
         except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
             problem = f"controller failed ({type(err).__name__}: {err})"

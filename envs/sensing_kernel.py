@@ -1,10 +1,10 @@
 """The physics-rate sensing of an episode (envs.sensing, envs.env), compiled with numba (no Python work per step).
 
 Every physics step (1 kHz) the episode reads the wrist F/T sensor and the peg's contacts, keeps their peaks and
-checks the force limit; before every step it applies the grasped peg's weight as a tool load. In numpy that was
-~30 Python-level calls per step (30-40 us against ~60 us for the physics on the development machine); here each
-job is one compiled call (~3 us with its arguments) on views of MjData and preallocated buffers. Only MuJoCo's
-mj_jac stays outside (it is C already).
+checks the force limit. In numpy that was ~30 Python-level calls per step (30-40 us against ~60 us for the physics
+on the development machine); here it is one compiled call (~3 us with its arguments) on views of MjData and
+preallocated buffers. (The grasped peg's weight, applied before every step, is the controller's tool load:
+controllers.impedance_kernel.tool_load_into.)
 
 Wrist wrench (envs.sensing), in the sensor frame S with rotation R_S, from the readings F_s, tau_s:
 
@@ -23,9 +23,6 @@ Per physics step (envs.env), with |F| = |F_ext| and h the timestep:
     sustained <- max(sustained, min(window))          once W values were read
     above     <- above + h if |F| > force_limit_n else 0
     limit hit <=> above >= force_limit_window_s - 1e-12 and above > 0
-
-Tool load (envs.env): qfrc_applied[arm] = -(m g)^T J_c, J_c the translational Jacobian (mj_jac) at the peg's nominal
-centre of mass p_c = p_tcp - z_tcp L / 2.
 
 Every sum is taken in the order the numpy version used (left to right for the 3-vector products, numpy's pairwise
 summation for the contact sum, four interleaved partial sums for the mass-weighted centre as numpy's matmul through
@@ -263,17 +260,3 @@ def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, forc
     above = state[ABOVE_LIMIT_S] + limits[LIMIT_TIMESTEP] if f > limits[LIMIT_FORCE] else 0.0
     state[ABOVE_LIMIT_S] = above
     return above >= limits[LIMIT_WINDOW_S] - 1e-12 and above > 0.0
-
-
-@_jit
-def tool_load_point(tcp_pos: np.ndarray, tcp_axis: np.ndarray, half_length: float, point: np.ndarray) -> None:
-    """point = p_tcp - z_tcp half_length, the peg's nominal centre of mass (3,)."""
-    for i in range(3):
-        point[i] = tcp_pos[i] - tcp_axis[i] * half_length
-
-
-@_jit
-def tool_load_torque(weight: np.ndarray, jac: np.ndarray, applied: np.ndarray) -> None:
-    """applied = -(m g)^T J_c: weight m g (3,), J_c the arm's columns (3, n) of the translational Jacobian."""
-    for j in range(jac.shape[1]):
-        applied[j] = -((weight[0] * jac[0, j] + weight[1] * jac[1, j]) + weight[2] * jac[2, j])

@@ -95,16 +95,16 @@ def test_force_limit_reached_on_the_last_substep_ends_the_episode(scene, monkeyp
     6-10 of step 1, where the arm at rest in free space reads the tool's weight)."""
     env = make_env(scene)
     env.reset(start_pose=above(env))
-    real, calls = mujoco.mj_step2, [0]
+    real, calls = env._sense, [0]
     force = slice(scene.ids.wrist_force_adr, scene.ids.wrist_force_adr + 3)
 
-    def step2(model, data):
-        real(model, data)
+    def sense():
         calls[0] += 1
         if 6 <= calls[0] <= 10:
-            data.sensordata[force] = [0.0, 0.0, 1000.0]
+            env.data.sensordata[force] = [0.0, 0.0, 1000.0]
+        return real()
 
-    monkeypatch.setattr(mujoco, "mj_step2", step2)  # the controller's physics step reads it per control period
+    monkeypatch.setattr(env, "_sense", sense)  # the hook that reads the sensor after every physics step
     result = env.step(above(env))
     assert calls[0] == env.n_substeps and result.done and result.reason == REASON_FORCE_LIMIT
 

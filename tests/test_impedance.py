@@ -291,3 +291,36 @@ def test_a_stiffness_changed_in_place_is_checked_again(model):
     k[2, 2] = np.nan
     with pytest.raises(ControllerError, match="non-finite"):
         controller.checked_stiffness(k)
+
+
+def test_the_tool_load_is_minus_the_weight_through_the_jacobian_before_each_step(model):
+    """qfrc_applied on the arm = -(m g)^T J_c at p_c = p_site - d z_site, from the kinematics the step starts
+    with (those of the previous step, as a hook before mj_step1 sees them)."""
+    data, controller, pos, quat = _start(model)
+    mass, depth = 0.35, 0.04
+    controller.set_tool_load(mass, depth)
+    seen = []
+
+    def before():  # the kinematics the tool load is computed from
+        site = controller.site_id
+        point = data.site_xpos[site] - data.site_xmat[site].reshape(3, 3)[:, 2] * depth
+        jacp = np.zeros((3, model.nv))
+        mujoco.mj_jac(model, data, jacp, None, point, model.site_bodyid[site])
+        seen.append(-(jacp[:, controller.dof_slice].T @ (mass * model.opt.gravity)))
+
+    def after():
+        np.testing.assert_allclose(data.qfrc_applied[controller.dof_slice], seen[-1], rtol=1e-12, atol=1e-12)
+        return False
+
+    controller.step(data, pos, quat, n_substeps=3, before_substep=before, after_substep=after)
+    assert len(seen) == 3 and np.abs(seen[-1]).max() > 0.1  # a real load: 0.35 kg at ~0.5 m from the base
+    controller.set_tool_load(0.0, depth)  # removed: the arm's applied forces are left alone
+    data.qfrc_applied[:] = 0.0
+    controller.step(data, pos, quat, n_substeps=2)
+    assert not data.qfrc_applied.any()
+
+
+@pytest.mark.parametrize("mass, depth", [(-1.0, 0.0), (np.nan, 0.0), (1.0, np.inf)])
+def test_a_bad_tool_load_raises_controller_error(model, mass, depth):
+    with pytest.raises(ControllerError, match="tool load"):
+        CartesianImpedanceController(model, "peg_tip").set_tool_load(mass, depth)

@@ -108,16 +108,6 @@ def test_sustained_force_is_the_largest_minimum_over_full_windows() -> None:
     assert state[kernel.PEAK_SUSTAINED] == want and state[kernel.PEAK_FORCE] == max(forces)
 
 
-def test_tool_load_is_minus_the_weight_through_the_jacobian() -> None:
-    rng = np.random.default_rng(5)
-    weight, jac = rng.normal(size=3), rng.normal(size=(3, 9))
-    applied, point = np.zeros(7), np.zeros(3)
-    kernel.tool_load_torque(weight, jac[:, 1:8], applied)  # the arm's columns, a strided view
-    kernel.tool_load_point(np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.6, 0.8]), 0.05, point)
-    np.testing.assert_allclose(applied, -(jac[:, 1:8].T @ weight), rtol=1e-13, atol=1e-13)
-    np.testing.assert_allclose(point, [1.0, 1.97, 2.96], rtol=0.0, atol=1e-15)
-
-
 _XML = """<mujoco><option cone="elliptic"/><worldbody><body name="hand" pos="0 0 1"><freejoint/>
 <geom size="0.05" mass="1"/><site name="ft"/></body></worldbody>
 <sensor><force site="ft"/><torque site="ft"/></sensor></mujoco>"""

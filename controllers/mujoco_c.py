@@ -1,0 +1,95 @@
+"""MuJoCo's C API for numba kernels: a compiled loop calls mj_step1, mj_step2, mj_jac, mj_jacSite and mj_solveM
+itself instead of returning to Python for each (a call through the Python bindings costs ~0.6 us more, and the
+Python around it several us per physics step).
+
+The functions are those of the libmujoco that the ``mujoco`` package loaded (same library, same model and data).
+Kernels receive plain integers, so they stay cacheable (numba refuses to cache a function that holds a ctypes
+function object, and unboxing one per call costs ~2 us):
+
+    fns  = function_table()          # int64 addresses, FN_* indices
+    m, d = model._address, data._address
+    arr.ctypes.data                  # an array's buffer; 0 for NULL
+
+and call them through the intrinsics below, which jump to an address with the C signature of mujoco.h (MuJoCo 3):
+
+    void mj_step1(const mjModel* m, mjData* d);           void mj_step2(const mjModel* m, mjData* d);
+    void mj_jac(const mjModel* m, const mjData* d, mjtNum* jacp, mjtNum* jacr, const mjtNum point[3], int body);
+    void mj_jacSite(const mjModel* m, const mjData* d, mjtNum* jacp, mjtNum* jacr, int site);
+    void mj_solveM(const mjModel* m, mjData* d, mjtNum* x, const mjtNum* y, int n);
+
+`check_function_table` runs each one against the Python bindings on a small model, so a library whose signatures
+differ fails loudly instead of corrupting memory.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
+
+from controllers.errors import ControllerError
+
+FN_STEP1, FN_STEP2, FN_JAC, FN_JAC_SITE, FN_SOLVE_M = range(5)
+_NAMES = ("mj_step1", "mj_step2", "mj_jac", "mj_jacSite", "mj_solveM")
+
+
+def library_path() -> Path:
+    """The libmujoco shared library inside the installed ``mujoco`` package.
+
+    Raises:
+        ControllerError: no such library there (a platform or an install this module does not know).
+    """
+    folder = Path(mujoco.__file__).parent
+    found = sorted(folder.glob("libmujoco.so*")) + sorted(folder.glob("libmujoco*.dylib")) + sorted(
+        folder.glob("mujoco.dll"))
+    if not found:
+        raise ControllerError(f"no libmujoco shared library in {folder}")
+    return found[0]
+
+
+def function_table() -> np.ndarray:
+    """int64 addresses of the FN_* functions in the loaded libmujoco."""
+    lib = ctypes.CDLL(str(library_path()))  # the library the bindings already loaded: the same handle
+    return np.array([ctypes.cast(getattr(lib, name), ctypes.c_void_p).value for name in _NAMES], dtype=np.int64)
+
+
+_I64, _I32 = ir.IntType(64), ir.IntType(32)
+
+
+def _jump(builder: ir.IRBuilder, address: ir.Value, args: list[ir.Value], kinds: str) -> None:
+    """Call the void C function at ``address`` with ``args``: 'p' a pointer (an int64), 'i' a C int."""
+    fnty = ir.FunctionType(ir.VoidType(), [_I64 if k == "p" else _I32 for k in kinds])
+    values = [a if k == "p" else builder.trunc(a, _I32) for a, k in zip(args, kinds)]
+    builder.call(builder.inttoptr(address, fnty.as_pointer()), values)
+
+
+@intrinsic
+def call_md(typingctx, fn, m, d):  # type: ignore[no-untyped-def]
+    """fn(m, d): mj_step1, mj_step2."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        _jump(builder, args[0], list(args[1:]), "pp")
+        return context.get_dummy_value()
+    return types.none(types.int64, types.int64, types.int64), codegen
+
+
+@intrinsic
+def call_jac(typingctx, fn, m, d, jacp, jacr, point, body):  # type: ignore[no-untyped-def]
+    """fn(m, d, jacp, jacr, point, body): mj_jac."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        _jump(builder, args[0], list(args[1:]), "pppppi")
+        return context.get_dummy_value()
+    return types.none(*([types.int64] * 7)), codegen
+
+
+@intrinsic
+def call_mdppi(typingctx, fn, m, d, a, b, n):  # type: ignore[no-untyped-def]
+    """fn(m, d, a, b, n): mj_jacSite (jacp, jacr, site) and mj_solveM (x, y, n)."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        _jump(builder, args[0], list(args[1:]), "ppppi")
+        return context.get_dummy_value()
+    return types.none(*([types.int64] * 6)), codegen

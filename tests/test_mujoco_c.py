@@ -1,0 +1,52 @@
+"""controllers.mujoco_c: MuJoCo's C functions called from a compiled kernel give exactly what the Python bindings
+give (a wrong signature or address would corrupt the state or crash)."""
+
+from __future__ import annotations
+
+import mujoco
+import numba
+import numpy as np
+
+from panda_fixtures import arm_model
+from controllers.mujoco_c import (FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_jac, call_md, call_mdppi,
+                                  function_table, library_path)
+
+
+@numba.njit(cache=False)
+def _compiled_step(fns, m, d, jac, jac_minv, jac_point, point, site, body):
+    call_md(fns[FN_STEP1], m, d)
+    call_mdppi(fns[FN_JAC_SITE], m, d, jac.ctypes.data, jac.ctypes.data + 3 * jac.shape[1] * 8, site)
+    call_mdppi(fns[FN_SOLVE_M], m, d, jac_minv.ctypes.data, jac.ctypes.data, 6)
+    call_jac(fns[FN_JAC], m, d, jac_point.ctypes.data, 0, point.ctypes.data, body)
+    call_md(fns[FN_STEP2], m, d)
+
+
+def test_the_library_is_the_packages():
+    assert library_path().parent.samefile(mujoco.__file__.rsplit("/", 1)[0])
+    assert np.all(function_table() != 0)
+
+
+def test_compiled_calls_equal_the_bindings():
+    model = arm_model()
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "flange")
+    body = int(model.site_bodyid[site])
+    rng = np.random.default_rng(0)
+    fns = function_table()
+    for _ in range(5):
+        ours, theirs = mujoco.MjData(model), mujoco.MjData(model)
+        q, v, tau = (rng.uniform(-0.5, 0.5, model.nq), rng.uniform(-1, 1, model.nv), rng.uniform(-5, 5, model.nu))
+        for data in (ours, theirs):
+            data.qpos[:], data.qvel[:], data.ctrl[:] = model.qpos0 + q, v, tau
+        point = rng.uniform(-0.5, 0.5, 3)
+        jac, jac_minv, jac_point = np.zeros((6, model.nv)), np.zeros((6, model.nv)), np.zeros((3, model.nv))
+        _compiled_step(fns, model._address, ours._address, jac, jac_minv, jac_point, point, site, body)
+        want_jac, want_minv, want_point = np.zeros((6, model.nv)), np.zeros((6, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_step1(model, theirs)
+        mujoco.mj_jacSite(model, theirs, want_jac[:3], want_jac[3:], site)
+        mujoco.mj_solveM(model, theirs, want_minv, want_jac)
+        mujoco.mj_jac(model, theirs, want_point, None, point, body)
+        mujoco.mj_step2(model, theirs)
+        for got, want in ((jac, want_jac), (jac_minv, want_minv), (jac_point, want_point), (ours.qpos, theirs.qpos),
+                          (ours.qvel, theirs.qvel), (ours.qacc, theirs.qacc)):
+            np.testing.assert_array_equal(got, want)
+        assert np.abs(jac).max() > 0.1 and ours.time == theirs.time > 0.0
