@@ -254,8 +254,11 @@ class Mp4Writer:
             raise EnvError(f"video path {self.path} must end in .mp4")
         if not self.path.parent.is_dir():
             raise EnvError(f"cannot write video {self.path}: folder {self.path.parent} does not exist")
-        self._tmp = self.path.with_name(f".{self.path.stem}.{os.getpid()}.tmp.mp4")
-        self._writer = imageio.get_writer(self._tmp, format="FFMPEG", mode="I", fps=fps, codec="libx264",
+        # where the video is encoded until `close` renames it; named after the whole output
+        # (".episodes.mp4.<pid>.tmp.mp4") so that a run folder left by a hard kill mid-write holds nothing
+        # `pih run` would not recognise as its own (scripts.run.check_run_folder)
+        self.temporary_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp.mp4")
+        self._writer = imageio.get_writer(self.temporary_path, format="FFMPEG", mode="I", fps=fps, codec="libx264",
                                           quality=quality, pixelformat="yuv420p", macro_block_size=8,
                                           ffmpeg_log_level="error")
         self.frames = 0
@@ -269,9 +272,9 @@ class Mp4Writer:
         """Finish encoding and move the file into place."""
         self._writer.close()
         if self.frames == 0:
-            self._tmp.unlink(missing_ok=True)
+            self.temporary_path.unlink(missing_ok=True)
             raise EnvError(f"video {self.path}: no frame was rendered")
-        os.replace(self._tmp, self.path)
+        os.replace(self.temporary_path, self.path)
         return self.path
 
     def abort(self) -> None:
@@ -279,7 +282,7 @@ class Mp4Writer:
         try:
             self._writer.close()
         finally:
-            self._tmp.unlink(missing_ok=True)
+            self.temporary_path.unlink(missing_ok=True)
 
 
 class EpisodeVideo:

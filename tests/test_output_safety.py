@@ -10,12 +10,14 @@ import os
 import stat
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from envs.demo_file import save_demos
+from envs.errors import EnvError
+from envs.video import Mp4Writer
 from scripts.cli import main
 from scripts.run import check_run_folder
-from envs.errors import EnvError
 from skill_fixtures import synthetic_demos, write_demo_file
 
 TINY_ARGS = ["--epochs", "1", "--layers", "2", "--width", "16", "--subsample", "1", "--horizon", "5",
@@ -83,3 +85,16 @@ def test_run_folder_with_foreign_files_is_refused(tmp_path):
     (tmp_path / "thesis.tex").write_text("keep me")
     with pytest.raises(EnvError, match="thesis.tex"):
         check_run_folder(tmp_path)
+
+
+def test_a_video_cut_off_mid_write_leaves_a_run_folder_pih_run_accepts(tmp_path):
+    """A hard kill while episodes.mp4 is encoded leaves the writer's temporary file: it must count as `pih run`'s."""
+    writer = Mp4Writer(tmp_path / "episodes.mp4", fps=30)
+    try:
+        writer.append(np.zeros((64, 64, 3), dtype=np.uint8))
+        writer.temporary_path.touch()  # what a killed run leaves (ffmpeg may not have opened it yet)
+        assert writer.temporary_path.parent == tmp_path
+        check_run_folder(tmp_path)
+    finally:
+        writer.abort()
+    assert not any(tmp_path.iterdir())
