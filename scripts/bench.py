@@ -71,7 +71,9 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
     """Control steps per second of whole episodes.
 
     With a skill: closed-loop episodes from the evaluation's perturbed starts (flow query, feed-forward, nullspace
-    IK, 10 controlled physics steps, observation and success check per step), timed from reset to the end.
+    IK, 10 controlled physics steps, observation and success check per step), timed from reset to the end; then
+    the same episodes again split per control period into their parts (envs.execution.profile, "period_us", with
+    "physics" the bare mj_steps of a period over the episodes' own states).
     Without: 100 steps toward a fixed target 2 cm below the start (no flow), per repeat.
     """
     if model is None:
@@ -91,6 +93,7 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
     else:
         from envs.execution.episode import run_episode
         from envs.execution.evaluate import EvaluationConfig, build_setup, evaluation_starts
+        from envs.execution.profile import profile_periods
 
         config = EvaluationConfig(episodes=2 if quick else 5)
         skill, env, policy = build_setup(model, config)
@@ -108,10 +111,13 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         period = env.control_period_s
         substeps = env.n_substeps
         bare = float(np.median(physics))
+        profile = profile_periods(env, policy, starts, config.feedforward_gain)
+        profile["physics"] = 1e6 * substeps / bare  # inside control_and_sensing
         extra = {"flow_in_loop": True, "episodes": len(starts), "successes": successes,
                  "episode_physics_steps_per_s": bare,
                  "physics_realtime_factor": bare * float(env.model.opt.timestep),
-                 "ratio_to_episode_physics": median * substeps / bare}
+                 "ratio_to_episode_physics": median * substeps / bare,
+                 "period_us": {key: round(value, 1) for key, value in profile.items()}}
     return {"env_steps_per_s": median, "physics_steps_per_s": median * substeps,
             "realtime_factor": median * period, **extra}
 
@@ -336,7 +342,12 @@ def main(args: argparse.Namespace) -> int:
         results[name] = figures
         print(f"{name}:")
         for key, value in figures.items():
-            print(f"  {key:28s} {_format(value)}")
+            if isinstance(value, dict):
+                print(f"  {key}:")
+                for part, number in value.items():
+                    print(f"    {part:26s} {_format(number)}")
+            else:
+                print(f"  {key:28s} {_format(value)}")
     results["machine"]["load_average_1min_end"] = os.getloadavg()[0]
     results["relative_to_bare"] = relative_to_bare(results)
     results["physics_bounds"] = physics_bounds(results)
