@@ -3,6 +3,8 @@ give (a wrong signature or address would corrupt the state or crash)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numba
 import numpy as np
@@ -22,7 +24,7 @@ def _compiled_step(fns, m, d, jac, jac_minv, jac_point, point, site, body):
 
 
 def test_the_library_is_the_packages():
-    assert library_path().parent.samefile(mujoco.__file__.rsplit("/", 1)[0])
+    assert library_path().parent.samefile(Path(mujoco.__file__).parent)
     assert np.all(function_table() != 0)
 
 
