@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 from controllers import ik_kernel
 from controllers.errors import ControllerError
+from controllers.mujoco_c import function_table
 from controllers.validation import as_unit_quaternion, as_vector, site_id, site_name
 
 @dataclass(frozen=True)
@@ -113,6 +114,7 @@ class _DifferentialIK:
         self._target_pos = np.zeros(3)
         self._target_mat = np.zeros(9)
         self._scratch = np.zeros((12, 3, 3))
+        self._fns = function_table()  # MuJoCo's C functions for the compiled iterations
 
     def joints(self, value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:
         """A joint vector of the model's size, hinge and slide joints clipped into their limits."""
@@ -139,19 +141,21 @@ class _DifferentialIK:
         self._target_pos[:] = target_pos
         mujoco.mju_quat2Mat(self._target_mat, target_quat)
 
-    def iterate(self) -> None:
-        """One differential-IK QP step, integrated into the configuration: q <- q (+) dq."""
-        model, data, site = self.model, self.data, self.site_id
-        mujoco.mj_jacSite(model, data, self._jac[:3], self._jac[3:], site)
-        ok = ik_kernel.ik_step(self._jac, data.site_xpos[site], data.site_xmat[site], self._target_pos,
-                               self._target_mat, data.qpos, self.q_posture, self._dof_qpos_adr, self.posture_cost,
-                               self.lm_damping, self.DAMPING, self._limited, self._q_min, self._q_max,
-                               self.LIMIT_GAIN, self._dq, self._scratch)
-        if not ok:
+    def iterate(self, iterations: int = 1) -> None:
+        """``iterations`` differential-IK QP steps, each integrated into the configuration: q <- q (+) dq
+        (one compiled call, `ik_kernel.ik_iterations`).
+
+        Raises:
+            ControllerError: a QP was not solved (the configuration is that of the steps before it).
+        """
+        data, site = self.data, self.site_id
+        done = ik_kernel.ik_iterations(self._fns, self.model._address, data._address, site, iterations, self._jac,
+                                       data.site_xpos[site], data.site_xmat[site], self._target_pos,
+                                       self._target_mat, data.qpos, self.q_posture, self._dof_qpos_adr,
+                                       self.posture_cost, self.lm_damping, self.DAMPING, self._limited, self._q_min,
+                                       self._q_max, self.LIMIT_GAIN, self._dq, self._scratch)
+        if done < iterations:
             raise ControllerError(f"IK step failed for site {self.site_name!r}: the QP was not solved")
-        mujoco.mj_integratePos(model, data.qpos, self._dq, 1.0)
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
 
     def residual(self, target_pos: npt.NDArray, target_quat: npt.NDArray) -> tuple[float, float]:
         return pose_residual(self.data, self.site_id, target_pos, target_quat)
@@ -278,6 +282,5 @@ class NullspaceReference:
             ControllerError: bad target or a failed QP.
         """
         self._problem.set_target(as_vector(target_pos, 3, "target_pos"), as_unit_quaternion(target_quat, "target_quat"))
-        for _ in range(self._iterations):
-            self._problem.iterate()
+        self._problem.iterate(self._iterations)
         return self.q

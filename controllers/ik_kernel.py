@@ -13,6 +13,9 @@ For the site pose T_b = (R_b, p_b), the target T_t and T_tb = T_t^-1 T_b, with t
 The box-constrained QP (H positive definite) is solved exactly by a primal active-set method (Nocedal & Wright,
 Algorithm 16.3) from the feasible dq = 0. SE(3) maps follow Sola et al., "A micro Lie theory" (2018): log via
 V^-1(theta), the left Jacobian inverse [[Jl^-1, -Jl^-1 Q Jl^-1], [0, Jl^-1]] with Barfoot's Q(rho, theta).
+
+`ik_iterations` runs several steps in one call: mj_jacSite, the QP step, mj_integratePos (q <- q (+) dq),
+mj_kinematics and mj_comPos each, MuJoCo's C functions called directly (controllers.mujoco_c).
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ import numba
 import numpy as np
 
 from controllers.impedance_kernel import mat_to_quat, cholesky_lower
+from controllers.mujoco_c import FN_COM_POS, FN_INTEGRATE_POS, FN_JAC_SITE, FN_KINEMATICS, call_integrate_pos, call_md, \
+    call_mdppi
 
 _EPS = float(np.finfo(np.float64).eps)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -307,3 +312,28 @@ def ik_step(jac_world, site_pos, site_mat, target_pos, target_mat, qpos, q_nomin
                 lower[i] = -limit_gain * (qpos[adr] - q_min[i])
                 upper[i] = limit_gain * (q_max[i] - qpos[adr])
     return solve_box_qp(h, c, lower, upper, dq)
+
+
+@_jit
+def ik_iterations(fns, m, d, site, iterations, jac, site_pos, site_mat, target_pos, target_mat, qpos, q_nominal,
+                  dof_qpos_adr, posture_weight, lm_damping, damping, limited, q_min, q_max, limit_gain, dq,
+                  scratch):
+    """``iterations`` differential-IK steps of the configuration of MjData ``d`` (its qpos, site_xpos[site] and
+    site_xmat[site] views are ``qpos``, ``site_pos``, ``site_mat``): per step mj_jacSite into ``jac`` (6, nv,
+    C-contiguous), `ik_step`, mj_integratePos(qpos, dq, 1), mj_kinematics and mj_comPos. Returns the number of
+    steps taken: fewer than ``iterations`` when a QP failed (the configuration is then that of the steps before).
+
+    Args:
+        fns, m, d: controllers.mujoco_c.function_table(), MjModel._address, MjData._address.
+        the others: as in `ik_step`.
+    """
+    nv = jac.shape[1]
+    for k in range(iterations):
+        call_mdppi(fns[FN_JAC_SITE], m, d, jac.ctypes.data, jac.ctypes.data + 3 * nv * 8, site)
+        if not ik_step(jac, site_pos, site_mat, target_pos, target_mat, qpos, q_nominal, dof_qpos_adr,
+                       posture_weight, lm_damping, damping, limited, q_min, q_max, limit_gain, dq, scratch):
+            return k
+        call_integrate_pos(fns[FN_INTEGRATE_POS], m, qpos.ctypes.data, dq.ctypes.data, 1.0)
+        call_md(fns[FN_KINEMATICS], m, d)
+        call_md(fns[FN_COM_POS], m, d)
+    return iterations

@@ -1,5 +1,5 @@
-"""MuJoCo's C API for numba kernels: a compiled loop calls mj_step1, mj_step2, mj_jac, mj_jacSite and mj_solveM
-itself instead of returning to Python for each (a call through the Python bindings costs ~0.6 us more, and the
+"""MuJoCo's C API for numba kernels: a compiled loop calls mj_step1, mj_step2, mj_jac, mj_jacSite, mj_solveM,
+mj_kinematics, mj_comPos and mj_integratePos itself instead of returning to Python for each (a call through the Python bindings costs ~0.6 us more, and the
 Python around it several us per physics step).
 
 The functions are those of the libmujoco that the ``mujoco`` package loaded (same library, same model and data).
@@ -16,6 +16,8 @@ and call them through the intrinsics below, which jump to an address with the C 
     void mj_jac(const mjModel* m, const mjData* d, mjtNum* jacp, mjtNum* jacr, const mjtNum point[3], int body);
     void mj_jacSite(const mjModel* m, const mjData* d, mjtNum* jacp, mjtNum* jacr, int site);
     void mj_solveM(const mjModel* m, mjData* d, mjtNum* x, const mjtNum* y, int n);
+    void mj_kinematics(const mjModel* m, mjData* d);      void mj_comPos(const mjModel* m, mjData* d);
+    void mj_integratePos(const mjModel* m, mjtNum* qpos, const mjtNum* qvel, mjtNum dt);
 
 The signatures are written here, not read from the library: tests/test_mujoco_c.py runs each call against the
 Python bindings on random Panda states (bit for bit), so a MuJoCo whose signatures change fails the tests instead of
@@ -35,8 +37,8 @@ from numba.extending import intrinsic
 
 from controllers.errors import ControllerError
 
-FN_STEP1, FN_STEP2, FN_JAC, FN_JAC_SITE, FN_SOLVE_M = range(5)
-_NAMES = ("mj_step1", "mj_step2", "mj_jac", "mj_jacSite", "mj_solveM")
+FN_STEP1, FN_STEP2, FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_KINEMATICS, FN_COM_POS, FN_INTEGRATE_POS = range(8)
+_NAMES = ("mj_step1", "mj_step2", "mj_jac", "mj_jacSite", "mj_solveM", "mj_kinematics", "mj_comPos", "mj_integratePos")
 
 
 def library_path() -> Path:
@@ -59,19 +61,21 @@ def function_table() -> np.ndarray:
     return np.array([ctypes.cast(getattr(lib, name), ctypes.c_void_p).value for name in _NAMES], dtype=np.int64)
 
 
-_I64, _I32 = ir.IntType(64), ir.IntType(32)
+_I64, _I32, _F64 = ir.IntType(64), ir.IntType(32), ir.DoubleType()
+_C_TYPES = {"p": _I64, "i": _I32, "d": _F64}
 
 
 def _jump(builder: ir.IRBuilder, address: ir.Value, args: list[ir.Value], kinds: str) -> None:
-    """Call the void C function at ``address`` with ``args``: 'p' a pointer (an int64), 'i' a C int."""
-    fnty = ir.FunctionType(ir.VoidType(), [_I64 if k == "p" else _I32 for k in kinds])
-    values = [a if k == "p" else builder.trunc(a, _I32) for a, k in zip(args, kinds)]
+    """Call the void C function at ``address`` with ``args``: 'p' a pointer (an int64), 'i' a C int (an int64
+    truncated), 'd' a double."""
+    fnty = ir.FunctionType(ir.VoidType(), [_C_TYPES[k] for k in kinds])
+    values = [builder.trunc(a, _I32) if k == "i" else a for a, k in zip(args, kinds)]
     builder.call(builder.inttoptr(address, fnty.as_pointer()), values)
 
 
 @intrinsic
 def call_md(typingctx, fn, m, d):  # type: ignore[no-untyped-def]
-    """fn(m, d): mj_step1, mj_step2."""
+    """fn(m, d): mj_step1, mj_step2, mj_kinematics, mj_comPos."""
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         _jump(builder, args[0], list(args[1:]), "pp")
         return context.get_dummy_value()
@@ -94,3 +98,12 @@ def call_mdppi(typingctx, fn, m, d, a, b, n):  # type: ignore[no-untyped-def]
         _jump(builder, args[0], list(args[1:]), "ppppi")
         return context.get_dummy_value()
     return types.none(*([types.int64] * 6)), codegen
+
+
+@intrinsic
+def call_integrate_pos(typingctx, fn, m, qpos, qvel, dt):  # type: ignore[no-untyped-def]
+    """fn(m, qpos, qvel, dt): mj_integratePos."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        _jump(builder, args[0], list(args[1:]), "pppd")
+        return context.get_dummy_value()
+    return types.none(types.int64, types.int64, types.int64, types.int64, types.float64), codegen

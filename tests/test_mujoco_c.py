@@ -10,8 +10,9 @@ import numba
 import numpy as np
 
 from panda_fixtures import arm_model
-from controllers.mujoco_c import (FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_jac, call_md, call_mdppi,
-                                  function_table, library_path)
+from controllers.mujoco_c import (FN_COM_POS, FN_INTEGRATE_POS, FN_JAC, FN_JAC_SITE, FN_KINEMATICS, FN_SOLVE_M,
+                                  FN_STEP1, FN_STEP2, call_integrate_pos, call_jac, call_md, call_mdppi, function_table,
+                                  library_path)
 
 
 @numba.njit(cache=False)
@@ -21,6 +22,13 @@ def _compiled_step(fns, m, d, jac, jac_minv, jac_point, point, site, body):
     call_mdppi(fns[FN_SOLVE_M], m, d, jac_minv.ctypes.data, jac.ctypes.data, 6)
     call_jac(fns[FN_JAC], m, d, jac_point.ctypes.data, 0, point.ctypes.data, body)
     call_md(fns[FN_STEP2], m, d)
+
+
+@numba.njit(cache=False)
+def _compiled_kinematics(fns, m, d, qpos, dq, dt):
+    call_integrate_pos(fns[FN_INTEGRATE_POS], m, qpos.ctypes.data, dq.ctypes.data, dt)
+    call_md(fns[FN_KINEMATICS], m, d)
+    call_md(fns[FN_COM_POS], m, d)
 
 
 def test_the_library_is_the_packages():
@@ -52,3 +60,19 @@ def test_compiled_calls_equal_the_bindings():
                           (ours.qvel, theirs.qvel), (ours.qacc, theirs.qacc)):
             np.testing.assert_array_equal(got, want)
         assert np.abs(jac).max() > 0.1 and ours.time == theirs.time > 0.0
+
+
+def test_compiled_integration_and_kinematics_equal_the_bindings():
+    model = arm_model()
+    rng = np.random.default_rng(1)
+    ours, theirs = mujoco.MjData(model), mujoco.MjData(model)
+    q, dq = model.qpos0 + rng.uniform(-0.5, 0.5, model.nq), rng.uniform(-0.3, 0.3, model.nv)
+    ours.qpos[:], theirs.qpos[:] = q, q
+    _compiled_kinematics(function_table(), model._address, ours._address, ours.qpos, dq, 0.7)
+    mujoco.mj_integratePos(model, theirs.qpos, dq, 0.7)
+    mujoco.mj_kinematics(model, theirs)
+    mujoco.mj_comPos(model, theirs)
+    for got, want in ((ours.qpos, theirs.qpos), (ours.xpos, theirs.xpos), (ours.site_xmat, theirs.site_xmat),
+                      (ours.cdof, theirs.cdof), (ours.subtree_com, theirs.subtree_com)):
+        np.testing.assert_array_equal(got, want)
+    assert not np.array_equal(ours.qpos, q) and np.abs(ours.cdof).max() > 0.0
