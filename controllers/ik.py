@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from controllers import ik_kernel
 from controllers.errors import ControllerError
-from controllers.mujoco_c import function_table
+from controllers.mujoco_c import FUNCTIONS
 from controllers.validation import as_unit_quaternion, as_vector, site_id, site_name
 
 @dataclass(frozen=True)
@@ -114,7 +114,7 @@ class _DifferentialIK:
         self._target_pos = np.zeros(3)
         self._target_mat = np.zeros(9)
         self._scratch = np.zeros((12, 3, 3))
-        self._fns = function_table()  # MuJoCo's C functions for the compiled iterations
+        self._fns = FUNCTIONS  # MuJoCo's C functions for the compiled iterations
 
     def joints(self, value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:
         """A joint vector of the model's size, hinge and slide joints clipped into their limits."""

@@ -324,7 +324,7 @@ def ik_iterations(fns, m, d, site, iterations, jac, site_pos, site_mat, target_p
     steps taken: fewer than ``iterations`` when a QP failed (the configuration is then that of the steps before).
 
     Args:
-        fns, m, d: controllers.mujoco_c.function_table(), MjModel._address, MjData._address.
+        fns, m, d: controllers.mujoco_c.FUNCTIONS, MjModel._address, MjData._address.
         the others: as in `ik_step`.
     """
     nv = jac.shape[1]

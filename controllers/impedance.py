@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 from controllers import impedance_kernel as kernel
 from controllers.errors import ControllerError
-from controllers.mujoco_c import function_table
+from controllers.mujoco_c import FUNCTIONS
 from controllers.validation import as_unit_quaternion, as_vector, site_id
 
 PANDA_TORQUE_LIMITS_NM: tuple[float, ...] = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
@@ -252,7 +252,7 @@ class CartesianImpedanceController:
         self._work, self._vec = kernel.work_buffers(n)
         self._last_tau = np.zeros(n)
         self._views: tuple = ()  # (data, its arrays the kernel reads), refreshed when another MjData comes
-        self._fns = function_table()  # MuJoCo's C functions for the compiled physics step
+        self._fns = FUNCTIONS  # MuJoCo's C functions for the compiled physics step
         self._tool = np.zeros(6)  # [enabled, depth, body, m g] (impedance_kernel.TOOL_*): no tool load
         self._tool_point = np.zeros(3)
         self._jac_tool = np.zeros((3, model.nv))

@@ -331,7 +331,7 @@ def impedance_substep(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarra
     (`impedance_torque`) into ctrl, mj_step2.
 
     Args:
-        fns: controllers.mujoco_c.function_table(); m, d: MjModel._address, MjData._address.
+        fns: controllers.mujoco_c.FUNCTIONS; m, d: MjModel._address, MjData._address.
         site: the controlled site; jac, jac_minv: (6, nv) C-contiguous buffers.
         qpos .. vec: as in `impedance_torque` (site_mat (9,)).
         tool .. applied: as in `tool_load_into`.
