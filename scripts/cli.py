@@ -26,6 +26,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "lasa": ("scripts.lasa", "Riemannian LASA benchmark (SPD and unit quaternions)"),
     "search": ("scripts.search", "Optuna hyperparameter search of RiemannianFlow on one LASA shape"),
     "bench": ("scripts.bench", "speed benchmark: control loop, rendering, IK, flow"),
+    "benchmark": ("scripts.benchmark", "the success-rate protocol: demos, training, evaluation per demo seed, rate "
+                                       "over seeds"),
     "run": ("scripts.run", "the main job: demos -> train -> evaluate -> figures and video"),
     "warmup": ("scripts.warmup", "compile and cache the numba kernels once (setup.sh runs it)"),
 }
