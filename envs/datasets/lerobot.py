@@ -105,7 +105,7 @@ def info_features(meta: ExportMeta, video: LeRobotVideo | None, fps: int | float
         out[video.key] = {"dtype": "video", "shape": [video.height, video.width, 3],
                           "names": ["height", "width", "channels"],
                           "info": {"video.height": video.height, "video.width": video.width, "video.codec": "h264",
-                                   "video.pix_fmt": "yuv420p", "video.is_depth_map": False, "video.fps": fps,
+                                   "video.pix_fmt": "yuv420p", "video.fps": fps, "is_depth_map": False,
                                    "video.channels": 3, "has_audio": False}}
     out.update({k: dict(v) for k, v in INDEX_FEATURES.items()})
     return out
