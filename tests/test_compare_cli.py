@@ -63,6 +63,7 @@ def test_exit_status_says_whether_the_candidate_regressed(files, capsys, cand, e
     (["base", "base", "--margin", "1.5"], "--margin 1.5"),
     (["base", "base", "--alpha", "0"], "--alpha 0"),
     (["base", "base", "--sequential"], "--sequential runs the episodes itself"),
+    (["--sequential", "--cand-model", "base"], "--sequential needs --base-model"),
 ])
 def test_bad_input_is_one_line_and_status_2(files, capsys, args, message):
     argv = [files.get(a, a) for a in args]
