@@ -28,13 +28,14 @@ def to_jsonable(value: Any) -> Any:
     return value
 
 
-def write_json_atomic(path: str | os.PathLike[str], value: Any) -> Path:
+def write_json_atomic(path: str | os.PathLike[str], value: Any, allow_nan: bool = True) -> Path:
     """Write ``value`` as indented JSON to a temporary file beside ``path`` (mode per umask) and rename it into
-    place, so a reader never sees half a file and a failure leaves the old file (or none)."""
+    place, so a reader never sees half a file and a failure leaves the old file (or none). ``allow_nan=False``:
+    strict JSON, a NaN or infinity raises ValueError before anything is written."""
     out = Path(path)
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
     try:
-        tmp.write_text(json.dumps(value, indent=2))
+        tmp.write_text(json.dumps(value, indent=2, allow_nan=allow_nan))
         os.replace(tmp, out)
     finally:
         tmp.unlink(missing_ok=True)

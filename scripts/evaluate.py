@@ -43,8 +43,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     d = EvaluationConfig()
     parser.add_argument("--model", required=True, type=Path, help="checkpoint directory from `pih train`")
     parser.add_argument("--episodes", type=int, default=d.episodes, help=f"perturbed starts (default {d.episodes})")
-    parser.add_argument("--seed", type=int, default=d.seed, help=f"seed of the start poses (default {d.seed})")
     parser.add_argument("--json", type=Path, help="write the full record (config, rate, CI, per episode) here")
+    parser.add_argument("--video", type=Path, help="render the chosen episodes (--video-episodes) to this MP4")
+    parser.add_argument("--video-episodes", default="auto",
+                        help="comma-separated episode indices for --video/--figure, or 'auto' "
+                             "(the first three successes and the first failure)")
+    parser.add_argument("--camera", default="front", help="camera of --video (front, side, top, closeup, wrist)")
+    parser.add_argument("--figure", type=Path,
+                        help="write the demos / generated / executed figure of the chosen episodes here (PNG)")
+    parser.add_argument("--stiffness-figure", type=Path,
+                        help="write the eigenvalues of the stiffness commanded in the chosen episodes against time, "
+                             "beside the demos' (PNG)")
+    parser.add_argument("--journal", type=Path,
+                        help="append each finished episode here (JSON Lines; default <json>.journal.jsonl with --json)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run recorded in --journal: only its missing episodes are run")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace existing outputs (--json, --video, --figure, --stiffness-figure and the journal) "
+                             "of an earlier run")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_evaluation_options(parser)
+
+
+def add_evaluation_options(parser: argparse.ArgumentParser) -> None:
+    """The options `config_from_args` reads, all but --episodes (shared with `pih compare --sequential`)."""
+    d = EvaluationConfig()
+    parser.add_argument("--seed", type=int, default=d.seed, help=f"seed of the start poses (default {d.seed})")
     parser.add_argument("--mode", choices=MODES, default=d.mode,
                         help="closed-loop: query the flow at the measured pose every 10 ms (default); "
                              "open-loop: generate the trajectory first and track it in time")
@@ -66,23 +90,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"time scaling of the learned flow, both modes (default {d.speed:g})")
     parser.add_argument("--time-limit", type=float, default=d.time_limit_s,
                         help=f"simulated seconds per episode (default {d.time_limit_s:g})")
-    parser.add_argument("--video", type=Path, help="render the chosen episodes (--video-episodes) to this MP4")
-    parser.add_argument("--video-episodes", default="auto",
-                        help="comma-separated episode indices for --video/--figure, or 'auto' "
-                             "(the first three successes and the first failure)")
-    parser.add_argument("--camera", default="front", help="camera of --video (front, side, top, closeup, wrist)")
-    parser.add_argument("--figure", type=Path,
-                        help="write the demos / generated / executed figure of the chosen episodes here (PNG)")
-    parser.add_argument("--stiffness-figure", type=Path,
-                        help="write the eigenvalues of the stiffness commanded in the chosen episodes against time, "
-                             "beside the demos' (PNG)")
-    parser.add_argument("--journal", type=Path,
-                        help="append each finished episode here (JSON Lines; default <json>.journal.jsonl with --json)")
-    parser.add_argument("--resume", action="store_true",
-                        help="continue the run recorded in --journal: only its missing episodes are run")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace existing outputs (--json, --video, --figure, --stiffness-figure and the journal) "
-                             "of an earlier run")
     parser.add_argument("--backend", choices=BACKENDS, default=d.backend,
                         help="process: local worker processes (default); ray: Ray actors (pip install -e '.[cluster]')")
     parser.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray on all cores)")
@@ -95,7 +102,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stiffness",
                         help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`) or "
                              "'constant:K' (K I, K > 0 in N/m); default: the controller's")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_task_arguments(parser)
 
 
@@ -119,6 +125,19 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
         unit_timeout_s=None if args.unit_timeout == 0 else args.unit_timeout, backend=args.backend,
         ray_address=args.ray_address, stiffness=args.stiffness,
         contact_adaptation=not args.no_contact_adaptation)
+
+
+def checked_config(args: argparse.Namespace) -> EvaluationConfig:
+    """`config_from_args` after the checks of the options it does not validate itself.
+
+    Raises:
+        EnvError: naming the offending option.
+    """
+    if not (math.isfinite(args.unit_timeout) and args.unit_timeout >= 0.0):
+        raise EnvError(f"--unit-timeout {args.unit_timeout}: must be >= 0 seconds (0 = no limit)")
+    if args.ray_address is not None and args.backend != "ray":
+        raise EnvError("--ray-address needs --backend ray")
+    return config_from_args(args)
 
 
 def journal_path(args: argparse.Namespace) -> Path | None:
@@ -177,11 +196,7 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
     Raises:
         EnvError: naming the offending option.
     """
-    if not (math.isfinite(args.unit_timeout) and args.unit_timeout >= 0.0):
-        raise EnvError(f"--unit-timeout {args.unit_timeout}: must be >= 0 seconds (0 = no limit)")
-    if args.ray_address is not None and args.backend != "ray":
-        raise EnvError("--ray-address needs --backend ray")
-    config = config_from_args(args)
+    config = checked_config(args)
     if not args.model.is_dir():
         raise EnvError(f"--model {args.model}: checkpoint folder not found")
     if config.stiffness == "learned":

@@ -13,40 +13,29 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.demo_file import save_demos
-from envs.demos import ExpertConfig, collect_demos
 from envs.execution.evaluate import EvaluationConfig, evaluate
 from envs.task import PRESETS
 from rflow.skill_io import load_skill, save_skill
-from scripts.train import skill_train_config, train_skill
 
-pytestmark = pytest.mark.slow  # trains a model and runs physics episodes
+pytestmark = pytest.mark.slow  # trains a model (the paper_checkpoint fixture of conftest.py) and runs physics episodes
 
 GOAL_SHIFT_M = np.array([0.0, 0.03, 0.0])
 PAPER = PRESETS["paper"]
 
 
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("e2e")
-    demos = collect_demos(7, seed=0, scene_config=PAPER.scene_config(), expert=ExpertConfig(num_samples=400)).demos
-    path = save_demos(folder / "demos.npz", demos)
-    return train_skill(path, folder / "model", skill_train_config(epochs=40), subsample=1, progress=False)
-
-
 @pytest.mark.parametrize("mode", ["closed-loop", "open-loop"])
-def test_small_skill_inserts_from_perturbed_starts(checkpoint, mode):
+def test_small_skill_inserts_from_perturbed_starts(paper_checkpoint, mode):
     config = EvaluationConfig(episodes=20, seed=1, mode=mode, workers=2, perturbations=PAPER.perturbations)
     assert (config.pos_range_m, config.rot_range_deg) == (0.05, 15.0)
-    result = evaluate(checkpoint, config, progress=False)
+    result = evaluate(paper_checkpoint, config, progress=False)
     failures = [r.reason for r in result.records if not r.success]
     assert result.success_rate >= 0.9, failures
     assert not any(reason.startswith("error") for reason in failures)
 
 
-def test_goal_shifted_skill_is_scored_as_failing(checkpoint, tmp_path):
+def test_goal_shifted_skill_is_scored_as_failing(paper_checkpoint, tmp_path):
     """The same skill with its position goal moved 3 cm sideways ends on the sorter's top face: no success."""
-    skill = load_skill(checkpoint)
+    skill = load_skill(paper_checkpoint)
     skill.models["position"].goal = skill.models["position"].goal + GOAL_SHIFT_M
     shifted = save_skill(tmp_path / "shifted", skill)
     config = EvaluationConfig(episodes=4, seed=1, pos_range_m=0.02, rot_range_deg=5.0, time_limit_s=8.0, workers=2,

@@ -1,9 +1,8 @@
-"""envs.execution.evaluate: Wilson interval, start sampling, episode records and the batch runner (tiny skills)."""
+"""envs.execution.evaluate: start sampling, episode records and the batch runner (tiny skills)."""
 
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pytest
@@ -15,12 +14,14 @@ from envs.execution.evaluate import (
     EvaluationConfig,
     EvaluationResult,
     StartPose,
+    _failed_unit,
     evaluate,
     run_episode,
     sample_starts,
     scene_config_for,
-    wilson_interval,
 )
+from envs.execution.statistics import wilson_interval
+from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
 from envs.execution.policy import ClosedLoopPolicy, StiffnessSetting
 from rflow.skill_io import save_skill
@@ -35,21 +36,6 @@ def skill():
 @pytest.fixture(scope="module")
 def env():
     return PegInHoleEnv(episode_config=EpisodeConfig(time_limit_s=0.2))
-
-
-def test_wilson_interval_of_half():
-    low, high = wilson_interval(5, 10)
-    assert math.isclose(low, 0.2366, abs_tol=1e-4) and math.isclose(high, 0.7634, abs_tol=1e-4)
-
-
-def test_wilson_interval_of_all_successes_excludes_one_below():
-    low, high = wilson_interval(100, 100)
-    assert math.isclose(low, 0.9630, abs_tol=1e-4) and high == 1.0
-
-
-def test_wilson_interval_rejects_more_successes_than_trials():
-    with pytest.raises(EnvError):
-        wilson_interval(3, 2)
 
 
 def test_starts_depend_only_on_the_seed():
@@ -132,6 +118,11 @@ def test_trace_records_the_robot_signals_of_every_row(skill, env):
     np.testing.assert_array_equal(np.concatenate([trace.tcp_pos[-1], trace.tcp_quat[-1]]),
                                   np.concatenate([last.tcp.pos, last.tcp.quat]))
     assert trace.success.dtype == bool and trace.success[-1] == record.success
+
+
+def test_an_episode_without_a_record_keeps_its_perturbation():
+    start = StartPose(3, -1, Pose(GOAL_POS, GOAL_QUAT), Perturbation(hole_dx_m=0.0005, hole_yaw_deg=0.7))
+    assert _failed_unit("3", start, "worker_died")["perturbation"] == start.perturbation.to_dict()
 
 
 def test_record_json_has_no_nan():

@@ -19,8 +19,7 @@ is recorded as a failure with its reason, not raised), then each control period 
 envs.success on the MEASURED peg_tip pose (criteria held for hold_s), never the plan. Any exception inside
 an episode is recorded as a failure "error: ..." and the batch goes on.
 
-Statistics. The success rate p = k/n with its 95 % Wilson score interval
-    (p + z^2/2n -+ z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n),  z = 1.96.
+Statistics. The success rate p = k/n with its 95 % Wilson score interval (envs.execution.statistics).
 """
 
 from __future__ import annotations
@@ -44,30 +43,12 @@ from envs.sorter import check_chamfer, check_clearance
 from envs.task import DEFAULT_PRESET, PRESETS
 from envs.execution.adaptation import ContactAdaptation
 from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose, run_episode
+from envs.execution.statistics import wilson_interval
 from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting, make_policy
 
 FloatArray = npt.NDArray[np.float64]
 
-Z_95: float = 1.959963984540054
 AROUND: tuple[str, ...] = ("mean", "demo")
-
-
-def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (equation in the module docstring).
-
-    Raises:
-        EnvError: trials < 0 or successes outside [0, trials].
-    """
-    if trials < 0 or not 0 <= successes <= max(trials, 0):
-        raise EnvError(f"need 0 <= successes <= trials, got {successes} of {trials}")
-    if trials == 0:
-        return 0.0, 1.0
-    p = successes / trials
-    z2n = z * z / trials
-    centre = p + z2n / 2.0
-    half = z * math.sqrt(p * (1.0 - p) / trials + z2n / (4.0 * trials))
-    low, high = (centre - half) / (1.0 + z2n), (centre + half) / (1.0 + z2n)
-    return max(0.0, low), min(1.0, high)
 
 
 def finite_median(values: Iterable[float | None]) -> float | None:
@@ -494,7 +475,7 @@ def _run_unit(context: dict[str, Any], start: StartPose) -> dict[str, Any]:
 def _failed_unit(key: str, start: StartPose, reason: str) -> dict[str, Any]:
     """The record of an episode that produced none ("worker_died", "wall_timeout", "error: ...")."""
     return EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
-                         reason=reason).to_dict()
+                         reason=reason, perturbation=start.perturbation.to_dict()).to_dict()
 
 
 def record_from_dict(values: dict[str, Any]) -> EpisodeRecord:
@@ -650,5 +631,4 @@ __all__ = [
     "evaluation_starts",
     "sample_starts",
     "scene_config_for",
-    "wilson_interval",
 ]

@@ -38,7 +38,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from envs.errors import EnvError
-from envs.execution.evaluate import EvaluationConfig, failure_kinds, wilson_interval
+from envs.execution.evaluate import EvaluationConfig, failure_kinds
+from envs.execution.statistics import wilson_interval
 
 REPLICATE_PREFIX = "seed-"
 PROTOCOL_FILE = "protocol.json"

@@ -31,8 +31,8 @@ from envs.execution.evaluate import (
     finite_median,
     finite_min,
     record_from_dict,
-    wilson_interval,
 )
+from envs.execution.statistics import wilson_interval
 from envs.perturbation import PerturbationRanges
 
 AXES: tuple[str, ...] = ("clearance_m", "hole_error_m", "chamfer_m", "hole_error_deg", "pos_range_m", "stiffness")

@@ -1,0 +1,216 @@
+"""`pih compare`: did a change make insertion worse? A paired comparison of two skills on the same episodes.
+
+    pih compare BASE.json CAND.json [--margin 0.0] [--alpha 0.05] [--json out.json]
+    pih compare --sequential --base-model A --cand-model B --seed S [--max-episodes 400] [--chunk 10]
+        [--workers N] [the start and task options of `pih evaluate`]
+
+Paired mode reads two `pih evaluate --json` files that ran the same episodes (same --seed, --episodes and
+start / task options; refused, one line naming the first differing episode, otherwise) and prints the success
+rates with Wilson intervals, the paired counts, the difference with Newcombe's paired interval, McNemar's exact
+p, Barnard's unpaired p for reference, the finer paired metrics (progress, time to seat, held force) and the
+decision: "regression" when the one-sided (1 - alpha) upper bound of p_cand - p_base lies below -margin
+(envs/execution/statistics.py, envs/execution/comparison.py).
+
+Sequential mode runs the episodes itself: it draws the starts once from the base model's demo starts, runs both
+models on the same starts, --chunk episodes at a time, feeds the pairs in episode order to anytime-valid
+e-processes on success and progress, and stops at the first decision (or after --max-episodes pairs), so the
+answer does not depend on --workers or --chunk. It reports how many pairs the decision needed.
+
+Exit status: 0 no regression (or, sequential, no decision yet), 1 regression, 2 bad input (missing file, not
+an evaluation, episodes that do not pair), 3 / 130 an incomplete / interrupted sequential run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+import scripts.evaluate as evaluate_cli
+from envs.errors import EnvError
+from envs.jsonable import write_json_atomic
+from envs.execution.comparison import compare_evaluations, load_evaluation, sequential_differences
+from envs.execution.statistics import DECISIONS, SequentialComparison, pair_records
+
+KIND = "pih compare"
+EXIT_REGRESSION = 1
+EXIT_INCOMPLETE = 3
+EXIT_INTERRUPTED = 130
+DEFAULT_MAX_EPISODES = 400
+DEFAULT_CHUNK = 10
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `pih compare`."""
+    parser.add_argument("evaluations", nargs="*", type=Path, metavar="EVAL.json",
+                        help="BASE.json CAND.json: two `pih evaluate --json` files of the same episodes")
+    parser.add_argument("--margin", type=float, default=0.0,
+                        help="success-rate drop tolerated, as a fraction (0.02 = 2 points; default 0)")
+    parser.add_argument("--alpha", type=float, default=0.05,
+                        help="probability of calling a regression that is not there (default 0.05)")
+    parser.add_argument("--json", type=Path, help="write the comparison here (strict JSON)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier `pih compare --json` output")
+    group = parser.add_argument_group("sequential mode (also takes the start and task options of `pih evaluate`)")
+    group.add_argument("--sequential", action="store_true",
+                       help="run both models on the same starts, chunk by chunk, until the e-processes decide")
+    group.add_argument("--base-model", type=Path, help="checkpoint of the base skill (its demo starts give the starts)")
+    group.add_argument("--cand-model", type=Path, help="checkpoint of the candidate skill")
+    group.add_argument("--max-episodes", dest="episodes", type=int, default=DEFAULT_MAX_EPISODES,
+                       help=f"stop undecided after this many pairs (default {DEFAULT_MAX_EPISODES})")
+    group.add_argument("--chunk", type=int, default=DEFAULT_CHUNK,
+                       help=f"episodes per model run between updates (default {DEFAULT_CHUNK})")
+    group.add_argument("--progress-margin", type=float,
+                       help="margin of the mean insertion progress (0-1) in the sequential test (default: --margin)")
+    group.add_argument("--quiet", action="store_true", help="no progress bars or per-chunk lines")
+    evaluate_cli.add_evaluation_options(parser)
+
+
+def check_json_output(path: Path | None, overwrite: bool) -> None:
+    """--json: a .json in an existing folder, new, or with --overwrite an earlier output of `pih compare`.
+
+    Raises:
+        EnvError: naming the option and the problem.
+    """
+    evaluate_cli.check_output("--json", path, ".json", overwrite)
+    if path is None or not path.exists():
+        return
+    try:
+        kind = json.loads(path.read_text()).get("kind")
+    except (OSError, ValueError, AttributeError):
+        kind = None
+    if kind != KIND:
+        raise EnvError(f"--json {path} is not an output of `pih compare`: not replaced")
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """The options common to both modes and the mode's inputs. Raises EnvError naming the option."""
+    if not (math.isfinite(args.margin) and 0.0 <= args.margin < 1.0):
+        raise EnvError(f"--margin {args.margin}: must lie in [0, 1) (a fraction: 0.02 = 2 points)")
+    if not (math.isfinite(args.alpha) and 0.0 < args.alpha < 0.5):
+        raise EnvError(f"--alpha {args.alpha}: must lie strictly between 0 and 0.5")
+    if args.progress_margin is not None and not (math.isfinite(args.progress_margin) and 0.0 <= args.progress_margin < 1.0):
+        raise EnvError(f"--progress-margin {args.progress_margin}: must lie in [0, 1)")
+    check_json_output(args.json, args.overwrite)
+    if not args.sequential:
+        if len(args.evaluations) != 2:
+            raise EnvError(f"give two evaluations, BASE.json CAND.json (got {len(args.evaluations)}), or --sequential "
+                           "with --base-model and --cand-model")
+        return
+    if args.evaluations:
+        raise EnvError("--sequential runs the episodes itself: give --base-model and --cand-model, not evaluation files")
+    for option, model in (("--base-model", args.base_model), ("--cand-model", args.cand_model)):
+        if model is None:
+            raise EnvError(f"--sequential needs {option}")
+        if not model.is_dir():
+            raise EnvError(f"{option} {model}: checkpoint folder not found")
+    if args.chunk < 1:
+        raise EnvError(f"--chunk {args.chunk}: must be >= 1")
+
+
+def write_output(path: Path | None, record: dict[str, Any]) -> None:
+    """Write ``record`` as strict JSON (no NaN) atomically, tagged as a `pih compare` output."""
+    if path is not None:
+        write_json_atomic(path, {"kind": KIND, **record}, allow_nan=False)
+        print(f"wrote {path}")
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run `pih compare`; returns 0 (no regression / undecided), 1 (regression), 3 or 130 (sequential run cut short)."""
+    check_args(args)
+    if args.sequential:
+        return run_sequential(args)
+    base, cand = (load_evaluation(path, label) for path, label in zip(args.evaluations, ("BASE", "CAND")))
+    comparison = compare_evaluations(base, cand, args.margin, args.alpha)
+    print(comparison.table())
+    write_output(args.json, {"mode": "paired", **comparison.to_dict()})
+    return EXIT_REGRESSION if comparison.decision == DECISIONS[0] else 0
+
+
+# --------------------------------------------------------------------------------------------- sequential
+
+
+def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
+    """One EvaluationResult of the first ``pairs`` episodes of consecutive chunk results of one model."""
+    from envs.execution.evaluate import EvaluationResult
+
+    records = [r for result in results for r in result.records][:pairs]
+    first = results[0]
+    return EvaluationResult(dataclasses.replace(config, episodes=max(pairs, 1)), records,
+                            sum(r.wall_s for r in results), first.model_dir, first.metadata, first.scene,
+                            first.goal_mismatch_mm, all(r.complete for r in results), any(r.interrupted for r in results))
+
+
+def run_sequential(args: argparse.Namespace) -> int:
+    """Sequential mode (module docstring)."""
+    from envs.execution.evaluate import evaluate, evaluation_starts
+    from rflow.skill_io import load_skill
+
+    config = evaluate_cli.checked_config(args)
+    demo_starts = load_skill(args.base_model).metadata.get("demo_starts")
+    if not isinstance(demo_starts, dict) or "pos" not in demo_starts or "quat" not in demo_starts:
+        raise EnvError(f"--base-model {args.base_model} has no demo start poses (metadata 'demo_starts')")
+    starts = evaluation_starts(demo_starts, config)
+    margin = args.margin if args.progress_margin is None else args.progress_margin
+    test = SequentialComparison({"success": args.margin, "progress": margin}, args.alpha)
+    runs: dict[str, list[Any]] = {"base": [], "candidate": []}
+    status = 0
+    for lo in range(0, len(starts), args.chunk):
+        chunk = starts[lo:lo + args.chunk]
+        results = {side: evaluate(model, config, progress=not args.quiet, starts=chunk)
+                   for side, model in (("base", args.base_model), ("candidate", args.cand_model))}
+        if any(r.interrupted or not r.complete for r in results.values()):
+            status = EXIT_INTERRUPTED if any(r.interrupted for r in results.values()) else EXIT_INCOMPLETE
+            break
+        for side, result in results.items():
+            runs[side].append(result)
+        samples = {side: load_evaluation(result, side) for side, result in results.items()}
+        for b, c in zip(*pair_records(samples["base"].records, samples["candidate"].records)):
+            if test.update(sequential_differences(samples["base"], samples["candidate"], b, c)) is not None:
+                break
+        if not args.quiet:
+            print(sequential_line(test), file=sys.stderr)
+        if test.decision is not None:
+            break
+    if not runs["base"]:
+        print("pih compare: stopped before the first chunk finished", file=sys.stderr)
+        return status or EXIT_INCOMPLETE
+    pairs = test.pairs
+    merged = {side: merge_results(results, pairs, config) for side, results in runs.items()}
+    comparison = compare_evaluations(load_evaluation(merged["base"], "base"), load_evaluation(merged["candidate"],
+                                                                                            "candidate"),
+                                     args.margin, args.alpha)
+    print(comparison.table())
+    print(sequential_summary(test, sum(len(r.records) for r in runs["base"]), args.episodes))
+    write_output(args.json, {"mode": "sequential", "sequential": test.to_dict(), **comparison.to_dict(),
+                             "episodes_run": sum(len(r.records) for r in runs["base"]),
+                             "base_evaluation": merged["base"].to_dict(),
+                             "candidate_evaluation": merged["candidate"].to_dict()})
+    if status:
+        print(f"pih compare: {'interrupted' if status == EXIT_INTERRUPTED else 'incomplete'} after {pairs} pairs",
+              file=sys.stderr)
+        return status
+    return EXIT_REGRESSION if test.decision == DECISIONS[0] else 0
+
+
+def sequential_line(test: SequentialComparison) -> str:
+    """One progress line: pairs and each metric's e-values."""
+    values = ", ".join(f"{name} e {t.e_regression:.2f} (worse) / {t.e_no_regression:.2f} (not worse)"
+                       for name, t in test.tests.items())
+    return f"pih compare: {test.pairs} pairs: {values}"
+
+
+def sequential_summary(test: SequentialComparison, episodes_run: int, max_pairs: int) -> str:
+    """The sequential decision in words."""
+    thresholds = f"thresholds {test.regression_threshold:g} (worse), {1.0 / test.alpha:g} (not worse)"
+    if test.decision is None:
+        return (f"sequential: no decision after {test.pairs} pairs (of at most {max_pairs}; {thresholds}); "
+                "run more episodes or accept a margin")
+    return (f"sequential: {test.decision} after {test.decided_at} pairs ({episodes_run} run per model; "
+            f"{thresholds})")
+
+
+__all__ = ["add_arguments", "main"]

@@ -1,0 +1,66 @@
+"""envs.execution.regression.assert_no_regression: passes the same records, fails a degraded candidate with a
+readable message; and on physics, a small trained skill against itself and against a time-starved run (slow)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from envs.errors import EnvError
+from envs.execution.evaluate import EvaluationConfig, EvaluationResult, evaluate, record_from_dict
+from envs.execution.regression import assert_no_regression
+from envs.task import PRESETS
+from evaluation_fixtures import synthetic_evaluation
+
+EPISODES = 60
+BASE = [i != 3 for i in range(EPISODES)]
+DEGRADED = [i % 6 != 0 for i in range(EPISODES)]
+
+
+def test_the_same_records_pass():
+    evaluation = synthetic_evaluation(BASE)
+    assert assert_no_regression(evaluation, evaluation).decision == "no regression"
+
+
+def test_a_degraded_candidate_fails_with_rates_counts_and_p_value():
+    with pytest.raises(AssertionError) as err:
+        assert_no_regression(synthetic_evaluation(BASE), synthetic_evaluation(DEGRADED))
+    message = str(err.value)
+    for part in ("regression", "83.3 % (50/60)", "98.3 % (59/60)", "base only 10", "candidate only 1", "McNemar"):
+        assert part in message
+
+
+def test_a_margin_larger_than_the_drop_passes():
+    assert_no_regression(synthetic_evaluation(BASE), synthetic_evaluation(DEGRADED), margin=0.5)
+
+
+def test_paths_dicts_and_results_are_the_same_input(tmp_path):
+    data = synthetic_evaluation(DEGRADED)
+    path = tmp_path / "cand.json"
+    path.write_text(json.dumps(data))
+    result = EvaluationResult(EvaluationConfig(episodes=EPISODES), [record_from_dict(r) for r in data["per_episode"]],
+                              1.0, scene={"insertion_depth_m": 0.03})
+    outcomes = [assert_no_regression(synthetic_evaluation(BASE), c, margin=0.5).to_dict()["success"]
+                for c in (data, path, result)]
+    assert outcomes[0] == outcomes[1] == outcomes[2]
+
+
+def test_evaluations_of_other_episodes_are_an_input_error_not_a_failure():
+    with pytest.raises(EnvError, match="start_pos differs"):
+        assert_no_regression(synthetic_evaluation(BASE), synthetic_evaluation(BASE, seed=1))
+
+
+@pytest.mark.slow
+def test_a_trained_skill_passes_against_itself_and_a_time_starved_run_is_flagged(paper_checkpoint):
+    """Six episodes of the small paper-preset skill (tests/conftest.py) twice, then with half the shortest
+    insertion time as the time limit: every episode the base seated fails, which the check must flag."""
+    config = EvaluationConfig(episodes=6, seed=1, workers=2, perturbations=PRESETS["paper"].perturbations)
+    base = evaluate(paper_checkpoint, config, progress=False)
+    assert base.num_success >= 5  # the helper needs 5 discordant pairs to flag anything at alpha 0.05
+    assert_no_regression(base, evaluate(paper_checkpoint, config, progress=False))
+    shortest = min(r.time_to_insert_s for r in base.records if r.success)
+    starved = evaluate(paper_checkpoint, dataclasses.replace(config, time_limit_s=0.5 * shortest), progress=False)
+    with pytest.raises(AssertionError, match="regression"):
+        assert_no_regression(base, starved)
