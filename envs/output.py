@@ -247,7 +247,7 @@ def _is_marked_npz(path: Path) -> bool:
     try:
         with np.load(path, allow_pickle=False) as archive:
             return MARKER_KEY in archive.files
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError):
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError, TypeError):  # a .npy is no archive
         return False
 
 
