@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up pih-rflow on a fresh Debian machine: system packages for headless rendering (Mesa EGL/OSMesa) and the
 # PostgreSQL server of the shared-study test, a virtual environment in .venv with the CPU build of torch, and
-# the project with its test, cluster (Ray) and search (Optuna) extras.
+# the project with its test, cluster (Ray), search (Optuna) and datasets (pyarrow, h5py) extras.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -22,7 +22,7 @@ PYTHON="${PYTHON:-python3}"
 .venv/bin/python -m pip install -q --upgrade pip
 # The CPU build first, pinned, so no resolver ever pulls CUDA wheels.
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[test,cluster,search]"
+.venv/bin/python -m pip install -q -e ".[test,cluster,search,datasets]"
 # Compile the numba kernels once (cached beside their modules), so the first `pih run` does not wait ~25 s.
 MUJOCO_GL="${MUJOCO_GL:-egl}" .venv/bin/pih warmup
 echo "setup.sh: ready -- activate with: source .venv/bin/activate"

@@ -33,6 +33,11 @@ class ContactConfig:
         cone: friction cone, "elliptic" (exact Coulomb) or "pyramidal".
         impratio: frictional-to-normal impedance ratio; > 1 stiffens friction against creep.
         multiccd: let the convex collider return several contacts per pair (flat mesh/cylinder faces).
+        noslip_iterations: iterations of MuJoCo's no-slip post-solver (``mjOption.noslip_iterations``), which
+            removes the creep of soft friction: a contact inside its friction cone does not slide. Without it a
+            triangle peg squeezed by the pads (faces at 30 deg to the pads, wedge ratio tan 30 = 0.58 < mu = 1,
+            so dry friction holds it) crept 0.44 mm/s out of the grasp, and every grasped peg drifted slowly
+            under wall loads; 3 iterations stop both (tests/test_contact_physics.py).
     """
 
     solref: tuple[float, float] = (0.002, 1.0)
@@ -43,6 +48,7 @@ class ContactConfig:
     cone: str = "elliptic"
     impratio: float = 10.0
     multiccd: bool = True
+    noslip_iterations: int = 3
 
     def __post_init__(self) -> None:
         if len(self.solref) != 2 or self.solref[0] <= 0.0 or self.solref[1] <= 0.0:
@@ -60,6 +66,8 @@ class ContactConfig:
             raise EnvError(f"contact cone={self.cone!r} must be 'elliptic' or 'pyramidal'")
         if self.impratio < 1.0:
             raise EnvError(f"contact impratio={self.impratio} must be >= 1")
+        if not isinstance(self.noslip_iterations, int) or self.noslip_iterations < 0:
+            raise EnvError(f"contact noslip_iterations={self.noslip_iterations!r} must be an integer >= 0")
 
     def geom_attributes(self) -> dict[str, object]:
         """MJCF geom attributes carrying these settings."""
@@ -72,8 +80,9 @@ class ContactConfig:
         }
 
     def apply_options(self, root: mjcf.RootElement) -> None:
-        """Set the scene-wide solver options (cone, impratio, multiccd) on the root model."""
+        """Set the scene-wide solver options (cone, impratio, no-slip iterations, multiccd) on the root model."""
         root.option.cone = self.cone
         root.option.impratio = self.impratio
+        root.option.noslip_iterations = self.noslip_iterations
         if self.multiccd:
             root.option.flag.multiccd = "enable"

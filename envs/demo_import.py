@@ -23,6 +23,12 @@ for. Snapping blends each demo onto the goal over the last ``snap_fraction`` of 
 minimum-jerk ramp from 0 at t = (1 - snap_fraction) T to 1 at T,
     p'(t) = p(t) + w(t) (g_p - p(T)),   q'(t) = exp(w(t) Log(g_q conj(q(T)))) q(t),
 so each demo ends exactly at the goal and moves by at most its jump.
+
+Stiffness (optional, demos exported by `pih export`, envs.datasets). A translational stiffness K (N/m, world
+frame) per sample is held and resampled with the poses, entrywise linearly (a convex combination of two
+symmetric positive definite matrices is one). Its goal is the mean last stiffness K_g; demo n jumps by
+max|K_n(T) - K_g| / max|K_g|, which counts as off the goal above STIFFNESS_REL_TOL, and snapping blends it
+with the poses' ramp: K'(t) = K(t) + w(t) (K_g - K(T)).
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from envs.demo_file import GOAL_TOL_M, GOAL_TOL_RAD, DemoSet
+from envs.demo_file import GOAL_TOL_M, GOAL_TOL_RAD, STIFFNESS_REL_TOL, DemoSet
 from envs.errors import EnvError
 from envs.poses import (
     QUAT_NORM_TOL,
@@ -74,7 +80,11 @@ class RecordedDemos:
         dt: sampling time in seconds, None when the file has none.
         shape: the file's ``shape``, or None.
         clearance_m: the file's ``clearance_m``, or None.
-        layout: "stacked" or "ragged".
+        layout: "stacked" or "ragged" (.npz), "lerobot" or "robomimic" (envs.datasets).
+        stiffness: one (M_n, 3, 3) translational stiffness (N/m, world frame) per demo, or None.
+        tool_frame: the frame the file names for its poses ("tcp": this testbed's, so no tool offset is
+            needed), or None.
+        source_config: the configuration the file carries from the testbed that wrote it (e.g. "scene"), or None.
     """
 
     pos: tuple[FloatArray, ...]
@@ -83,6 +93,9 @@ class RecordedDemos:
     shape: str | None
     clearance_m: float | None
     layout: str
+    stiffness: tuple[FloatArray, ...] | None = None
+    tool_frame: str | None = None
+    source_config: dict[str, Any] | None = None
 
     @property
     def lengths(self) -> list[int]:
@@ -181,7 +194,7 @@ def parse_tool_offset(text: str) -> Pose:
 
 
 def resolve_dt(file_dt: float | None, flag_dt: float | None, source: str) -> float:
-    """The sampling time: the file's ``dt``, the ``--dt`` flag, or both when they agree (relative 1e-9).
+    """The sampling time: the file's ``dt``, the ``--dt-s`` flag, or both when they agree (relative 1e-9).
 
     Raises:
         EnvError: neither given, they differ, or the value is not a positive finite number.
@@ -196,7 +209,7 @@ def resolve_dt(file_dt: float | None, flag_dt: float | None, source: str) -> flo
     return float(flag_dt if flag_dt is not None else file_dt)  # type: ignore[arg-type]
 
 
-def _check_trajectory(pos: Any, quat: Any, label: str, source: str) -> tuple[FloatArray, FloatArray]:
+def check_trajectory(pos: Any, quat: Any, label: str, source: str) -> tuple[FloatArray, FloatArray]:
     """Shapes (M >= 2), finite values and unit quaternions (|norm - 1| <= QUAT_NORM_TOL, then normalised)."""
     for key, arr, width in (("pos", pos, 3), ("quat", quat, 4)):
         if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
@@ -287,7 +300,7 @@ def load_recorded_demos(path: str | os.PathLike[str]) -> RecordedDemos:
             if not pairs:
                 raise EnvError(f"{source}: holds 0 demos")
             layout = "stacked" if stacked else "ragged"
-            checked = [_check_trajectory(p, q, f"demo {n}", source) for n, (p, q) in enumerate(pairs)]
+            checked = [check_trajectory(p, q, f"demo {n}", source) for n, (p, q) in enumerate(pairs)]
             dt = _optional_scalar(archive, "dt", source, float)
             shape = _optional_scalar(archive, "shape", source, str)
             clearance_m = _optional_scalar(archive, "clearance_m", source, float)
@@ -304,6 +317,16 @@ def load_recorded_demos(path: str | os.PathLike[str]) -> RecordedDemos:
 # ----------------------------------------------------------------------------------------------- conversion
 
 
+def _held_times(length: int, dt: float, duration: float) -> tuple[FloatArray, bool]:
+    """Sample times of a demo of ``length`` samples on [0, duration]: (times, True) with ``duration`` appended
+    when the demo ends earlier (its last sample is held), else (times with the end pinned to ``duration``, False)."""
+    times = dt * np.arange(length)
+    if times[-1] < duration * (1.0 - 1e-12):
+        return np.append(times, duration), True
+    times[-1] = duration  # the longest demo: pin its end to the grid's end exactly
+    return times, False
+
+
 def common_length(pos: list[FloatArray], quat: list[FloatArray], dt: float,
                   num_samples: int) -> tuple[FloatArray, FloatArray, float]:
     """Hold every demo's last pose until the longest ends, then resample all to ``num_samples`` on [0, T].
@@ -315,15 +338,49 @@ def common_length(pos: list[FloatArray], quat: list[FloatArray], dt: float,
     grid = np.linspace(0.0, duration, num_samples)
     out_pos, out_quat = [], []
     for p, q in zip(pos, quat):
-        times = dt * np.arange(p.shape[0])
-        if times[-1] < duration * (1.0 - 1e-12):
-            times, p, q = np.append(times, duration), np.vstack([p, p[-1]]), np.vstack([q, q[-1]])
-        else:
-            times[-1] = duration  # the longest demo: pin its end to the grid's end exactly
+        times, held = _held_times(p.shape[0], dt, duration)
+        if held:
+            p, q = np.vstack([p, p[-1]]), np.vstack([q, q[-1]])
         new_pos, new_quat = resample_trajectory(times, p, q, grid)
         out_pos.append(new_pos)
         out_quat.append(new_quat)
     return np.stack(out_pos), np.stack(out_quat), duration / (num_samples - 1)
+
+
+def common_length_stiffness(stiffness: tuple[FloatArray, ...], dt: float, num_samples: int) -> FloatArray:
+    """`common_length` of the stiffness: held, then resampled entrywise linearly on the same grid.
+
+    Returns:
+        (N, M, 3, 3).
+    """
+    duration = dt * (max(k.shape[0] for k in stiffness) - 1)
+    grid = np.linspace(0.0, duration, num_samples)
+    out = []
+    for k in stiffness:
+        times, held = _held_times(k.shape[0], dt, duration)
+        flat = k.reshape(k.shape[0], 9)
+        if held:
+            flat = np.vstack([flat, flat[-1]])
+        out.append(np.stack([np.interp(grid, times, flat[:, i]) for i in range(9)], axis=-1).reshape(-1, 3, 3))
+    return np.stack(out)
+
+
+def common_goal_stiffness(stiffness: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The goal stiffness (mean last stiffness) and each demo's relative jump to it (module docstring).
+
+    Returns:
+        (goal (3, 3), jump (N,)).
+    """
+    goal = np.mean(stiffness[:, -1], axis=0)
+    goal = 0.5 * (goal + goal.T)
+    jump = np.abs(stiffness[:, -1] - goal).max(axis=(-2, -1)) / max(float(np.abs(goal).max()), 1e-300)
+    return goal, jump
+
+
+def snap_weight(num_samples: int, fraction: float) -> FloatArray:
+    """w over the samples of a demo: the minimum-jerk ramp from 0 at (1 - fraction) T to 1 at T, (M,)."""
+    s = np.linspace(0.0, 1.0, num_samples)
+    return minimum_jerk((s - (1.0 - fraction)) / fraction)
 
 
 def common_goal(pos: FloatArray, quat: FloatArray) -> tuple[Pose, FloatArray, FloatArray]:
@@ -344,9 +401,7 @@ def snap_to_goal(pos: FloatArray, quat: FloatArray, goal: Pose, fraction: float)
     Returns:
         (pos, quat) ending exactly at the goal, quaternions continuous and ending at +goal.quat.
     """
-    m = pos.shape[1]
-    s = np.linspace(0.0, 1.0, m)
-    weight = minimum_jerk((s - (1.0 - fraction)) / fraction)[None, :, None]  # (1, M, 1)
+    weight = snap_weight(pos.shape[1], fraction)[None, :, None]  # (1, M, 1)
     new_pos = pos + weight * (goal.pos - pos[:, -1])[:, None, :]
     correction = quat_to_rotvec(quat_mul(goal.quat, quat_conj(quat[:, -1])))  # (N, 3)
     new_quat = quat_mul(quat_from_rotvec(weight * correction[:, None, :]), quat)
@@ -381,15 +436,25 @@ def import_demos(recorded: RecordedDemos, tool_offset: Pose, grasp: Pose, dt: fl
     pos, quat, new_dt = common_length([t.pos for t in tips], [t.quat for t in tips], dt, config.num_samples)
     goal, jump_m, jump_rad = common_goal(pos, quat)
     quat = make_continuous(quat, reference=goal.quat)
-    off = np.flatnonzero((jump_m > GOAL_TOL_M) | (jump_rad > GOAL_TOL_RAD))
+    stiffness = goal_k = None
+    jump_k = np.zeros(len(jump_m))
+    if recorded.stiffness is not None:
+        stiffness = common_length_stiffness(recorded.stiffness, dt, config.num_samples)
+        goal_k, jump_k = common_goal_stiffness(stiffness)
+    off = np.flatnonzero((jump_m > GOAL_TOL_M) | (jump_rad > GOAL_TOL_RAD) | (jump_k > STIFFNESS_REL_TOL))
     if off.size and not config.snap_goal:
-        listing = ", ".join(f"demo {n}: {jump_m[n] * 1e3:.3f} mm / {np.rad2deg(jump_rad[n]):.3f} deg" for n in off)
+        listing = ", ".join(f"demo {n}: {jump_m[n] * 1e3:.3f} mm / {np.rad2deg(jump_rad[n]):.3f} deg"
+                            + (f" / stiffness {jump_k[n]:.2g} relative" if stiffness is not None else "") for n in off)
         raise EnvError(f"{off.size} of {len(jump_m)} demos do not end at the common goal ({listing}; tolerance "
                        f"{GOAL_TOL_M * 1e3:g} mm / {np.rad2deg(GOAL_TOL_RAD):.2g} deg); pass --snap-goal to blend "
                        f"them onto it over the last {100 * config.snap_fraction:g} % of each demo")
     snapped = bool(off.size) and config.snap_goal
     if snapped:
         pos, quat = snap_to_goal(pos, quat, goal, config.snap_fraction)
+        if stiffness is not None:
+            weight = snap_weight(config.num_samples, config.snap_fraction)[None, :, None, None]
+            stiffness = stiffness + weight * (goal_k - stiffness[:, -1])[:, None]
+            stiffness[:, -1] = goal_k
     snap_duration_s = config.snap_fraction * new_dt * (config.num_samples - 1)
     record = {
         "source": "import",
@@ -405,10 +470,11 @@ def import_demos(recorded: RecordedDemos, tool_offset: Pose, grasp: Pose, dt: fl
         "snap_duration_s": snap_duration_s,
         "goal_jump_mm": (jump_m * 1e3).tolist(),
         "goal_jump_deg": np.rad2deg(jump_rad).tolist(),
+        **({"goal_jump_stiffness_rel": jump_k.tolist()} if stiffness is not None else {}),
         **(provenance or {}),
     }
     demos = DemoSet(pos=pos, quat=quat, dt=new_dt, goal_pos=goal.pos, goal_quat=goal.quat, shape=shape,
                     clearance_m=clearance_m, config=record, residual_pos_m=jump_m,
-                    residual_rot_deg=np.rad2deg(jump_rad))
+                    residual_rot_deg=np.rad2deg(jump_rad), stiffness=stiffness, goal_stiffness=goal_k)
     return ImportResult(demos=demos, jump_m=jump_m, jump_rad=jump_rad, snapped=snapped,
                         snap_duration_s=snap_duration_s)

@@ -102,7 +102,8 @@ class ExpertConfig:
         settle_window_s: the settled pose is the mean measured pose over this last part of the hold.
         num_samples: M, samples per recorded demo.
         goal_tol_m, goal_tol_deg: largest accepted distance of the settled pose from the goal.
-        max_attempts: give up after this many attempts (kept + failed) in one collection.
+        max_failed_attempts: give up after this many failed attempts in one collection (a working expert fails
+            fewer than 1 in 100, so reaching it means the expert cannot do this scene).
         start_region: where starts are sampled.
         stiffness: the translational stiffness schedule the expert commands and records (module docstring);
             None: the controller's constant default stiffness, and no stiffness in the demo file.
@@ -119,7 +120,7 @@ class ExpertConfig:
     num_samples: int = 4000
     goal_tol_m: float = 1e-3
     goal_tol_deg: float = 1.0
-    max_attempts: int = 1000
+    max_failed_attempts: int = 20
     start_region: StartRegion = field(default_factory=StartRegion)
     stiffness: StiffnessSchedule | None = field(default_factory=StiffnessSchedule)
 
@@ -141,8 +142,8 @@ class ExpertConfig:
                            f"{self.hold_duration_s}")
         if not isinstance(self.num_samples, int) or self.num_samples < 2:
             raise EnvError(f"ExpertConfig.num_samples={self.num_samples!r} must be an integer >= 2")
-        if self.max_attempts < 1:
-            raise EnvError(f"ExpertConfig.max_attempts={self.max_attempts} must be >= 1")
+        if self.max_failed_attempts < 1:
+            raise EnvError(f"ExpertConfig.max_failed_attempts={self.max_failed_attempts} must be >= 1")
         if self.stiffness is not None and not isinstance(self.stiffness, StiffnessSchedule):
             raise EnvError(f"ExpertConfig.stiffness={self.stiffness!r} must be a StiffnessSchedule or None")
 
@@ -395,6 +396,20 @@ class Collection:
         return [a for a in self.attempts if not a.ok]
 
 
+def give_up_message(attempts: list[DemoAttempt], kept: int, num: int, shape: str, seed: int | None) -> str:
+    """One line saying why a collection gave up: the shape, the seed, how many demos were kept in how many
+    attempts, and what the failed attempts reached (their reasons counted, the last one in full, with the
+    depth and lateral offset the peg got to)."""
+    failed = [a.reason for a in attempts if not a.ok]
+    kinds: dict[str, int] = {}
+    for reason in failed:
+        kind = reason.split(":")[0].split(" (")[0]
+        kinds[kind] = kinds.get(kind, 0) + 1
+    counted = ", ".join(f"{k}: {v}" for k, v in sorted(kinds.items(), key=lambda kv: -kv[1]))
+    return (f"the scripted expert gave up on the {shape} after {len(attempts)} attempts (seed {seed}): "
+            f"{kept} of {num} demos kept; failures {counted}; last: {failed[-1] if failed else '-'}")
+
+
 def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = SceneConfig(),
                   expert: ExpertConfig = ExpertConfig(),
                   controller_config: ImpedanceConfig = ImpedanceConfig(),
@@ -417,7 +432,8 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
         Collection with the DemoSet (N, M) ending at the shared goal.
 
     Raises:
-        EnvError: bad arguments, or ``expert.max_attempts`` attempts without collecting ``num`` demos.
+        EnvError: bad arguments, or ``expert.max_failed_attempts`` failed attempts (one line: shape, seed, what
+            the failures reached).
     """
     if not isinstance(num, int) or num < 1:
         raise EnvError(f"number of demos must be a positive integer, got {num!r}")
@@ -433,9 +449,8 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
     kept: list[tuple[FloatArray, FloatArray, FloatArray | None]] = []
     goal_k = None if expert.stiffness is None else expert.stiffness.goal_stiffness(env.hole_axis)
     while len(kept) < num:
-        if len(attempts) >= expert.max_attempts:
-            reasons = "; ".join(sorted({a.reason.split(" (")[0] for a in attempts if not a.ok}))
-            raise EnvError(f"only {len(kept)} of {num} demos succeeded in {len(attempts)} attempts ({reasons})")
+        if len(attempts) - len(kept) >= expert.max_failed_attempts:
+            raise EnvError(give_up_message(attempts, len(kept), num, scene_config.shape, seed))
         start = env.sample_start(rng)
         if before_attempt is not None:
             grid = env.control_period_s * np.arange(0, int(round(expert.duration_s / env.control_period_s)) + 1)

@@ -16,6 +16,8 @@ this program's marker ``{"command": <the pih subcommand>, "version": <the packag
   - JSON Lines journals (.jsonl, batch.journal): a first line ``{"kind": "header", "run": {...}}``;
   - checkpoint folders (`pih train`): a skill.json of rflow's checkpoint format (rflow.skill_io.is_checkpoint;
     rflow builds the folder beside its place and swaps it in itself, since rflow does not depend on envs);
+  - dataset folders (`pih export`): the marker file pih_export.json (built in a staging folder and swapped in
+    by envs.datasets.output, which also takes an empty folder);
   - every other file (MP4, PNG, Markdown): an entry in the registry ".pih-outputs.json" of its folder (a
     marked JSON file) holding the file's SHA-256 as written. A file changed since, or not listed, is not ours.
     The registry is rewritten (atomically) after each such output; two commands writing registered files
@@ -48,6 +50,8 @@ MARKER_KEY = "pih"
 """Top-level JSON key, and .npz array name, of the marker."""
 REGISTRY_NAME = ".pih-outputs.json"
 """Per-folder registry of the files without a marker of their own (name -> SHA-256)."""
+EXPORT_MARKER_FILE = "pih_export.json"
+"""The marker file of a `pih export` folder (envs.datasets.features.MARKER_FILE)."""
 SELF_MARKED_SUFFIXES: tuple[str, ...] = (".json", ".npz", ".jsonl")
 MiB = 1 << 20
 
@@ -174,11 +178,13 @@ def write_file(path: str | os.PathLike[str], write: Callable[[Any], None], binar
     return Path(path)
 
 
-def write_json(path: str | os.PathLike[str], record: Mapping[str, Any]) -> Path:
-    """Write a JSON object (strict, indented) with this program's marker under "pih", atomically."""
+def write_json(path: str | os.PathLike[str], record: Mapping[str, Any], mark: bool = True) -> Path:
+    """Write a JSON object (strict, indented) with this program's marker under "pih", atomically; ``mark``
+    False for a file of another program's format inside a marked output (LeRobot's meta/info.json in an
+    export folder, which its own marker file makes ours)."""
     if not isinstance(record, Mapping):
         raise TypeError(f"write_json writes JSON objects, got {type(record).__name__}")
-    text = json_text({**record, MARKER_KEY: marker()})
+    text = json_text({**record, MARKER_KEY: marker()} if mark else record)
     return write_file(path, lambda handle: handle.write(text + "\n"))
 
 
@@ -268,7 +274,7 @@ def is_own_output(path: str | os.PathLike[str]) -> bool:
     if p.is_dir():
         from rflow.skill_io import is_checkpoint
 
-        return is_checkpoint(p)
+        return is_checkpoint(p) or (p / EXPORT_MARKER_FILE).is_file()
     if not p.is_file():
         return False
     suffix = p.suffix.lower()

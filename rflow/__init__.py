@@ -1,1 +1,5 @@
 """RiemannianFlow: stable skills on Riemannian manifolds learned with ImitationFlow. Never imports MuJoCo."""
+
+from rflow.cpu_dispatch import pin_cpu_dispatch
+
+pin_cpu_dispatch()

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-_jit = numba.njit(cache=True, nogil=True, fastmath={"contract"}, error_model="numpy")
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
 @dataclass(frozen=True)
@@ -141,7 +141,7 @@ TANH_SATURATION = 20.0
 """tanh(u) rounds to +-1 in float64 for |u| >= 20 (1 - tanh(20) = 8.5e-18 < half an ulp of 1)."""
 
 
-@numba.njit(inline="always", fastmath={"contract"}, error_model="numpy")
+@numba.njit(inline="always", error_model="numpy")
 def _expm1_small(r):
     """expm1(r) = sum_{n=1}^{14} r^n / n! (Horner) for |r| <= TAYLOR_RADIUS; plain arithmetic, so loops over
     points that call it vectorise (libm's exp and tanh are scalar calls without SVML)."""
@@ -321,7 +321,7 @@ def flow_pass(points, sign, offset_before, offset_after, cond, n_cond, moved, n_
                    w_hidden, b_hidden, w_out, b_out, clamp, n_extra, relu)
 
 
-@numba.njit(cache=True, nogil=True, fastmath={"contract"}, error_model="numpy", parallel=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def flow_pass_parallel(points, sign, offset_before, offset_after, cond, n_cond, moved, n_moved, w_first, b_first,
                        w_hidden, b_hidden, w_out, b_out, clamp, n_extra, relu):
     """`flow_pass` with the blocks spread over the cores (numba prange); for large batches only, where the

@@ -23,6 +23,7 @@ import numpy.typing as npt
 import torch
 from tqdm import tqdm
 
+from rflow.cpu_dispatch import check_torch_dispatch
 from rflow.errors import RFlowError
 from rflow.manifolds import Manifold, get_manifold
 from rflow.model import ImitationFlow, ModelConfig, RiemannianFlow
@@ -257,6 +258,7 @@ def fit(
 
     if config.threads is not None:
         torch.set_num_threads(config.threads)
+    check_torch_dispatch()
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
     duration = dt * (m - 1)

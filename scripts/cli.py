@@ -25,9 +25,12 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("scripts.evaluate", "execute a trained skill from perturbed starts and score it"),
     "sweep": ("scripts.sweep", "success maps of a trained skill over clearance x hole-pose error x ..."),
     "render": ("scripts.render", "render an episode or a demo to MP4"),
+    "export": ("scripts.export", "demos or evaluation episodes as a LeRobot v3 or robomimic dataset"),
     "lasa": ("scripts.lasa", "Riemannian LASA benchmark (SPD and unit quaternions)"),
     "search": ("scripts.search", "Optuna hyperparameter search of RiemannianFlow on one LASA shape"),
     "bench": ("scripts.bench", "speed benchmark: control loop, rendering, IK, flow"),
+    "benchmark": ("scripts.benchmark", "the success-rate protocol: demos, training, evaluation per demo seed, rate "
+                                       "over seeds"),
     "run": ("scripts.run", "the main job: demos -> train -> evaluate -> figures and video"),
     "warmup": ("scripts.warmup", "compile and cache the numba kernels once (setup.sh runs it)"),
 }

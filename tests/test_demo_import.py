@@ -311,3 +311,43 @@ def test_parse_tool_offset_takes_a_unit_quaternion_and_refuses_others() -> None:
         parse_tool_offset("0.1, 0, 0, 2, 0, 0, 0")  # once normalised without a word
     with pytest.raises(EnvError):
         parse_tool_offset("")
+
+
+def recorded_with_stiffness(end_scale: float = 1.0) -> tuple[object, object]:
+    """Stiffness demos as import input in the tcp frame; demo 1's stiffness scaled by ``end_scale`` over its last
+    quarter (so that it ends off the common goal stiffness unless end_scale == 1)."""
+    from envs.demo_import import RecordedDemos
+    from stiffness_fixtures import stiffness_demos
+
+    demos = stiffness_demos(n=3, m=40)
+    k = demos.stiffness.copy()
+    k[1, 30:] *= end_scale
+    return demos, RecordedDemos(tuple(demos.pos), tuple(demos.quat), demos.dt, demos.shape, demos.clearance_m,
+                                "lerobot", stiffness=tuple(k), tool_frame="tcp")
+
+
+def import_tcp(recorded: object, snap: bool = False) -> object:
+    from envs.demo_import import ImportConfig, import_demos
+    from envs.poses import Pose
+
+    grasp = Pose(*nominal_flange_to_peg_tip("square"))
+    return import_demos(recorded, grasp, grasp, recorded.dt, "square", recorded.clearance_m,
+                        ImportConfig(num_samples=40, snap_goal=snap))
+
+
+def test_stiffness_is_carried_through_an_import() -> None:
+    demos, recorded = recorded_with_stiffness()
+    result = import_tcp(recorded)
+    np.testing.assert_allclose(result.demos.stiffness, demos.stiffness, rtol=1e-15)
+    np.testing.assert_allclose(result.demos.goal_stiffness, demos.goal_stiffness, rtol=1e-15)
+
+
+def test_stiffness_off_the_common_goal_fails_unless_snapped(tmp_path: Path) -> None:
+    from envs.demo_file import save_demos
+
+    _, recorded = recorded_with_stiffness(end_scale=1.1)
+    with pytest.raises(EnvError, match="demo 1: 0.000 mm / 0.000 deg / stiffness 0.065 relative"):
+        import_tcp(recorded)
+    snapped = import_tcp(recorded, snap=True).demos
+    np.testing.assert_array_equal(snapped.stiffness[:, -1], np.broadcast_to(snapped.goal_stiffness, (3, 3, 3)))
+    save_demos(tmp_path / "d.npz", snapped)  # validates: symmetric, positive definite, ending at the goal

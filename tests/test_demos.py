@@ -144,9 +144,10 @@ def test_failed_attempt_is_recorded_and_resampled(monkeypatch: pytest.MonkeyPatc
 
 def test_collection_gives_up_when_no_start_is_reachable() -> None:
     far = StartRegion(height_above_opening_m=1.5, toward_base_m=0.0, pos_half_width_m=(0.0, 0.0, 0.0))
-    expert = ExpertConfig(num_samples=50, max_attempts=3, start_region=far)
+    expert = ExpertConfig(num_samples=50, max_failed_attempts=3, start_region=far)
     env = PegInHoleEnv(episode_config=demo_episode_config(expert))
-    with pytest.raises(EnvError, match="only 0 of 1 demos succeeded in 3 attempts"):
+    with pytest.raises(EnvError, match=r"gave up on the square after 3 attempts \(seed 0\): 0 of 1 demos kept; "
+                                       r"failures reset failed: 3; last: reset failed: start pose"):
         collect_demos(1, seed=0, expert=expert, env=env)
 
 

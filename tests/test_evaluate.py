@@ -121,6 +121,19 @@ def test_time_limit_failure_reports_the_final_pose(skill, env):
     assert trace is not None and trace.pos.shape[0] == record.steps + 1
 
 
+def test_trace_records_the_robot_signals_of_every_row(skill, env):
+    start = StartPose(0, 0, Pose(GOAL_POS + np.array([-0.05, 0.0, 0.2]), GOAL_QUAT))
+    record, trace = run_episode(env, ClosedLoopPolicy(skill), start, record_trace=True)
+    last = env.observation
+    rows = record.steps + 1
+    assert trace.qpos.shape == trace.qvel.shape == (rows, 7) and trace.wrist_wrench.shape == (rows, 6)
+    np.testing.assert_array_equal(trace.qpos[-1], last.qpos)
+    np.testing.assert_array_equal(trace.wrist_wrench[-1], last.wrist_wrench)
+    np.testing.assert_array_equal(np.concatenate([trace.tcp_pos[-1], trace.tcp_quat[-1]]),
+                                  np.concatenate([last.tcp.pos, last.tcp.quat]))
+    assert trace.success.dtype == bool and trace.success[-1] == record.success
+
+
 def test_record_json_has_no_nan():
     text = json.dumps(EpisodeRecord(0, 0, [0.0] * 3, [1.0, 0, 0, 0]).to_dict(), allow_nan=False)
     assert '"final_pos_error_mm": null' in text

@@ -118,14 +118,20 @@ def _finite_or_none(value: Any) -> Any:
 
 @dataclass
 class EpisodeTrace:
-    """The executed trajectory of one episode, one row per control step (t = 0 first), for figures.
+    """The executed trajectory of one episode, one row per control step (t = 0 first), for figures and
+    dataset export (envs.datasets). Row 0 is the observation after the reset, row k the one after step k.
 
     Attributes:
-        times_s, pos, quat: measured peg_tip poses.
-        cmd_pos, cmd_quat: commanded poses (row 0 repeats the start).
+        times_s: simulated time of each row, seconds.
+        pos, quat: the peg's own peg_tip pose (simulator truth).
+        cmd_pos, cmd_quat: the tcp pose commanded for the step ending at each row (row 0 repeats the start).
         force_n: contact force magnitude.
         stiffness: (K, 3, 3) translational stiffness commanded for the step ending at each row (row 0: the
             first step's), N/m, world frame.
+        tcp_pos, tcp_quat: the measured tcp (the nominal peg_tip through the arm's kinematics).
+        qpos, qvel: (K, 7) arm joint positions (rad) and velocities (rad/s).
+        wrist_wrench: (K, 6) wrist F/T reading [N; N m], sensor frame, tool load removed.
+        success: (K,) the simulator's success flag at each row.
     """
 
     times_s: FloatArray
@@ -135,6 +141,12 @@ class EpisodeTrace:
     cmd_quat: FloatArray
     force_n: FloatArray
     stiffness: FloatArray
+    tcp_pos: FloatArray
+    tcp_quat: FloatArray
+    qpos: FloatArray
+    qvel: FloatArray
+    wrist_wrench: FloatArray
+    success: npt.NDArray[np.bool_]
 
 
 # --------------------------------------------------------------------------------------------- episode
@@ -158,7 +170,7 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
     wall = time.perf_counter()
     rec = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
                         perturbation=start.perturbation.to_dict())
-    rows: list[tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, float]] = []
+    rows: list[tuple[Any, Pose]] = []  # (observation, commanded tcp pose) of every row
     commanded: list[FloatArray] = []  # translational stiffness of every step
     try:
         try:
@@ -168,7 +180,7 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
             return rec, None
         period = env.control_period_s
         policy.reset(obs.tcp, period)
-        rows.append((obs.time_s, obs.peg_tip.pos, obs.peg_tip.quat, obs.tcp.pos, obs.tcp.quat, obs.contact_force_n))
+        rows.append((obs, obs.tcp))
         if on_step is not None:
             on_step(env)
         step = 0
@@ -182,8 +194,7 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
             commanded.append(default_k if command.stiffness is None else np.asarray(command.stiffness, dtype=float))
             step += 1
             if record_trace:
-                o = result.obs
-                rows.append((o.time_s, o.peg_tip.pos, o.peg_tip.quat, target.pos, target.quat, o.contact_force_n))
+                rows.append((result.obs, target))
             if on_step is not None:
                 on_step(env)
         obs = env.observation
@@ -223,8 +234,21 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
         rec.wall_s = time.perf_counter() - wall
     trace = None
     if record_trace and rows:
-        t, p, q, cp, cq, f = zip(*rows)
         k = np.stack(commanded[:1] + commanded) if commanded else np.full((len(rows), 3, 3), np.nan)
-        trace = EpisodeTrace(np.array(t), np.array(p), np.array(q), np.array(cp), np.array(cq), np.array(f),
-                             k[:len(rows)])
+        trace = _trace_of(rows, k[:len(rows)])
     return rec, trace
+
+
+def _trace_of(rows: list[tuple[Any, Pose]], stiffness: FloatArray) -> EpisodeTrace:
+    """The EpisodeTrace of the (observation, commanded pose) rows of an episode."""
+    obs = [o for o, _ in rows]
+
+    def stack(get: Callable[[Any], Any]) -> Any:
+        return np.array([get(o) for o in obs])
+
+    return EpisodeTrace(
+        times_s=stack(lambda o: o.time_s), pos=stack(lambda o: o.peg_tip.pos), quat=stack(lambda o: o.peg_tip.quat),
+        cmd_pos=np.array([c.pos for _, c in rows]), cmd_quat=np.array([c.quat for _, c in rows]),
+        force_n=stack(lambda o: o.contact_force_n), stiffness=stiffness, tcp_pos=stack(lambda o: o.tcp.pos),
+        tcp_quat=stack(lambda o: o.tcp.quat), qpos=stack(lambda o: o.qpos), qvel=stack(lambda o: o.qvel),
+        wrist_wrench=stack(lambda o: o.wrist_wrench), success=stack(lambda o: bool(o.success)))

@@ -30,7 +30,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -495,33 +495,41 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
                             to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted)
 
 
-def replay_episodes(model_dir: str | os.PathLike[str], config: EvaluationConfig, starts: Sequence[StartPose],
-                    on_step: Callable[[Any], None] | None = None,
-                    on_episode: Callable[[StartPose, Any], None] | None = None) -> list[tuple[EpisodeRecord, EpisodeTrace | None]]:
-    """Re-run chosen episodes in this process with traces (for figures and video); physics is
-    deterministic, so a replay reproduces the batch episode.
+def iter_replays(model_dir: str | os.PathLike[str], config: EvaluationConfig, starts: Sequence[StartPose],
+                 on_step: Callable[[Any], None] | None = None,
+                 on_episode: Callable[[StartPose, Any], None] | None = None) -> Iterator[tuple[EpisodeRecord, EpisodeTrace | None]]:
+    """Re-run chosen episodes in this process with traces, one at a time (one environment and policy for all);
+    physics is deterministic, so a replay reproduces the batch episode.
 
     Args:
         model_dir, config: as for `evaluate`.
         starts: the episodes to replay.
         on_step: called with the env after reset and every step.
         on_episode: called with (start, env) before each episode.
+
+    Yields:
+        (record, trace) of each start in turn.
     """
     import torch
 
     _, env, policy = build_setup(model_dir, config)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
-    out = []
     try:
         for start in starts:
             if on_episode is not None:
                 on_episode(start, env)
-            out.append(run_episode(env, policy, start, record_trace=True, on_step=on_step,
-                                   feedforward_gain=config.feedforward_gain))
+            yield run_episode(env, policy, start, record_trace=True, on_step=on_step,
+                              feedforward_gain=config.feedforward_gain)
     finally:
         torch.set_num_threads(threads)
-    return out
+
+
+def replay_episodes(model_dir: str | os.PathLike[str], config: EvaluationConfig, starts: Sequence[StartPose],
+                    on_step: Callable[[Any], None] | None = None,
+                    on_episode: Callable[[StartPose, Any], None] | None = None) -> list[tuple[EpisodeRecord, EpisodeTrace | None]]:
+    """`iter_replays` collected in a list (for figures and video)."""
+    return list(iter_replays(model_dir, config, starts, on_step, on_episode))
 
 
 __all__ = [
@@ -534,6 +542,7 @@ __all__ = [
     "check_goal_reachable",
     "evaluate",
     "finite_min",
+    "iter_replays",
     "journal_run",
     "record_from_dict",
     "replay_episodes",

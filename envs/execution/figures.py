@@ -203,6 +203,49 @@ def plot_outcomes(records: Sequence[Mapping[str, Any]], path: str | os.PathLike[
     return _save(fig, path)
 
 
+
+def plot_protocol(summary: dict[str, Any], path: str | os.PathLike[str], title: str) -> Path:
+    """Left: each demo seed's rate with its Wilson interval, the pooled rate and the between-seed interval.
+    Right: each seed's episodes by outcome (seated and the failure kinds), stacked."""
+
+    reps = [r for r in summary["replicates"] if r["episodes"]]
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2))
+    x = np.arange(len(reps))
+    labels = [str(r["demo_seed"]) for r in reps]
+    if reps:
+        rates = np.array([100 * r["rate"] for r in reps])
+        low = np.array([100 * r["rate_ci95"][0] for r in reps])
+        high = np.array([100 * r["rate_ci95"][1] for r in reps])
+        ax.errorbar(x, rates, yerr=[np.maximum(rates - low, 0.0), np.maximum(high - rates, 0.0)], fmt="o", color="C0", capsize=4,
+                    label="seed's rate, 95 % Wilson")
+        p, b = summary["pooled"], summary["between_seeds"]
+        ax.axhline(100 * p["rate"], color="C1", lw=1.5, label=f"pooled {100 * p['rate']:.1f} %")
+        ax.axhspan(100 * b["mean_rate_ci95"][0], 100 * b["mean_rate_ci95"][1], color="C1", alpha=0.15,
+                   label="between-seed 95 % (t)")
+        ax.set_ylim(max(0.0, min(low.min(), 100 * b["mean_rate_ci95"][0]) - 5.0), 101.0)
+    ax.set_xticks(x, labels)
+    ax.set_xlabel("demo seed (its own demos, training and starts)")
+    ax.set_ylabel("seated (%)")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8, loc="lower left")
+    kinds = sorted({k for r in reps for k in r["failures_by_kind"]})
+    bottom = np.zeros(len(reps))
+    seated = np.array([r["successes"] for r in reps], dtype=float)
+    bx.bar(x, seated, color="C2", label="seated")
+    bottom += seated
+    for i, kind in enumerate(kinds):
+        counts = np.array([r["failures_by_kind"].get(kind, 0) for r in reps], dtype=float)
+        bx.bar(x, counts, bottom=bottom, color=f"C{3 + i}", label=kind)
+        bottom += counts
+    bx.set_xticks(x, labels)
+    bx.set_xlabel("demo seed")
+    bx.set_ylabel("episodes")
+    bx.set_title("outcomes by reason", fontsize=10)
+    bx.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 AXIS_LABELS: Mapping[str, tuple[str, float]] = {
     "clearance_m": ("clearance (mm)", 1e3),
     "hole_error_m": ("hole-pose error (mm)", 1e3),

@@ -1,0 +1,125 @@
+"""Evaluation episodes exported while they are replayed (envs.execution.replay.replay_evaluation calls the
+``on_episode``, ``on_step`` and ``on_trace`` methods): the camera frames captured after the reset and every step
+(LeRobot: one MP4 at the control rate, a frame per data row; robomimic: (T, H, W, 3) arrays per episode; both
+without the drawn path and goal of the figures' videos), and each episode written as it ends (robomimic) or kept
+for the tables written at the end (LeRobot; small arrays).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from envs.datasets.features import ExportEpisode, ExportMeta, episode_from_trace, evaluation_meta, fps_of
+from envs.errors import EnvError
+from envs.jsonable import to_jsonable
+
+
+class EpisodeExport:
+    """Replayed episodes into a staged export folder: frames captured as they run, episodes written (robomimic)
+    or kept (LeRobot, small arrays) as each ends."""
+
+    def __init__(self, root: Path, layout: str, source: str, evaluation: Any, camera: str | None,
+                 size: tuple[int, int]):
+        self.root, self.layout, self.source, self.evaluation = root, layout, source, evaluation
+        self.camera, self.size = camera, size
+        self.meta: ExportMeta | None = None
+        self.episodes: list[ExportEpisode] = []  # LeRobot: every episode; robomimic: none (written at once)
+        self.count = 0
+        self.video: Any = None  # LeRobot: an EpisodeVideo; robomimic: an OffscreenRenderer
+        self.frames: list[np.ndarray] = []
+        self.video_frames: list[int] = []
+        self._frames_before = 0
+        self.writer: Any = None
+
+    def on_episode(self, _start: Any, env: Any) -> None:
+        """Before each episode: the metadata and the frame sink on the first, a new clip on every one."""
+        if self.meta is None:
+            scene = self.evaluation.scene
+            config = {"evaluation": to_jsonable(asdict(self.evaluation.config)), "scene": scene,
+                      "skill": self.evaluation.skill, "model": str(self.evaluation.model_dir)}
+            self.meta = evaluation_meta(self.source, env.control_period_s, str(scene.get("shape", env.shape)),
+                                        float(scene.get("clearance_m", env.scene.config.clearance_m)), config,
+                                        self.camera)
+            if self.camera is not None:
+                self._open_video(env)
+            if self.layout == "robomimic":
+                from envs.datasets.robomimic import RobomimicWriter
+
+                self.writer = RobomimicWriter(self.root, self.meta)
+        self.frames = []
+        if self.layout == "lerobot" and self.video is not None:
+            self._frames_before = self.video.frames
+
+    def _open_video(self, env: Any) -> None:
+        width, height = self.size
+        if self.layout == "lerobot":
+            from envs.datasets.lerobot import video_file, video_key
+            from envs.video import EpisodeVideo, VideoConfig
+
+            fps = fps_of(env.control_period_s)
+            if not isinstance(fps, int):
+                raise EnvError(f"--video: the control rate {1.0 / env.control_period_s:g} Hz is not a whole number of "
+                               "frames per second")
+            path = video_file(self.root, video_key(self.camera))
+            path.parent.mkdir(parents=True)
+            self.video = EpisodeVideo(env.model, path, VideoConfig(width=width, height=height, fps=fps,
+                                                                   camera=self.camera, draw_path=False,
+                                                                   goal_axis_length_m=0.0))
+        else:
+            from envs.video import OffscreenRenderer
+
+            self.video = OffscreenRenderer(env.model, width, height)
+            self.video.set_camera(self.camera)
+
+    def on_step(self, env: Any) -> None:
+        """After the reset and every step: one frame."""
+        if self.video is None:
+            return
+        if self.layout == "lerobot":
+            self.video.capture(env.data, env.observation.time_s, force=True)
+        else:
+            self.video.update_scene(env.data)
+            self.frames.append(self.video.render().copy())
+
+    def on_trace(self, record: dict[str, Any], _replayed: Any, trace: Any) -> None:
+        """After each episode: its export episode, written (robomimic) or kept (LeRobot)."""
+        episode = episode_from_trace(record, trace)
+        self.count += 1
+        if self.layout == "lerobot":
+            if self.video is not None:
+                self.video_frames.append(self.video.frames - self._frames_before)
+            self.episodes.append(episode)
+            return
+        if self.frames:
+            episode.frames = np.stack(self.frames)
+            self.frames = []
+        self.writer.add(episode)
+
+    def finish(self) -> None:
+        """Close the frame sink and write the dataset (LeRobot) or finish its file (robomimic)."""
+        if self.meta is None or not self.count:
+            raise EnvError(f"{self.source}: no episode to export (every chosen episode lacks a trajectory)")
+        if self.layout == "lerobot":
+            from envs.datasets.lerobot import LeRobotVideo, video_key, write_lerobot
+
+            video = None
+            if self.video is not None:
+                self.video.close()
+                width, height = self.size
+                video = LeRobotVideo(video_key(self.camera), height, width, tuple(self.video_frames))
+            write_lerobot(self.root, self.meta, self.episodes, video)
+        else:
+            if self.video is not None:
+                self.video.close()
+            self.writer.close()
+
+    def abort(self) -> None:
+        """Release the frame sink and the open file after a failure."""
+        if self.video is not None:
+            (self.video.abort if self.layout == "lerobot" else self.video.close)()
+        if self.writer is not None:
+            self.writer.abort()

@@ -1,0 +1,302 @@
+"""What an exported episode holds, shared by the LeRobot and the robomimic layouts (envs.datasets).
+
+One table, FEATURES, names every per-step quantity once with its meaning and unit, and its key in each layout.
+Poses are [x, y, z, qw, qx, qy, qz] (metres, unit quaternion w, x, y, z) in the world (robot base) frame, stored
+as float64, so a pose survives an export and an import bit for bit.
+
+Episodes (`episode_from_trace`, from a replayed evaluation) hold every feature. The action at frame t is what
+was commanded after observing frame t (the command of the step from t to t + 1); the last frame, after which
+nothing was commanded, repeats the last command:
+    action_pose[t] = cmd_pose[t + 1],  action_stiffness[t] = K[t + 1]   (t < T),   row T repeats row T - 1's.
+
+Demonstrations (`episodes_from_demos`, from a demo file) hold only what a demo file stores: ``tcp_pose`` and,
+when the file has it, ``action_stiffness`` (the stiffness the scripted expert commanded at each sample, as is)
+and ``done``. Absent, and listed under "absent" in the export's metadata (ABSENT_IN_DEMOS): ``peg_tip_pose``,
+``joint_pos``, ``joint_vel``, ``wrist_wrench`` (a demo file records no joint or force signal), ``action_pose``
+(it records the measured pose, not the commanded one) and ``success`` per step (a kept demo ends inserted,
+which is its per-episode ``success``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from envs.demo_file import DemoSet
+from envs.demo_import import RecordedDemos, check_trajectory
+from envs.errors import EnvError
+from envs.output import EXPORT_MARKER_FILE
+
+FloatArray = npt.NDArray[np.float64]
+
+POSE_NAMES: tuple[str, ...] = ("x", "y", "z", "qw", "qx", "qy", "qz")
+JOINT_NAMES: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
+WRENCH_NAMES: tuple[str, ...] = ("fx", "fy", "fz", "tx", "ty", "tz")
+STIFFNESS_NAMES: tuple[str, ...] = tuple(f"k_{r}{c}" for r in "xyz" for c in "xyz")
+
+#: The format version of the metadata this package writes (``ExportMeta.to_json``).
+EXPORT_VERSION: int = 1
+#: The marker file of an export folder: our metadata; its presence lets `--overwrite` replace the folder.
+MARKER_FILE: str = EXPORT_MARKER_FILE
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One per-step quantity.
+
+    Attributes:
+        key: its name here.
+        lerobot: its column in LeRobot's data tables.
+        robomimic: its dataset under ``data/demo_N`` in robomimic's HDF5 layout.
+        names: the names of its components.
+        dtype: "float64" or "bool".
+        description: what it is, with units.
+    """
+
+    key: str
+    lerobot: str
+    robomimic: str
+    names: tuple[str, ...]
+    dtype: str
+    description: str
+
+
+FEATURES: tuple[Feature, ...] = (
+    Feature("tcp_pose", "observation.state", "obs/tcp_pose", POSE_NAMES, "float64",
+            "measured tcp pose (the nominal peg_tip through the arm's kinematics; the skill's frame), m and (w, x, y, z)"),
+    Feature("peg_tip_pose", "observation.peg_tip_pose", "obs/peg_tip_pose", POSE_NAMES, "float64",
+            "the peg's own peg_tip pose (simulator truth: tcp pose + grasp offset, slip and tilt)"),
+    Feature("joint_pos", "observation.joint_pos", "obs/joint_pos", JOINT_NAMES, "float64", "arm joint positions, rad"),
+    Feature("joint_vel", "observation.joint_vel", "obs/joint_vel", JOINT_NAMES, "float64",
+            "arm joint velocities, rad/s"),
+    Feature("wrist_wrench", "observation.wrist_wrench", "obs/wrist_wrench", WRENCH_NAMES, "float64",
+            "wrist F/T reading [N; N m] in the sensor frame, tool load removed"),
+    Feature("action_pose", "action", "actions", POSE_NAMES, "float64",
+            "commanded tcp pose sent to the impedance controller after this frame, m and (w, x, y, z)"),
+    Feature("action_stiffness", "action.stiffness", "action_stiffness", STIFFNESS_NAMES, "float64",
+            "commanded translational stiffness after this frame, 3x3 row-major, N/m, world frame"),
+    Feature("success", "next.success", "rewards", ("success",), "bool",
+            "the simulator's success flag (seated and at rest for the hold time); robomimic: 0/1 reward"),
+    Feature("done", "next.done", "dones", ("done",), "bool", "last frame of the episode"),
+)
+FEATURE_BY_KEY: dict[str, Feature] = {f.key: f for f in FEATURES}
+
+ABSENT_IN_DEMOS: dict[str, str] = {
+    "peg_tip_pose": "a demo file records the tcp pose only",
+    "joint_pos": "a demo file records no joint signal",
+    "joint_vel": "a demo file records no joint signal",
+    "wrist_wrench": "a demo file records no force signal",
+    "action_pose": "a demo file records the measured pose, not the commanded one",
+    "success": "a demo file records no per-step success (every kept demo ends inserted)",
+}
+
+
+@dataclass
+class ExportEpisode:
+    """One episode to export.
+
+    Attributes:
+        index: its index in the source (demo n, or the evaluation's episode index).
+        data: feature key -> (T, n) array (bool (T,) for ``success`` and ``done``), T frames.
+        success: the episode's outcome.
+        end_reason: why it ended ("success", "time_limit (...)", ...; "demonstration" for a demo).
+        extra: per-episode metadata (numbers, strings, bools): the perturbation, the demo it started near, ...
+        frames: (T, H, W, 3) uint8 camera frames for a layout that stores images in the table (robomimic), or None.
+    """
+
+    index: int
+    data: dict[str, np.ndarray]
+    success: bool
+    end_reason: str
+    extra: dict[str, Any] = field(default_factory=dict)
+    frames: npt.NDArray[np.uint8] | None = None
+
+    @property
+    def num_frames(self) -> int:
+        """T, the number of frames."""
+        return int(next(iter(self.data.values())).shape[0])
+
+
+@dataclass(frozen=True)
+class ExportMeta:
+    """What an export is, stored beside the data (LeRobot: ``pih_export.json``; robomimic: also the ``data``
+    group's ``pih_export`` attribute) and read back on import.
+
+    Attributes:
+        kind: "demos" or "episodes".
+        source: the file it was made from.
+        dt_s: seconds between frames (exact; LeRobot's ``fps`` is 1 / dt_s).
+        task: the task in words (LeRobot's task table).
+        shape, clearance_m: the peg/hole shape and clearance (m).
+        features: the feature keys present.
+        absent: feature key -> why it is absent.
+        config: the source's configuration (demo file: its config_json; evaluation: config, scene and skill).
+        frame: the frame of ``tcp_pose`` ("tcp").
+        camera: the camera of the video frames, or None.
+    """
+
+    kind: str
+    source: str
+    dt_s: float
+    task: str
+    shape: str
+    clearance_m: float
+    features: tuple[str, ...]
+    absent: dict[str, str]
+    config: dict[str, Any]
+    frame: str = "tcp"
+    camera: str | None = None
+
+    def to_json(self, layout: str) -> dict[str, Any]:
+        """The JSON object of the metadata (and the marker of an export folder of ``layout``)."""
+        return {"pih_export": EXPORT_VERSION, "layout": layout, "kind": self.kind, "source": self.source,
+                "dt_s": self.dt_s, "task": self.task, "shape": self.shape, "clearance_m": self.clearance_m,
+                "frame": self.frame, "camera": self.camera, "features": list(self.features), "absent": self.absent,
+                "feature_descriptions": {k: FEATURE_BY_KEY[k].description for k in self.features},
+                "config": self.config}
+
+
+def task_text(shape: str, clearance_m: float) -> str:
+    """The task in words, as LeRobot's task table holds it."""
+    return f"insert the {shape} peg into the {shape} hole ({clearance_m * 1e3:g} mm clearance)"
+
+
+def _done(num_frames: int) -> npt.NDArray[np.bool_]:
+    done = np.zeros(num_frames, dtype=bool)
+    done[-1] = True
+    return done
+
+
+def episodes_from_demos(demos: DemoSet, source: str) -> tuple[ExportMeta, list[ExportEpisode]]:
+    """A demo file's demos as episodes (what a demo file holds; module docstring)."""
+    features = ["tcp_pose", "done"] + (["action_stiffness"] if demos.stiffness is not None else [])
+    absent = dict(ABSENT_IN_DEMOS)
+    if demos.stiffness is None:
+        absent["action_stiffness"] = "this demo file has no stiffness"
+    episodes = []
+    for n in range(demos.num_demos):
+        data: dict[str, np.ndarray] = {"tcp_pose": np.concatenate([demos.pos[n], demos.quat[n]], axis=-1),
+                                       "done": _done(demos.num_samples)}
+        if demos.stiffness is not None:
+            data["action_stiffness"] = np.asarray(demos.stiffness[n]).reshape(demos.num_samples, 9)
+        extra = {}
+        if demos.residual_pos_m is not None and demos.residual_rot_deg is not None:
+            extra = {"residual_pos_mm": float(demos.residual_pos_m[n]) * 1e3,
+                     "residual_rot_deg": float(demos.residual_rot_deg[n])}
+        episodes.append(ExportEpisode(n, data, True, "demonstration", extra))
+    meta = ExportMeta("demos", source, demos.dt, task_text(demos.shape, demos.clearance_m), demos.shape,
+                      demos.clearance_m, tuple(f.key for f in FEATURES if f.key in features), absent,
+                      dict(demos.config))
+    return meta, episodes
+
+
+def _shifted(values: np.ndarray) -> np.ndarray:
+    """values[t + 1] at row t, the last row repeated (module docstring)."""
+    return np.concatenate([values[1:], values[-1:]], axis=0)
+
+
+def episode_from_trace(record: dict[str, Any], trace: Any) -> ExportEpisode:
+    """An evaluation episode from its record (a dict of the evaluation JSON) and its replayed trace.
+
+    Args:
+        record: the episode's record (index, demo_index, success, reason, perturbation).
+        trace: an envs.execution.episode.EpisodeTrace (times_s, tcp_pos, tcp_quat, pos, quat, qpos, qvel,
+            wrist_wrench, cmd_pos, cmd_quat, stiffness, success).
+    """
+    num = len(trace.times_s)
+    data = {
+        "tcp_pose": np.concatenate([trace.tcp_pos, trace.tcp_quat], axis=-1),
+        "peg_tip_pose": np.concatenate([trace.pos, trace.quat], axis=-1),
+        "joint_pos": np.asarray(trace.qpos, dtype=float),
+        "joint_vel": np.asarray(trace.qvel, dtype=float),
+        "wrist_wrench": np.asarray(trace.wrist_wrench, dtype=float),
+        "action_pose": _shifted(np.concatenate([trace.cmd_pos, trace.cmd_quat], axis=-1)),
+        "action_stiffness": _shifted(np.asarray(trace.stiffness, dtype=float).reshape(num, 9)),
+        "success": np.asarray(trace.success, dtype=bool),
+        "done": _done(num),
+    }
+    extra: dict[str, Any] = {"demo_index": int(record.get("demo_index", -1))}
+    perturbation = record.get("perturbation") or {}
+    extra.update({f"perturbation.{k}": float(v) for k, v in perturbation.items() if isinstance(v, (int, float))})
+    return ExportEpisode(int(record["index"]), data, bool(record["success"]), str(record["reason"]), extra)
+
+
+def evaluation_meta(source: str, dt_s: float, shape: str, clearance_m: float, config: dict[str, Any],
+                    camera: str | None) -> ExportMeta:
+    """The metadata of exported evaluation episodes (every feature present)."""
+    return ExportMeta("episodes", source, dt_s, task_text(shape, clearance_m), shape, clearance_m,
+                      tuple(f.key for f in FEATURES), {}, config, camera=camera)
+
+
+def fps_of(dt_s: float) -> int | float:
+    """Frames per second 1 / dt: an integer when it is one (to 1e-9 relative), else the exact float."""
+    fps = 1.0 / dt_s
+    return int(round(fps)) if abs(fps - round(fps)) <= 1e-9 * fps else fps
+
+
+def read_meta(values: Any, source: str) -> dict[str, Any]:
+    """Our metadata (``ExportMeta.to_json``) from a JSON text or object, checked for what an import reads.
+
+    Raises:
+        EnvError: not JSON, not an object, no "pih_export" version, or a malformed dt_s/shape/clearance_m.
+    """
+    if isinstance(values, (str, bytes)):
+        try:
+            values = json.loads(values)
+        except json.JSONDecodeError as err:
+            raise EnvError(f"{source}: the pih export metadata is not valid JSON ({err})") from None
+    if not isinstance(values, dict) or values.get("pih_export") != EXPORT_VERSION:
+        raise EnvError(f"{source}: not pih export metadata of version {EXPORT_VERSION}")
+    dt = values.get("dt_s")
+    if not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0.0):
+        raise EnvError(f"{source}: the pih export metadata's dt_s={dt!r} must be a positive number of seconds")
+    if not isinstance(values.get("shape"), str) or not isinstance(values.get("clearance_m"), (int, float)):
+        raise EnvError(f"{source}: the pih export metadata needs a string 'shape' and a number 'clearance_m'")
+    return values
+
+
+def recorded_from_poses(poses: Sequence[np.ndarray], stiffness: Sequence[np.ndarray] | None, dt: float | None,
+                        meta: dict[str, Any] | None, layout: str, source: str) -> RecordedDemos:
+    """Demos to import (envs.demo_import.import_demos) from per-episode tcp poses and stiffness.
+
+    Args:
+        poses: one (T_n, 7) array per episode, [x, y, z, qw, qx, qy, qz].
+        stiffness: one (T_n, 9) array per episode (3x3 row-major), or None.
+        dt: seconds between frames (None: not known; give --dt-s).
+        meta: our metadata when the file was exported here (`read_meta`), else None.
+        layout: "lerobot" or "robomimic".
+        source: the file, for messages.
+
+    Raises:
+        EnvError: no episodes, wrong shapes, fewer than 2 frames, NaN or inf, quaternions off unit, a stiffness
+            with NaN or another length than its poses.
+    """
+    if not poses:
+        raise EnvError(f"{source}: holds no episodes")
+    pos, quat, ks = [], [], []
+    for n, pose in enumerate(poses):
+        pose = np.asarray(pose)
+        if pose.ndim != 2 or pose.shape[1] != 7:
+            raise EnvError(f"{source}: the tcp poses of episode {n} must have shape (T, 7), got {pose.shape}")
+        p, q = check_trajectory(pose[:, :3], pose[:, 3:], f"episode {n}", source)
+        pos.append(p)
+        quat.append(q)
+        if stiffness is not None:
+            k = np.asarray(stiffness[n], dtype=float)
+            if k.shape != (pose.shape[0], 9):
+                raise EnvError(f"{source}: the stiffness of episode {n} must have shape ({pose.shape[0]}, 9), "
+                               f"got {k.shape}")
+            if not np.all(np.isfinite(k)):
+                raise EnvError(f"{source}: the stiffness of episode {n} contains NaN or inf")
+            ks.append(k.reshape(-1, 3, 3))
+    meta = meta or {}
+    return RecordedDemos(pos=tuple(pos), quat=tuple(quat), dt=dt, shape=meta.get("shape"),
+                         clearance_m=None if meta.get("clearance_m") is None else float(meta["clearance_m"]),
+                         layout=layout, stiffness=tuple(ks) if stiffness is not None else None,
+                         tool_frame=meta.get("frame"),
+                         source_config=meta.get("config") if isinstance(meta.get("config"), dict) else None)

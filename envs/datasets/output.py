@@ -1,0 +1,65 @@
+"""The export folder: written under a temporary name beside it and renamed into place, so a failure or Ctrl-C
+leaves nothing half-written; an existing folder is replaced only when asked to and only if it is one of our
+exports (it holds the marker file, envs.datasets.features.MARKER_FILE).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from envs.datasets.features import MARKER_FILE
+from envs.errors import EnvError
+
+
+def check_export_folder(out: Path, overwrite: bool) -> None:
+    """May ``out`` be written? It may not exist yet, or be an empty folder, or (with ``overwrite``) be an export
+    of ours.
+
+    Raises:
+        EnvError: the parent folder is missing, ``out`` is a file, or a non-empty folder that is not an export
+            of ours or that ``overwrite`` does not allow to replace.
+    """
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise EnvError(f"--out {out}: folder {parent} does not exist")
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise EnvError(f"--out {out} is a file; an export is a folder")
+    if not any(out.iterdir()):
+        return
+    if not (out / MARKER_FILE).is_file():
+        raise EnvError(f"--out {out} is a non-empty folder that is not a `pih export` output (no {MARKER_FILE}); "
+                       "choose another folder")
+    if not overwrite:
+        raise EnvError(f"--out {out} already holds an export (pass --overwrite to replace it)")
+
+
+@contextmanager
+def staged_folder(out: Path, overwrite: bool) -> Iterator[Path]:
+    """Yield a temporary folder beside ``out`` to write the export into (with its MARKER_FILE); on a normal exit
+    rename it to ``out`` (replacing an export of ours there), else delete it.
+
+    Raises:
+        EnvError: see `check_export_folder`; no MARKER_FILE was written.
+    """
+    check_export_folder(out, overwrite)
+    staging = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir()
+    try:
+        yield staging
+        if not (staging / MARKER_FILE).is_file():
+            raise EnvError(f"export to {out}: no {MARKER_FILE} was written")
+        check_export_folder(out, overwrite)  # nothing else appeared there meanwhile
+        old = out.with_name(f".{out.name}.old-{os.getpid()}")
+        if out.exists():
+            os.replace(out, old)
+        os.replace(staging, out)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

@@ -1,0 +1,196 @@
+"""`pih benchmark`: the success-rate protocol -- demos, training and evaluation per demo seed, then the rate as a
+distribution over demo seeds (envs/execution/protocol.py says what is randomised and which intervals it reports).
+
+    pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/ [--shape square] [task options] [--workers 2]
+
+Writes bench/protocol.json (what runs), bench/seed-<s>/ (demos.npz, model/, eval.json and its journal),
+bench/benchmark.json (per-seed and pooled rates, between-seed interval, beta-binomial fit) and bench/benchmark.png.
+Run it again with the same options to continue after Ctrl-C or a crash: finished stages are kept, an interrupted
+evaluation resumes from its journal. Exit 0 when every replicate ran, 3 when one could not (its error is listed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from envs.errors import EnvError  # noqa: E402
+from envs.execution.protocol import (  # noqa: E402
+    PROTOCOL_FILE,
+    REPLICATE_PREFIX,
+    RESULT_FILE,
+    ProtocolConfig,
+    ReplicateOutcome,
+    outcome_from_records,
+    parse_seeds,
+    summarise,
+    summary_lines,
+)
+from scripts.options import MAX_EPISODES  # noqa: E402
+from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
+
+MAX_SEEDS = 1000
+REPLICATE_BYTES = 200 * 2**20
+"""Generous size of one replicate's folder (demos, a checkpoint, the record and its journal)."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `pih benchmark`."""
+    run = parser.add_argument_group("protocol")
+    run.add_argument("--demo-seeds", default="0-4", help="one replicate per demo seed: '0-4', '0,3,9' (default 0-4)")
+    run.add_argument("--episodes", type=int, default=200, help="evaluation episodes per replicate (default 200)")
+    run.add_argument("--start-seed-offset", type=int, default=1000,
+                     help="replicate s evaluates starts and hole errors of seed s + offset (default 1000)")
+    run.add_argument("--demos", type=int, default=7, help="demos per replicate (default 7, as the paper)")
+    run.add_argument("--shape", default="square", help="peg and hole shape (default square)")
+    run.add_argument("--epochs", type=int, default=None, help="training epochs (default: `pih train`'s)")
+    run.add_argument("--workers", type=int, default=2, help="training and evaluation processes (default 2)")
+    run.add_argument("--quiet", action="store_true", help="no progress bars")
+    out = parser.add_argument_group("output")
+    out.add_argument("--out", type=Path, required=True, help="protocol folder (new, or one to continue)")
+    add_task_arguments(parser)
+
+
+def protocol_from_args(args: argparse.Namespace) -> tuple[ProtocolConfig, dict[str, Any]]:
+    """The protocol and the task's scene fields of the parsed options (validated before any work).
+
+    Raises:
+        EnvError: naming the offending option.
+    """
+    from envs.execution.evaluate import EvaluationConfig
+    from envs.shapes import check_shape
+
+    check_shape(args.shape)
+    seeds = parse_seeds(args.demo_seeds)
+    if len(seeds) > MAX_SEEDS:
+        raise EnvError(f"--demo-seeds {args.demo_seeds!r}: at most {MAX_SEEDS} replicates")
+    if not 1 <= args.episodes <= MAX_EPISODES:
+        raise EnvError(f"--episodes {args.episodes}: must be 1..{MAX_EPISODES}")
+    if args.workers < 1:
+        raise EnvError(f"--workers {args.workers}: must be >= 1")
+    task = task_from_args(args)
+    evaluation = EvaluationConfig(episodes=args.episodes, perturbations=task.perturbations,
+                                  force_limit_n=task.force_limit_n)
+    config = ProtocolConfig(demo_seeds=seeds, start_seed_offset=args.start_seed_offset, num_demos=args.demos,
+                            shape=args.shape, epochs=args.epochs, evaluation=evaluation)
+    return config, task.scene_fields()
+
+
+def protocol_record(config: ProtocolConfig, scene_fields: dict[str, Any]) -> dict[str, Any]:
+    """What protocol.json holds: everything that decides the results (not the number of workers)."""
+    from envs.jsonable import to_jsonable
+
+    evaluation = {k: v for k, v in dataclasses.asdict(config.evaluation).items()
+                  if k not in ("seed", "workers", "unit_timeout_s", "backend", "ray_address")}
+    return to_jsonable({"command": "pih benchmark", "demo_seeds": list(config.demo_seeds),
+                        "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "shape": config.shape,
+                        "epochs": config.epochs, "scene": scene_fields, "evaluation": evaluation})
+
+
+def prepare_folder(out: Path, record: dict[str, Any]) -> None:
+    """A new protocol folder, or the folder of the same protocol to continue.
+
+    Raises:
+        EnvError: ``out`` is a file, a folder with other contents, or a protocol with other settings.
+    """
+    from envs.output import MARKER_KEY, check_output_folder, write_json
+
+    check_output_folder("--out", out, estimate_bytes=REPLICATE_BYTES * len(record["demo_seeds"]))
+    if out.is_dir():
+        path = out / PROTOCOL_FILE
+        if path.is_file():
+            try:
+                earlier = json.loads(path.read_text())
+            except (OSError, ValueError) as err:
+                raise EnvError(f"--out {out}: unreadable {PROTOCOL_FILE} ({err})") from None
+            if isinstance(earlier, dict):
+                earlier.pop(MARKER_KEY, None)  # which pih version wrote it does not decide the results
+            if earlier != json.loads(json.dumps(record)):
+                raise EnvError(f"--out {out} holds a protocol with other settings: choose another --out")
+            return
+        foreign = [p.name for p in out.iterdir()]
+        if foreign:
+            raise EnvError(f"--out {out} is not a `pih benchmark` folder (it holds {', '.join(sorted(foreign)[:5])})")
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / PROTOCOL_FILE, record)
+
+
+def run_replicate(config: ProtocolConfig, scene_fields: dict[str, Any], folder: Path, demo_seed: int,
+                  start_seed: int, workers: int, progress: bool, report: Callable[[str], None]) -> ReplicateOutcome:
+    """Demos, training and evaluation of one replicate in ``folder``; a stage whose output exists is skipped and an
+    interrupted evaluation resumes from its journal.
+
+    Raises:
+        EnvError / RFlowError: the replicate cannot be completed (the expert gives up, training fails).
+        KeyboardInterrupt: Ctrl-C during the evaluation (its journal keeps the finished episodes).
+    """
+    from batch import Journal
+    from envs.demo_file import save_demos
+    from envs.demos import collect_demos
+    from envs.execution.evaluate import evaluate, journal_run, record_from_dict
+    from envs.scene import SceneConfig
+    from scripts.train import skill_train_config, train_skill
+
+    folder.mkdir(exist_ok=True)
+    demos_path, model_dir, eval_path = folder / "demos.npz", folder / "model", folder / "eval.json"
+    if not demos_path.exists():
+        report(f"seed {demo_seed}: recording {config.num_demos} {config.shape} demos")
+        collection = collect_demos(config.num_demos, demo_seed, SceneConfig(**{**scene_fields, "shape": config.shape}))
+        save_demos(demos_path, collection.demos)
+    if not (model_dir / "skill.json").exists():
+        report(f"seed {demo_seed}: training (seed {demo_seed})")
+        overrides: dict[str, Any] = {"seed": demo_seed}
+        if config.epochs is not None:
+            overrides["epochs"] = config.epochs
+        train_skill(demos_path, model_dir, skill_train_config(**overrides), progress=progress, overwrite=True,
+                    workers=workers)
+    if eval_path.exists():
+        return outcome_from_records(demo_seed, start_seed, [record_from_dict(r) for r in
+                                                            json.loads(eval_path.read_text())["per_episode"]])
+    evaluation = dataclasses.replace(config.evaluation, seed=start_seed, workers=workers)
+    report(f"seed {demo_seed}: evaluating {evaluation.episodes} episodes (start seed {start_seed})")
+    journal_path = folder / "eval.json.journal.jsonl"
+    journal = Journal.open(journal_path, journal_run(model_dir, evaluation), resume=journal_path.exists())
+    try:
+        result = evaluate(model_dir, evaluation, progress=progress, journal=journal)
+    finally:
+        journal.close()
+    if result.interrupted:
+        raise KeyboardInterrupt
+    if not result.complete:
+        raise EnvError(f"evaluation incomplete: {len(result.records)} of {evaluation.episodes} episodes")
+    result.save_json(eval_path)
+    return outcome_from_records(demo_seed, start_seed, result.records)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run or continue the protocol; print and write its summary."""
+    from envs.execution.figures import plot_protocol
+    from envs.output import write_json
+    from rflow.errors import RFlowError
+
+    config, scene_fields = protocol_from_args(args)
+    record = protocol_record(config, scene_fields)
+    prepare_folder(args.out, record)
+    outcomes = []
+    for demo_seed, start_seed in zip(config.demo_seeds, config.start_seeds()):
+        try:
+            outcomes.append(run_replicate(config, scene_fields, args.out / f"{REPLICATE_PREFIX}{demo_seed}", demo_seed,
+                                          start_seed, args.workers, not args.quiet, lambda line: print(line, flush=True)))
+        except (EnvError, RFlowError) as err:
+            print(f"seed {demo_seed}: failed -- {err}", flush=True)
+            outcomes.append(ReplicateOutcome(demo_seed, start_seed, error=str(err)))
+    summary = {"protocol": record, **summarise(outcomes)}
+    write_json(args.out / RESULT_FILE, summary)
+    title = (f"{config.shape}, {len(config.demo_seeds)} demo seeds x {config.evaluation.episodes} episodes")
+    plot_protocol(summary, args.out / "benchmark.png", title)
+    print()
+    print("\n".join(summary_lines(summary)))
+    print(f"wrote {args.out / RESULT_FILE} and {args.out / 'benchmark.png'}")
+    return 0 if summary["complete"] else 3
