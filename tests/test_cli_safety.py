@@ -111,6 +111,10 @@ CASES: dict[str, Case] = {
        for o in OVERWRITE},
     **{f"search-foreign{o}": Case(f"search --out {{tmp}}/s --trials 1{o}", "not written by pih",
                                   (_foreign("s/best.json"),)) for o in OVERWRITE},
+    **{f"export-foreign{o}": Case(f"export --demos {{tmp}}/demos.npz --format lerobot --out {{tmp}}/ds{o}",
+                                  "not a `pih export` output", (_foreign("ds/"),)) for o in OVERWRITE},
+    "benchmark-foreign": Case("benchmark --demo-seeds 0 --episodes 1 --out {tmp}/b", "not a `pih benchmark` folder",
+                              (_foreign("b/"),)),
     # an output is never an input, nor inside an input checkpoint
     "evaluate-json-is-the-checkpoint's": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} "
                                               "--json {tmp}/model/skill.json --overwrite", "inside the input"),
@@ -118,6 +122,8 @@ CASES: dict[str, Case] = {
                                               "inside the input"),
     "import-out-is-the-input": Case("demos --import {tmp}/rec.npz --tool-offset flange --out {tmp}/rec.npz --overwrite",
                                     "input", (_recording,)),
+    "export-out-into-the-checkpoint": Case("export --episodes {tmp}/e.json --model {tmp}/model --format lerobot "
+                                           "--out {tmp}/model/ds", "inside the input"),
     "train-out-holds-the-demos": Case("train --demos {tmp}/model/x.npz --out {tmp}/model --overwrite",
                                       "holds the input", (lambda tmp: shutil.copy(tmp / "demos.npz", tmp / "model" / "x.npz"),)),
     # seeds and counts, checked while parsing
