@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from dm_control import mjcf
+if TYPE_CHECKING:  # dm_control loads MuJoCo: only the scene builders need it
+    from dm_control import mjcf
 
 from envs.errors import EnvError
 

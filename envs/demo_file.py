@@ -17,14 +17,14 @@ Optional:
                             stiffness[n, -1] == goal_stiffness for every n (to 1e-9 relative)
     goal_stiffness (3, 3)   the shared goal stiffness; present exactly when ``stiffness`` is
 
-Files are written atomically (temp file + os.replace) and read with ``allow_pickle=False``.
+Files are written by envs.output.save_npz (atomically, with pih's marker array "pih") and read with
+``allow_pickle=False``.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from envs.output import save_npz, strict_json
 from envs.poses import quat_angle_rad
 
 FloatArray = npt.NDArray[np.float64]
@@ -174,7 +175,7 @@ def validate_stiffness(demos: DemoSet, source: str = "demos") -> None:
 
 
 def save_demos(path: str | os.PathLike[str], demos: DemoSet) -> Path:
-    """Validate and write ``demos`` to ``path`` atomically (temp file in the same folder + os.replace).
+    """Validate and write ``demos`` to ``path`` (envs.output.save_npz: atomic, marked).
 
     Returns:
         the written path.
@@ -192,7 +193,7 @@ def save_demos(path: str | os.PathLike[str], demos: DemoSet) -> Path:
         "goal_quat": np.asarray(demos.goal_quat, dtype=np.float64),
         "shape": np.str_(demos.shape),
         "clearance_m": np.float64(demos.clearance_m),
-        "config_json": np.str_(json.dumps(demos.config, sort_keys=True)),
+        "config_json": np.str_(json.dumps(strict_json(demos.config), sort_keys=True, allow_nan=False)),
     }
     if demos.residual_pos_m is not None:
         arrays["residual_pos_m"] = np.asarray(demos.residual_pos_m, dtype=np.float64)
@@ -204,18 +205,7 @@ def save_demos(path: str | os.PathLike[str], demos: DemoSet) -> Path:
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise EnvError(f"cannot write demos to {out}: folder {folder} does not exist")
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=folder)
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes 0600; the file's mode follows the umask (0644 by default)
-        with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, **arrays)
-        os.replace(tmp_name, out)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
-    return out
+    return save_npz(out, arrays)
 
 
 def _scalar(archive: Any, key: str, source: str, kind: type) -> Any:

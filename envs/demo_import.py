@@ -66,8 +66,8 @@ FRANKA_TCP: Pose = Pose(pos=np.array([0.0, 0.0, 0.1034]),
                         quat=np.array([np.cos(-np.pi / 8.0), 0.0, 0.0, np.sin(-np.pi / 8.0)]))
 #: Named tool offsets accepted by :func:`parse_tool_offset`.
 TOOL_OFFSETS: dict[str, Pose] = {"franka-tcp": FRANKA_TCP, "flange": Pose(np.zeros(3), np.array([1.0, 0, 0, 0]))}
-#: Smallest norm of a tool-offset quaternion (anything shorter has no direction to normalise).
-MIN_QUAT_NORM: float = 1e-6
+#: Largest | |q| - 1 | of a tool-offset quaternion (9 significant digits, e.g. 0.923879533,0,0,-0.382683432).
+TOOL_QUAT_UNIT_TOL: float = 1e-6
 
 
 @dataclass(frozen=True)
@@ -168,10 +168,11 @@ def tool_to_peg_tip(tool: Pose, tool_offset: Pose, grasp: Pose) -> Pose:
 
 
 def parse_tool_offset(text: str) -> Pose:
-    """A tool offset from 'X,Y,Z,QW,QX,QY,QZ' (metres, quaternion w, x, y, z; normalised) or a name in TOOL_OFFSETS.
+    """A tool offset from 'X,Y,Z,QW,QX,QY,QZ' (metres, unit quaternion w, x, y, z) or a name in TOOL_OFFSETS.
 
     Raises:
-        EnvError: not 7 finite numbers, or a zero quaternion.
+        EnvError: not 7 finite numbers, or a quaternion whose norm is off 1 by more than TOOL_QUAT_UNIT_TOL
+            (a typo, not rounding, so it is refused rather than normalised without a word).
     """
     name = text.strip().lower()
     if name in TOOL_OFFSETS:
@@ -186,24 +187,25 @@ def parse_tool_offset(text: str) -> Pose:
         raise EnvError(f"--tool-offset {text!r} must be 7 finite numbers X,Y,Z,QW,QX,QY,QZ (metres, quaternion "
                        f"w, x, y, z) or one of {', '.join(TOOL_OFFSETS)}")
     norm = float(np.linalg.norm(values[3:]))
-    if norm < MIN_QUAT_NORM:
-        raise EnvError(f"--tool-offset {text!r}: the quaternion {values[3:].tolist()} is zero and is no rotation")
+    if abs(norm - 1.0) > TOOL_QUAT_UNIT_TOL:
+        raise EnvError(f"--tool-offset {text!r}: the quaternion {values[3:].tolist()} has norm {norm:.9g}, not 1 "
+                       f"(within {TOOL_QUAT_UNIT_TOL:g}); give a unit quaternion w, x, y, z")
     return Pose(pos=values[:3], quat=values[3:] / norm)
 
 
 def resolve_dt(file_dt: float | None, flag_dt: float | None, source: str) -> float:
-    """The sampling time: the file's ``dt``, the ``--dt`` flag, or both when they agree (relative 1e-9).
+    """The sampling time: the file's ``dt``, the ``--dt-s`` flag, or both when they agree (relative 1e-9).
 
     Raises:
         EnvError: neither given, they differ, or the value is not a positive finite number.
     """
-    for what, value in (("--dt", flag_dt), (f"{source}: 'dt'", file_dt)):
+    for what, value in (("--dt-s", flag_dt), (f"{source}: 'dt'", file_dt)):
         if value is not None and not (np.isfinite(value) and value > 0.0):
             raise EnvError(f"{what} = {value} must be a positive finite number of seconds")
     if file_dt is None and flag_dt is None:
-        raise EnvError(f"{source} has no 'dt': give the sampling time with --dt SECONDS")
+        raise EnvError(f"{source} has no 'dt': give the sampling time with --dt-s SECONDS")
     if file_dt is not None and flag_dt is not None and abs(file_dt - flag_dt) > 1e-9 * max(file_dt, flag_dt):
-        raise EnvError(f"--dt {flag_dt} differs from the file's dt {file_dt} ({source}); give one of them")
+        raise EnvError(f"--dt-s {flag_dt} differs from the file's dt {file_dt} ({source}); give one of them")
     return float(flag_dt if flag_dt is not None else file_dt)  # type: ignore[arg-type]
 
 

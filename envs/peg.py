@@ -8,11 +8,20 @@ and hexagon convex mesh prisms whose vertices are computed here.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from dm_control import mjcf
 
 from envs.contact import ContactConfig
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
+
+if TYPE_CHECKING:  # loads MuJoCo: imported where the model is built
+    from dm_control import mjcf
+
+PEG_MODES: tuple[str, ...] = ("grasped", "welded", "free")
+"""How the peg is held: by the fingers' friction, rigidly in the hand, or lying free."""
+FRANKA_GRASP_FORCE_N: float = 70.0
+"""Continuous grasp force of the Franka hand."""
 
 PEG_DENSITY_KG_M3: float = 700.0
 """Hard wood; the 30 mm square peg weighs 57 g."""
@@ -44,6 +53,8 @@ def build_peg(shape: str, contact: ContactConfig, length_m: float = PEG_LENGTH_M
         EnvError: for an unknown shape name.
     """
     section = peg_cross_section(shape)
+    from dm_control import mjcf
+
     peg = mjcf.RootElement(model="peg")
     common = dict(contact.geom_attributes(), density=PEG_DENSITY_KG_M3, rgba=PEG_RGBA[shape])
     half_length = length_m / 2.0

@@ -50,7 +50,7 @@ from envs.geometry import (
     z_down_rotation,
     z_down_yaw_deg,
 )
-from envs.peg import build_peg
+from envs.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, build_peg
 from envs.shapes import PEG_LENGTH_M, SHAPES, check_shape, grip_half_width_m, hole_inradius_m
 from envs.sorter import (
     SorterLayout,
@@ -70,10 +70,7 @@ PAPER_GOAL_QUAT: tuple[float, float, float, float] = (0.022, 0.991, -0.125, 0.03
 PAPER_GOAL_YAW_DEG: float = z_down_yaw_deg(PAPER_GOAL_QUAT)
 """Heading of the z-down orientation nearest to g_q (about -14.4 deg)."""
 
-PEG_MODES: tuple[str, ...] = ("grasped", "welded", "free")
 FINGER_JOINTS: tuple[str, ...] = ("finger_joint1", "finger_joint2")
-FRANKA_GRASP_FORCE_N: float = 70.0
-"""Continuous grasp force of the Franka hand."""
 MAX_GOAL_TILT_DEG: float = 5.0
 TABLE_MARGIN_M: float = 0.05
 MIN_TABLE_HEIGHT_M: float = 0.02

@@ -34,13 +34,17 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Mapping
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from dm_control import mjcf
 
 from envs.contact import ContactConfig
 from envs.errors import EnvError
 from envs.geometry import FloatArray, clip_polygon, edge_lines, polygon_area, rectangle
 from envs.shapes import SHAPES, hole_polygon, peg_cross_section
+
+if TYPE_CHECKING:  # loads MuJoCo: imported where the model is built, so the limits here stay light
+    from dm_control import mjcf
 
 LAYOUT_ORDER: tuple[str, ...] = ("triangle", "circle", "square", "rectangle", "hexagon")
 """Hole order along the sorter's +y axis."""
@@ -349,6 +353,8 @@ def build_sorter(layout: SorterLayout, contact: ContactConfig) -> mjcf.RootEleme
     non-colliding convex prisms ``skin_<shape>_<i>``, one per wall piece, which with the plate boxes tile
     the plate without overlap.
     """
+    from dm_control import mjcf
+
     sorter = mjcf.RootElement(model="sorter")
     attributes = dict(contact.geom_attributes(), rgba=SORTER_RGBA)
     size_x, size_y = layout.size_xy_m

@@ -20,14 +20,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
 from envs.errors import EnvError
 from envs.perturbation import PerturbationRanges
-from envs.scene import FRANKA_GRASP_FORCE_N, PEG_MODES, SceneConfig
+from envs.peg import FRANKA_GRASP_FORCE_N, PEG_MODES
 from envs.sorter import check_chamfer, check_clearance, check_hole_depth
+
+if TYPE_CHECKING:
+    from envs.scene import SceneConfig
 
 TASK_PEG_MODES: tuple[str, ...] = tuple(m for m in PEG_MODES if m != "free")
 
@@ -77,6 +80,8 @@ class TaskConfig:
 
     def scene_config(self, **overrides: Any) -> SceneConfig:
         """A SceneConfig with this task's fields (plus ``overrides``, e.g. shape or goal)."""
+        from envs.scene import SceneConfig  # loads MuJoCo; the task's values and checks do not need it
+
         return SceneConfig(**{**self.scene_fields(), **overrides})
 
 

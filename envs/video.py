@@ -5,12 +5,15 @@ glfw), otherwise EGL with a fall-back to OSMesa. Frames are rendered at ``fps`` 
 SIMULATED time (not every physics step). The commanded peg_tip path is drawn as a polyline (line
 geoms, a few pixels wide: capsules cost ~10x more with a software renderer) and the goal as an RGB
 frame (x red, y green, z blue), both as user geoms of the scene.
-The MP4 is written to a temporary file beside the target and renamed on success.
+The MP4 is written to a temporary file beside the target (envs.output.AtomicOutput) and renamed only when
+ffmpeg wrote a whole file; a full disk or a dead ffmpeg is an OSError, never a truncated MP4.
 """
 
 from __future__ import annotations
 
+import errno
 import os
+import struct
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +29,7 @@ import imageio.v2 as imageio  # noqa: E402
 import mujoco  # noqa: E402
 
 from envs.errors import EnvError  # noqa: E402
+from envs.output import AtomicOutput  # noqa: E402
 from envs.poses import Pose, rotate  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
@@ -246,7 +250,12 @@ def add_frame(scene: mujoco.MjvScene, pose: Pose, length: float, width_px: float
 
 
 class Mp4Writer:
-    """H.264 MP4 writer that writes to a temporary file and renames it to ``path`` on :meth:`close`."""
+    """H.264 MP4 writer into an envs.output.AtomicOutput: renamed to ``path`` on :meth:`close` only when ffmpeg
+    wrote a whole MP4 (`check_mp4`), deleted otherwise.
+
+    Raises (append, close):
+        OSError: ffmpeg could not write the video (a full disk, a write error): one line naming the path.
+    """
 
     def __init__(self, path: str | os.PathLike[str], fps: int, quality: int = 7):
         self.path = Path(path)
@@ -254,35 +263,84 @@ class Mp4Writer:
             raise EnvError(f"video path {self.path} must end in .mp4")
         if not self.path.parent.is_dir():
             raise EnvError(f"cannot write video {self.path}: folder {self.path.parent} does not exist")
-        # where the video is encoded until `close` renames it; named after the whole output
-        # (".episodes.mp4.<pid>.tmp.mp4") so that a run folder left by a hard kill mid-write holds nothing
-        # `pih run` would not recognise as its own (scripts.run.check_run_folder)
-        self.temporary_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp.mp4")
-        self._writer = imageio.get_writer(self.temporary_path, format="FFMPEG", mode="I", fps=fps, codec="libx264",
-                                          quality=quality, pixelformat="yuv420p", macro_block_size=8,
-                                          ffmpeg_log_level="error")
+        self._output = AtomicOutput(self.path, register=True)
+        self.temporary_path = self._output.temporary
+        try:
+            self._writer = imageio.get_writer(self.temporary_path, format="FFMPEG", mode="I", fps=fps,
+                                              codec="libx264", quality=quality, pixelformat="yuv420p",
+                                              macro_block_size=8, ffmpeg_log_level="quiet")
+        except BaseException:
+            self._output.abort()
+            raise
         self.frames = 0
+
+    def _failed(self, what: str) -> OSError:
+        return OSError(errno.EIO, f"ffmpeg could not write the video ({what}; disk full?)", str(self.path))
 
     def append(self, frame: npt.NDArray[np.uint8]) -> None:
         """Encode one RGB frame (H, W, 3) uint8."""
-        self._writer.append_data(frame)
+        try:
+            self._writer.append_data(frame)
+        except OSError:  # ffmpeg is gone (its pipe broke): imageio's message spans many lines
+            self.abort()
+            raise self._failed(f"stopped at frame {self.frames}") from None
         self.frames += 1
 
     def close(self) -> Path:
-        """Finish encoding and move the file into place."""
-        self._writer.close()
+        """Finish encoding, check the file is a whole MP4, and move it into place."""
+        try:
+            self._writer.close()
+        except OSError:
+            self._output.abort()
+            raise self._failed("it did not finish") from None
         if self.frames == 0:
-            self.temporary_path.unlink(missing_ok=True)
+            self._output.abort()
             raise EnvError(f"video {self.path}: no frame was rendered")
-        os.replace(self.temporary_path, self.path)
-        return self.path
+        problem = check_mp4(self.temporary_path)
+        if problem is not None:
+            self._output.abort()
+            raise self._failed(problem)
+        return self._output.commit()
 
     def abort(self) -> None:
         """Stop encoding and delete the temporary file."""
         try:
             self._writer.close()
+        except OSError:
+            pass  # ffmpeg already failed; the partial file goes anyway
         finally:
-            self.temporary_path.unlink(missing_ok=True)
+            self._output.abort()
+
+
+def check_mp4(path: str | os.PathLike[str]) -> str | None:
+    """None if ``path`` is a whole MP4, else what is wrong: its top-level boxes (ISO/IEC 14496-12: 32-bit
+    big-endian size, 4-byte type; size 1 = a 64-bit size follows, 0 = to the end of the file) must tile the
+    file exactly and include "ftyp", "moov" and "mdat" (ffmpeg writes "moov" last, so a cut file lacks it)."""
+    p = Path(path)
+    size = p.stat().st_size
+    if size == 0:
+        return "the file is empty"
+    found, offset = set(), 0
+    with open(p, "rb") as handle:
+        while offset < size:
+            handle.seek(offset)
+            header = handle.read(8)
+            if len(header) < 8:
+                return f"a box header is cut at byte {offset}"
+            length, kind = struct.unpack(">I4s", header)
+            if length == 1:
+                extended = handle.read(8)
+                if len(extended) < 8:
+                    return f"a box header is cut at byte {offset}"
+                length = struct.unpack(">Q", extended)[0]
+            elif length == 0:
+                length = size - offset
+            if length < 8 or offset + length > size:
+                return f"box {kind!r} at byte {offset} runs past the end of the file ({size} bytes)"
+            found.add(kind)
+            offset += length
+    missing = [k.decode() for k in (b"ftyp", b"moov", b"mdat") if k not in found]
+    return f"no {', '.join(missing)} box" if missing else None
 
 
 class EpisodeVideo:

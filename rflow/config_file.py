@@ -7,15 +7,19 @@ Layout (extra top-level keys, such as "source" naming the study that found it, a
      "source": {...}}
 
 Fields left out of "train_config" (or "model") take the `TrainConfig` / `ModelConfig` defaults; an unknown
-field is an error, so a misspelt hyperparameter never goes unnoticed.
+field is an error, so a misspelt hyperparameter never goes unnoticed, and so is a value of the wrong type (a
+float where the field is an integer, a bool for a number, NaN or infinity) or out of the config's range.
+`train_config_record` builds the record; the caller writes it (`pih search`: envs.output.write_json, which
+adds pih's marker), as rflow writes no command outputs of its own.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
-import tempfile
+import typing
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -31,11 +35,35 @@ def _fields(cls: type) -> set[str]:
     return {f.name for f in dataclasses.fields(cls)}
 
 
+def _typed(value: Any, hint: Any, name: str, where: str) -> Any:
+    """``value`` if it has the field's type (int: an integer, not a bool; float: a finite number; str; None
+    where the field allows it), a float field's value as float. Raises RFlowError naming the field."""
+    allowed = typing.get_args(hint) or (hint,)
+    if value is None and type(None) in allowed:
+        return None
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if int in allowed and number and isinstance(value, int):
+        return value
+    if float in allowed and number:
+        if not math.isfinite(value):
+            raise RFlowError(f"{where}: {name} = {value!r} must be a finite number")
+        return float(value)
+    if str in allowed and isinstance(value, str):
+        return value
+    kinds = " or ".join({int: "an integer", float: "a number", str: "a string"}.get(t, "null") for t in allowed)
+    raise RFlowError(f"{where}: {name} = {json.dumps(value)} must be {kinds}")
+
+
+def _typed_fields(cls: type, values: Mapping[str, Any], prefix: str, where: str) -> dict[str, Any]:
+    hints = typing.get_type_hints(cls)
+    return {key: _typed(value, hints[key], prefix + key, where) for key, value in values.items()}
+
+
 def train_config_from_dict(values: Mapping[str, Any], where: str = "config") -> TrainConfig:
     """A TrainConfig from a (partial) dict of its fields, "model" a dict of ModelConfig fields.
 
     Raises:
-        RFlowError: unknown fields, wrong types or values that the configs reject.
+        RFlowError: unknown fields, wrong types (module docstring) or values that the configs reject.
     """
     if not isinstance(values, Mapping):
         raise RFlowError(f"{where}: train_config must be a JSON object")
@@ -46,17 +74,16 @@ def train_config_from_dict(values: Mapping[str, Any], where: str = "config") -> 
     unknown |= {f"model.{key}" for key in set(model_values) - _fields(ModelConfig)}
     if unknown:
         raise RFlowError(f"{where}: unknown training config field(s) {', '.join(sorted(unknown))}")
+    top = _typed_fields(TrainConfig, {k: v for k, v in values.items() if k != "model"}, "", where)
     try:
-        model = ModelConfig(**model_values)
-        return TrainConfig(**{**values, "model": model})
-    except TypeError as err:
-        raise RFlowError(f"{where}: {err}") from None
+        model = ModelConfig(**_typed_fields(ModelConfig, model_values, "model.", where))
+        return TrainConfig(**{**top, "model": model})
     except RFlowError as err:
         raise RFlowError(f"{where}: {err}") from None
 
 
 def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
-    """Read a config file written by `save_train_config`.
+    """Read a config file (`train_config_record`, as `pih search` writes it).
 
     Raises:
         RFlowError: missing or unreadable file, not JSON, another format, or invalid fields.
@@ -75,25 +102,7 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     return train_config_from_dict(record["train_config"], f"config file {file}")
 
 
-def save_train_config(path: str | os.PathLike[str], config: TrainConfig,
-                      source: Mapping[str, Any] | None = None) -> Path:
-    """Write ``config`` (and where it came from) to ``path``: a temporary file beside it, then renamed.
-
-    Raises:
-        RFlowError: the folder does not exist.
-    """
-    out = Path(path)
-    if not out.parent.is_dir():
-        raise RFlowError(f"cannot write config {out}: folder {out.parent} does not exist")
-    record = {"format": FORMAT, "version": VERSION, "train_config": dataclasses.asdict(config),
-              "source": dict(source or {})}
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            json.dump(record, handle, indent=2, allow_nan=False)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return out
+def train_config_record(config: TrainConfig, source: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The config file's record of ``config`` and where it came from (module docstring)."""
+    return {"format": FORMAT, "version": VERSION, "train_config": dataclasses.asdict(config),
+            "source": dict(source or {})}

@@ -35,6 +35,10 @@ WEIGHTS_FILE = "weights.pt"
 FORMAT = "rflow.RiemannianFlow/1"
 
 
+MAX_WIDTH = 4096
+MAX_HIDDEN_LAYERS = 16
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Architecture of ImitationFlow (paper: 11 coupling layers, ReLU).
@@ -58,8 +62,9 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if not 1 <= self.layers <= 64:
             raise RFlowError(f"layers {self.layers} must be in 1..64")
-        if self.width < 1 or self.hidden_layers < 1:
-            raise RFlowError(f"width {self.width} and hidden_layers {self.hidden_layers} must be >= 1")
+        if not (1 <= self.width <= MAX_WIDTH and 1 <= self.hidden_layers <= MAX_HIDDEN_LAYERS):
+            raise RFlowError(f"width {self.width} and hidden_layers {self.hidden_layers} must be in 1..{MAX_WIDTH} "
+                             f"and 1..{MAX_HIDDEN_LAYERS}")
         if self.activation not in ACTIVATIONS:
             raise RFlowError(f"unknown activation {self.activation!r}; expected one of {sorted(ACTIVATIONS)}")
         if not (self.log_scale_clamp > 0 and self.min_rate > 0):

@@ -32,6 +32,10 @@ from rflow.normalise import Normalisation
 OPTIMIZERS = ("adam", "adamax", "sgd", "rmsprop")  # the paper's search space (Adam the default)
 
 
+MAX_COUNT = 100_000_000
+"""Largest batch size, epoch count, transitions per epoch and horizon a TrainConfig accepts."""
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Hyperparameters of `fit`. Defaults follow the paper (11 layers, ReLU, Adam, lr 1e-3, batch 128).
@@ -88,8 +92,11 @@ class TrainConfig:
             raise RFlowError(f"unknown optimizer {self.optimizer!r}; expected one of {OPTIMIZERS}")
         if not (self.lr > 0 and 0 < self.lr_final_fraction <= 1):
             raise RFlowError(f"need lr > 0 and 0 < lr_final_fraction <= 1, got {self.lr}, {self.lr_final_fraction}")
-        if min(self.batch_size, self.epochs, self.transitions_per_epoch, self.horizon, self.horizon_groups) < 1:
-            raise RFlowError("batch_size, epochs, transitions_per_epoch, horizon and horizon_groups must be >= 1")
+        counts = {"batch_size": self.batch_size, "epochs": self.epochs, "transitions_per_epoch":
+                  self.transitions_per_epoch, "horizon": self.horizon, "horizon_groups": self.horizon_groups}
+        for name, value in counts.items():
+            if not 1 <= value <= MAX_COUNT:
+                raise RFlowError(f"{name} {value} must be in 1..{MAX_COUNT:,}")
         if not 0 <= self.val_fraction < 1:
             raise RFlowError(f"val_fraction {self.val_fraction} must be in [0, 1)")
         if not (self.grad_clip > 0 and self.init_noise > 0 and self.goal_tolerance >= 0):

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
-import json
 import os
 import platform
 import tempfile
@@ -41,6 +40,7 @@ from controllers.benchmark import physics_state, replayed_step_rate  # noqa: E40
 from envs.demos import ExpertConfig, demo_episode_config, plan_expert_path  # noqa: E402
 from envs.env import PegInHoleEnv  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
+from envs.output import MiB, check_output, write_json  # noqa: E402
 from envs.scene import SceneConfig, build_scene  # noqa: E402
 from envs.video import EpisodeVideo, VideoConfig  # noqa: E402
 
@@ -282,21 +282,6 @@ def machine() -> dict[str, Any]:
     }
 
 
-def write_json(path: Path, payload: dict[str, Any]) -> None:
-    """Write JSON atomically (temp file in the same folder, then os.replace)."""
-    if not path.parent.is_dir():
-        raise EnvError(f"--json {path}: folder {path.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            json.dump(payload, handle, indent=2, sort_keys=True)
-            handle.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _format(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:,.1f}" if abs(value) >= 10 else f"{value:.3g}"
@@ -306,6 +291,8 @@ def _format(value: Any) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih bench`."""
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace --json when an earlier pih run wrote it (never a file pih did not write)")
     parser.add_argument("--quick", action="store_true", help="fewer repeats and a 3 s render (smoke test)")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="run only these benchmarks")
     parser.add_argument("--model", type=Path,
@@ -315,9 +302,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run the benchmarks, print them, optionally write JSON; returns the exit status."""
-    if args.json is not None and not args.json.parent.is_dir():
-        raise EnvError(f"--json {args.json}: folder {args.json.parent} does not exist")
     model = getattr(args, "model", None)
+    check_output("--json", args.json, args.overwrite, suffix=".json", inputs=[model, DEFAULT_MODEL if model is None
+                                                                              else None], estimate_bytes=MiB)
     if model is not None:
         from rflow.errors import RFlowError
         from rflow.skill_io import load_skill

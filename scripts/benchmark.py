@@ -32,10 +32,12 @@ from envs.execution.protocol import (  # noqa: E402
     summarise,
     summary_lines,
 )
+from scripts.options import MAX_EPISODES  # noqa: E402
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
-MAX_EPISODES = 100_000
 MAX_SEEDS = 1000
+REPLICATE_BYTES = 200 * 2**20
+"""Generous size of one replicate's folder (demos, a checkpoint, the record and its journal)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -97,10 +99,9 @@ def prepare_folder(out: Path, record: dict[str, Any]) -> None:
     Raises:
         EnvError: ``out`` is a file, a folder with other contents, or a protocol with other settings.
     """
-    from envs.jsonable import write_json_atomic
+    from envs.output import MARKER_KEY, check_output_folder, write_json
 
-    if out.exists() and not out.is_dir():
-        raise EnvError(f"--out {out} is a file")
+    check_output_folder("--out", out, estimate_bytes=REPLICATE_BYTES * len(record["demo_seeds"]))
     if out.is_dir():
         path = out / PROTOCOL_FILE
         if path.is_file():
@@ -108,16 +109,16 @@ def prepare_folder(out: Path, record: dict[str, Any]) -> None:
                 earlier = json.loads(path.read_text())
             except (OSError, ValueError) as err:
                 raise EnvError(f"--out {out}: unreadable {PROTOCOL_FILE} ({err})") from None
+            if isinstance(earlier, dict):
+                earlier.pop(MARKER_KEY, None)  # which pih version wrote it does not decide the results
             if earlier != json.loads(json.dumps(record)):
                 raise EnvError(f"--out {out} holds a protocol with other settings: choose another --out")
             return
         foreign = [p.name for p in out.iterdir()]
         if foreign:
             raise EnvError(f"--out {out} is not a `pih benchmark` folder (it holds {', '.join(sorted(foreign)[:5])})")
-    elif not out.parent.is_dir():
-        raise EnvError(f"--out {out}: folder {out.parent} does not exist")
-    out.mkdir(exist_ok=True)
-    write_json_atomic(out / PROTOCOL_FILE, record)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / PROTOCOL_FILE, record)
 
 
 def run_replicate(config: ProtocolConfig, scene_fields: dict[str, Any], folder: Path, demo_seed: int,
@@ -171,7 +172,7 @@ def run_replicate(config: ProtocolConfig, scene_fields: dict[str, Any], folder: 
 def main(args: argparse.Namespace) -> int:
     """Run or continue the protocol; print and write its summary."""
     from envs.execution.figures import plot_protocol
-    from envs.jsonable import write_json_atomic
+    from envs.output import write_json
     from rflow.errors import RFlowError
 
     config, scene_fields = protocol_from_args(args)
@@ -186,7 +187,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"seed {demo_seed}: failed -- {err}", flush=True)
             outcomes.append(ReplicateOutcome(demo_seed, start_seed, error=str(err)))
     summary = {"protocol": record, **summarise(outcomes)}
-    write_json_atomic(args.out / RESULT_FILE, summary)
+    write_json(args.out / RESULT_FILE, summary)
     title = (f"{config.shape}, {len(config.demo_seeds)} demo seeds x {config.evaluation.episodes} episodes")
     plot_protocol(summary, args.out / "benchmark.png", title)
     print()

@@ -1,7 +1,9 @@
 """`pih`: one console command, one subcommand per module in `scripts/`.
 
-Each subcommand module exposes ``add_arguments(parser)`` and ``main(args) -> int``. Errors of the
-project's own exception types are printed as one line on stderr and give exit status 2.
+Each subcommand module exposes ``add_arguments(parser)`` and ``main(args) -> int``. Exit statuses: 2 for bad
+input (a bad option value, a bad file, an output that may not be written: the project's own exception types),
+1 for an operating-system error while working (a read-only folder, a full disk), each as one line on stderr
+``pih COMMAND: error: ...``; 130 when interrupted. Every option's help shows its default.
 """
 
 from __future__ import annotations
@@ -9,7 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from typing import Sequence
+from typing import NoReturn, Sequence
 
 from batch.errors import BatchError
 from controllers.errors import ControllerError
@@ -35,13 +37,48 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 }
 
 USER_ERRORS = (EnvError, ControllerError, RFlowError, BatchError, FileNotFoundError)
+EXIT_USAGE = 2
+EXIT_OS_ERROR = 1
+EXIT_INTERRUPTED = 130
+
+
+class UsageError(Exception):
+    """A command line argparse rejects: ``prog`` and the one-line message."""
+
+    def __init__(self, prog: str, message: str):
+        super().__init__(message)
+        self.prog = prog
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Appends "(default X)" to an option's help unless the help already states its default or there is none."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if (not action.option_strings or "default" in text or action.default is None or action.default is False
+                or action.default == argparse.SUPPRESS):
+            return text
+        return f"{text} (default %(default)s)"
+
+
+class Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line (`main` prints them) instead of usage + message + exit, and
+    which takes no abbreviated option (an old spelling whose unit changed would match the new one)."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        kwargs.setdefault("allow_abbrev", False)  # a renamed option (--pos-range, now --pos-range-mm) must not match
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+
+    def error(self, message: str) -> NoReturn:  # type: ignore[override]
+        raise UsageError(self.prog, f"{message} (see `{self.prog} --help`)")
 
 
 def build_parser(command: str = "") -> argparse.ArgumentParser:
     """Build the `pih` parser: every subcommand is listed with its one-line help, and only ``command``'s module
     (none for "") is imported to add its options. Importing all of them loaded torch, MuJoCo, Optuna, ... on
     every call: `pih --help` took 3.6-4.0 s on the development machine (now 0.1 s), `pih demos --help` 3.6 s (1.0 s)."""
-    parser = argparse.ArgumentParser(prog="pih", description=__doc__.splitlines()[0])
+    parser = Parser(prog="pih", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         if name != command:
@@ -65,17 +102,30 @@ def chosen_command(argv: Sequence[str]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the `pih` console script."""
+    """Entry point of the `pih` console script; returns the exit status (module docstring)."""
     words = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser(chosen_command(words)).parse_args(words)
+    command = chosen_command(words)
+    try:
+        args = build_parser(command).parse_args(words)
+    except UsageError as err:
+        prog = f"pih {command}" if command in SUBCOMMANDS else err.prog  # words left over are the command's
+        print(f"{prog}: error: {str(err).replace('`pih --help`', f'`{prog} --help`')}", file=sys.stderr)
+        return EXIT_USAGE
+    from envs.output import set_command
+
+    set_command(args.command)
     try:
         return int(args._main(args) or 0)
     except USER_ERRORS as err:
         print(f"pih {args.command}: error: {err}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
+    except OSError as err:
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"pih {args.command}: error: {where}{err.strerror or err}", file=sys.stderr)
+        return EXIT_OS_ERROR
     except KeyboardInterrupt:
         print(f"pih {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ from typing import Any, Sequence
 
 import scripts.evaluate as evaluate_cli
 from envs.errors import EnvError
-from envs.jsonable import write_json_atomic
+from envs.output import write_json
 from envs.execution.comparison import compare_evaluations, load_evaluation, sequential_differences
 from envs.execution.statistics import DECISIONS, SequentialComparison, pair_records
 
@@ -69,13 +69,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     evaluate_cli.add_evaluation_options(parser)
 
 
-def check_json_output(path: Path | None, overwrite: bool) -> None:
-    """--json: a .json in an existing folder, new, or with --overwrite an earlier output of `pih compare`.
+def check_json_output(path: Path | None, overwrite: bool, inputs: list[Path]) -> None:
+    """--json: a .json in an existing folder, none of the inputs, new, or with --overwrite an earlier output of
+    `pih compare` (envs.output's policy, and the record's kind).
 
     Raises:
         EnvError: naming the option and the problem.
     """
-    evaluate_cli.check_output("--json", path, ".json", overwrite)
+    from envs.output import check_output
+
+    check_output("--json", path, overwrite, suffix=".json", inputs=inputs)
     if path is None or not path.exists():
         return
     try:
@@ -94,7 +97,7 @@ def check_args(args: argparse.Namespace) -> None:
         raise EnvError(f"--alpha {args.alpha}: must lie strictly between 0 and 0.5")
     if args.progress_margin is not None and not (math.isfinite(args.progress_margin) and 0.0 <= args.progress_margin < 1.0):
         raise EnvError(f"--progress-margin {args.progress_margin}: must lie in [0, 1)")
-    check_json_output(args.json, args.overwrite)
+    check_json_output(args.json, args.overwrite, [*args.evaluations, args.base_model, args.cand_model])
     if not args.sequential:
         if len(args.evaluations) != 2:
             raise EnvError(f"give two evaluations, BASE.json CAND.json (got {len(args.evaluations)}), or --sequential "
@@ -114,7 +117,7 @@ def check_args(args: argparse.Namespace) -> None:
 def write_output(path: Path | None, record: dict[str, Any]) -> None:
     """Write ``record`` as strict JSON (no NaN) atomically, tagged as a `pih compare` output."""
     if path is not None:
-        write_json_atomic(path, {"kind": KIND, **record}, allow_nan=False)
+        write_json(path, {"kind": KIND, **record})
         print(f"wrote {path}")
 
 

@@ -5,7 +5,7 @@ the demo file's ``stiffness``, learned with `pih train --stiffness expert`.
 
     pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--video runs/demos.mp4]
     pih demos --check 100 --seed 0            # success rate of the scripted expert over 100 starts
-    pih demos --import rec.npz --tool-offset franka-tcp --dt 0.001 --out demos.npz [--snap-goal]
+    pih demos --import rec.npz --tool-offset franka-tcp --dt-s 0.001 --out demos.npz [--snap-goal]
 """
 
 from __future__ import annotations
@@ -14,35 +14,60 @@ import argparse
 import os
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from envs.demo_file import save_demos  # noqa: E402
-from envs.demos import DemoAttempt, ExpertConfig, collect_demos, demo_episode_config, expert_success_rate  # noqa: E402
-from envs.env import PegInHoleEnv  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.scene import SceneConfig  # noqa: E402
-from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
+from envs.output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.demos_import import add_import_arguments, run_import  # noqa: E402
+from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera, count, number, seed  # noqa: E402
+from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
+
+if TYPE_CHECKING:  # the simulator loads in main(), never for --help
+    from envs.demos import DemoAttempt, ExpertConfig
+    from envs.scene import SceneConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of `pih demos`."""
-    parser.add_argument("--num", type=int, default=7, help="demonstrations to keep (default 7, as the paper)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the start-pose stream (default 0)")
-    parser.add_argument("--out", type=Path, help="output .npz demo file (required unless --check)")
-    parser.add_argument("--shape", default="square", help="peg and hole shape (default square)")
-    parser.add_argument("--samples", type=int, default=4000, help="samples M per demo (default 4000, as the paper)")
-    parser.add_argument("--entry-speed", type=float, default=10.0,
-                        help="speed in mm/s at which the peg enters the hole (default 10; 5 for a 0.2 mm clearance)")
-    parser.add_argument("--video", type=Path, help="also render every attempt to this MP4")
-    parser.add_argument("--camera", default="front", help="camera for --video (front, side, top, closeup, wrist)")
-    parser.add_argument("--check", type=int, metavar="N",
-                        help="instead of recording, run the expert from N seeded starts and report the success rate")
+    """Options of `pih demos`, in groups: demos, output, import, task."""
+    demos = parser.add_argument_group("demos")
+    demos.add_argument("--num", type=count(MAX_DEMOS), default=7,
+                       help=f"demonstrations to keep, 1..{MAX_DEMOS:,} (default 7, as the paper)")
+    demos.add_argument("--seed", type=seed, default=0, help="seed of the start-pose stream, 0..2**32-1")
+    demos.add_argument("--shape", default="square", help="peg and hole shape")
+    demos.add_argument("--samples", type=count(MAX_SAMPLES, minimum=2), default=4000,
+                       help=f"samples M per demo, 2..{MAX_SAMPLES:,} (default 4000, as the paper)")
+    demos.add_argument("--entry-speed-mm-s", type=number(above=0.0), default=10.0,
+                       help="speed at which the peg enters the hole, mm/s (default 10; 5 for a 0.2 mm clearance)")
+    demos.add_argument("--check", type=count(MAX_EPISODES), metavar="N",
+                       help="instead of recording, run the expert from N seeded starts and report the success rate")
+    out = parser.add_argument_group("output")
+    out.add_argument("--out", type=Path, help="output .npz demo file (required unless --check)")
+    out.add_argument("--video", type=Path, help="also render every attempt to this MP4")
+    out.add_argument("--camera", default="front", help="camera for --video (front, side, top, closeup, wrist)")
+    out.add_argument("--overwrite", action="store_true",
+                     help="replace --out and --video when an earlier pih run wrote them (never a file pih did not write)")
     add_import_arguments(parser)
     add_task_arguments(parser, episode=False)
+
+
+def check_outputs(args: argparse.Namespace, inputs: list[Path | None], demos: int, samples: int) -> None:
+    """--out (and --video) may be written: envs.output.check_output, with a generous size estimate
+    (pos, quat and stiffness of every sample in float64, and 20 MiB of video per attempt, two per demo).
+
+    Raises:
+        EnvError: naming the option.
+    """
+    if args.out is None:
+        raise EnvError("--out FILE.npz is required (or use --check N)")
+    check_distinct({"--out": args.out, "--video": args.video})
+    check_output("--out", args.out, args.overwrite, suffix=".npz", inputs=inputs,
+                 estimate_bytes=2 * demos * samples * (3 + 4 + 9) * 8)
+    check_output("--video", args.video, args.overwrite, suffix=".mp4", inputs=inputs,
+                 estimate_bytes=2 * demos * 20 * MiB)
 
 
 def _describe(index: int, attempt: DemoAttempt) -> str:
@@ -53,6 +78,8 @@ def _describe(index: int, attempt: DemoAttempt) -> str:
 
 
 def _check(args: argparse.Namespace, scene: SceneConfig, expert: ExpertConfig) -> int:
+    from envs.demos import expert_success_rate
+
     start = time.perf_counter()
     result = expert_success_rate(args.check, args.seed, scene, expert,
                                  on_attempt=lambda i, a: None if a.ok else print(_describe(i, a)))
@@ -69,18 +96,16 @@ def main(args: argparse.Namespace) -> int:
     """Record demos (or run the success-rate check, or import recorded demos); returns the exit status."""
     if args.import_file is not None:
         return run_import(args)
+    from envs.demos import ExpertConfig, collect_demos, demo_episode_config
+    from envs.env import PegInHoleEnv
+
     scene = task_from_args(args).scene_config(shape=args.shape)
-    expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed * 1e-3)
+    expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed_mm_s * 1e-3)
     if args.check is not None:
-        if args.check < 1:
-            raise EnvError(f"--check {args.check}: need at least 1 start")
         return _check(args, scene, expert)
-    if args.out is None:
-        raise EnvError("--out FILE.npz is required (or use --check N)")
-    if args.num < 1:
-        raise EnvError(f"--num {args.num}: need at least 1 demo")
-    if not args.out.parent.is_dir():
-        raise EnvError(f"--out {args.out}: folder {args.out.parent} does not exist")
+    check_outputs(args, [], args.num, args.samples)
+    if args.video is not None:
+        check_camera(args.camera)
     env = PegInHoleEnv(scene, episode_config=demo_episode_config(expert))
     video = None
     if args.video is not None:
@@ -88,7 +113,7 @@ def main(args: argparse.Namespace) -> int:
 
         video = EpisodeVideo(env.model, args.video, VideoConfig(camera=args.camera), goal=env.goal)
     try:
-        def before_attempt(_env: PegInHoleEnv, _start: object, planned: object) -> None:
+        def before_attempt(_env: object, _start: object, planned: object) -> None:
             if video is not None:
                 video.new_episode()
                 video.set_commanded_path(planned)
@@ -106,6 +131,8 @@ def main(args: argparse.Namespace) -> int:
         raise
     if video is not None:
         print(f"wrote {video.close()} ({video.frames} frames)")
+    from envs.demo_file import save_demos
+
     path = save_demos(args.out, collection.demos)
     demos = collection.demos
     executed = [a.wall_s for a in collection.attempts]

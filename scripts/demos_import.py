@@ -1,12 +1,12 @@
 """`pih demos --import`: convert demos recorded at another tool frame (e.g. a real Panda) into a demo file.
 
-    pih demos --import recorded.npz --tool-offset franka-tcp --dt 0.001 --out demos.npz [--snap-goal]
+    pih demos --import recorded.npz --tool-offset franka-tcp --dt-s 0.001 --out demos.npz [--snap-goal]
     pih demos --import recorded.npz --tool-offset 0,0,0.1034,0.92388,0,0,-0.38268 --out demos.npz
     pih demos --import datasets/demos-lerobot --format lerobot --out demos.npz     # an export of `pih export`
 
 The file format and the conversion are documented in envs/demo_import.py, the LeRobot and robomimic layouts in
 envs/datasets/ (the tcp poses observation.state / obs/tcp_pose and the stiffness action.stiffness /
-action_stiffness; an export of `pih export` names its frame, dt, shape and clearance, so --tool-offset and --dt
+action_stiffness; an export of `pih export` names its frame, dt, shape and clearance, so --tool-offset and --dt-s
 are not needed).
 """
 
@@ -17,12 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.datasets import LAYOUTS, read_dataset
-from envs.demo_file import save_demos
-from envs.demo_import import ImportConfig, import_demos, load_recorded_demos, parse_tool_offset, resolve_dt
+from envs.datasets import LAYOUTS
 from envs.errors import EnvError
-from envs.poses import Pose
-from envs.scene import nominal_flange_to_peg_tip
+from envs.output import check_free_space, check_output
+from scripts.options import number
 from scripts.task_options import task_from_args
 
 
@@ -41,34 +39,32 @@ def add_import_arguments(parser: argparse.ArgumentParser) -> None:
                             "w, x, y, z), or 'franka-tcp' (the Franka hand's TCP: 0,0,0.1034,0.92388,0,0,-0.38268, "
                             "103.4 mm along z, -45 deg about z) or 'flange'; write --tool-offset=-0.01,... when the "
                             "first number is negative")
-    group.add_argument("--dt", type=float, metavar="SECONDS",
-                       help="with --import: sampling time of the recording (required when the file has no dt)")
+    group.add_argument("--dt-s", type=number(above=0.0), metavar="SECONDS",
+                       help="with --import: sampling time of the recording, s (required when the file has no dt)")
     group.add_argument("--snap-goal", action="store_true",
                        help="with --import: blend demos that end off their common goal onto it (minimum-jerk "
                             "blend over the last 20 %% of each demo) instead of failing")
-    group.add_argument("--overwrite", action="store_true", help="with --import: replace an existing --out file")
 
 
 def run_import(args: argparse.Namespace) -> int:
     """Validate every option, convert, write the demo file, print the per-demo goal jumps; exit status."""
+    from envs.datasets import read_dataset
+    from envs.demo_file import save_demos
+    from envs.demo_import import ImportConfig, import_demos, load_recorded_demos, parse_tool_offset, resolve_dt
+    from envs.poses import Pose
+    from envs.scene import nominal_flange_to_peg_tip
+
     if args.check is not None:
         raise EnvError("--import and --check cannot be combined")
     if args.out is None:
         raise EnvError("--out FILE.npz is required with --import")
-    if not args.out.parent.is_dir():
-        raise EnvError(f"--out {args.out}: folder {args.out.parent} does not exist")
-    if args.out.exists() and args.out.resolve() == args.import_file.resolve():
-        raise EnvError(f"--out {args.out} is the --import file itself; choose another output")
-    if args.out.exists() and not args.overwrite:
-        raise EnvError(f"--out {args.out} already exists (pass --overwrite to replace it)")
+    if args.video is not None:
+        raise EnvError("--video records the scripted expert; it does not apply to --import")
+    check_output("--out", args.out, args.overwrite, suffix=".npz", inputs=[args.import_file])
     if args.tool_offset is None and args.import_format == "npz":
         raise EnvError("--tool-offset is required with --import (e.g. --tool-offset franka-tcp)")
     if args.tool_offset is not None:
         parse_tool_offset(args.tool_offset)
-    if args.dt is not None and not (np.isfinite(args.dt) and args.dt > 0.0):
-        raise EnvError(f"--dt {args.dt} must be a positive finite number of seconds")
-    if args.samples < 2:
-        raise EnvError(f"--samples {args.samples}: need at least 2 samples per demo")
     config = ImportConfig(num_samples=args.samples, snap_goal=args.snap_goal)
     clearance_m = task_from_args(args).clearance_m
     if args.import_format == "npz":
@@ -77,7 +73,9 @@ def run_import(args: argparse.Namespace) -> int:
         if not args.import_file.exists():
             raise EnvError(f"import file {args.import_file} not found")
         recorded = read_dataset(args.import_file, args.import_format)
-    dt = resolve_dt(recorded.dt, args.dt, str(args.import_file))
+    check_free_space(f"--out {args.out}", args.out.parent if str(args.out.parent) else Path("."),
+                     2 * len(recorded.lengths) * args.samples * (3 + 4 + 9) * 8)
+    dt = resolve_dt(recorded.dt, args.dt_s, str(args.import_file))
     if recorded.shape is not None and recorded.shape != args.shape:
         raise EnvError(f"{args.import_file} is for shape {recorded.shape!r} but --shape is {args.shape!r}; pass "
                        f"--shape {recorded.shape}")
@@ -93,7 +91,7 @@ def run_import(args: argparse.Namespace) -> int:
     result = import_demos(recorded, tool_offset, grasp, dt, args.shape, clearance_m, config,
                           provenance={"source_file": str(args.import_file.resolve()),
                                       "tool_offset_arg": args.tool_offset or recorded.tool_frame,
-                                      "dt_from": "flag" if args.dt is not None else "file",
+                                      "dt_from": "flag" if args.dt_s is not None else "file",
                                       **({"scene": source_config["scene"]} if "scene" in source_config else {})})
     for n, (jump_m, jump_rad) in enumerate(zip(result.jump_m, result.jump_rad)):
         print(f"demo {n}: {recorded.lengths[n]} samples, jump to the common goal {jump_m * 1e3:.4f} mm, "

@@ -4,105 +4,122 @@
         [--mode closed-loop|open-loop] [--workers 2] [--video runs/eval.mp4] [--figure runs/eval.png] \\
         [--stiffness learned|constant:K] [--stiffness-figure runs/stiffness.png]
 
-Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range (box)
-and +-rot-range (ball) -- see envs/execution/evaluate.py. Success is the physics check on the measured peg_tip pose. Prints a summary table.
+Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range-mm (box)
+and +-rot-range-deg (ball) -- see envs/execution/evaluate.py. Success is the physics check on the measured
+peg_tip pose. Prints a summary table.
 
 Long runs: each finished episode is appended to a journal (--journal, default <json>.journal.jsonl), so
 after Ctrl-C (exit 130) the same command with --resume runs only the missing episodes and writes the same
-JSON. A worker that dies or an episode over --unit-timeout is a failed episode ("worker_died",
+JSON. A worker that dies or an episode over --unit-timeout-s is a failed episode ("worker_died",
 "wall_timeout"). Exit status: 0 when every episode has a record (failed episodes are results), 3 when the
-batch is incomplete, 130 when interrupted, 2 on bad input (all options are checked before any episode).
+batch is incomplete, 130 when interrupted, 2 on bad input (all options and outputs are checked before any
+episode, envs/output.py), 1 on an operating-system error while writing (a full disk).
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import shlex
 import sys
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from batch import BACKENDS, Journal  # noqa: E402
+from batch.runner import BACKENDS  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
+from envs.execution.config import AROUND, DEFAULT_LOOKAHEAD_S, MODES, EvaluationConfig  # noqa: E402
+from envs.output import MiB, check_distinct, check_output  # noqa: E402
+from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, seed  # noqa: E402
 from scripts.task_options import add_task_arguments, scene_given, task_from_args  # noqa: E402
-from envs.execution.evaluate import EvaluationConfig, EvaluationResult, StartPose, evaluate, journal_run  # noqa: E402
-from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
+
+if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
+    from envs.execution.evaluate import EvaluationResult, StartPose
 
 GOAL_MISMATCH_WARN_MM = 5.0
 EXIT_INCOMPLETE = 3
 EXIT_INTERRUPTED = 130
+RECORD_BYTES = 8 * 1024
+"""Generous size of one episode in the JSON record or the journal (a record is ~2 KB)."""
+VIDEO_EPISODE_BYTES = 20 * MiB
+"""Generous size of one rendered episode (640x480 H.264, up to the 20 s time limit)."""
+FIGURE_BYTES = 4 * MiB
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of `pih evaluate`."""
+    """Options of `pih evaluate`, in groups: skill, starts and run, output, task."""
     d = EvaluationConfig()
-    parser.add_argument("--model", required=True, type=Path, help="checkpoint directory from `pih train`")
-    parser.add_argument("--episodes", type=int, default=d.episodes, help=f"perturbed starts (default {d.episodes})")
-    parser.add_argument("--json", type=Path, help="write the full record (config, rate, CI, per episode) here")
-    parser.add_argument("--video", type=Path, help="render the chosen episodes (--video-episodes) to this MP4")
-    parser.add_argument("--video-episodes", default="auto",
-                        help="comma-separated episode indices for --video/--figure, or 'auto' "
-                             "(the first three successes and the first failure)")
-    parser.add_argument("--camera", default="front", help="camera of --video (front, side, top, closeup, wrist)")
-    parser.add_argument("--figure", type=Path,
-                        help="write the demos / generated / executed figure of the chosen episodes here (PNG)")
-    parser.add_argument("--stiffness-figure", type=Path,
-                        help="write the eigenvalues of the stiffness commanded in the chosen episodes against time, "
-                             "beside the demos' (PNG)")
-    parser.add_argument("--journal", type=Path,
-                        help="append each finished episode here (JSON Lines; default <json>.journal.jsonl with --json)")
-    parser.add_argument("--resume", action="store_true",
-                        help="continue the run recorded in --journal: only its missing episodes are run")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace existing outputs (--json, --video, --figure, --stiffness-figure and the journal) "
-                             "of an earlier run")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_evaluation_options(parser)
+    skill = parser.add_argument_group("skill")
+    skill.add_argument("--model", required=True, type=Path, help="checkpoint directory from `pih train`")
+    run = parser.add_argument_group("starts and run")
+    run.add_argument("--episodes", type=count(MAX_EPISODES), default=d.episodes,
+                     help=f"perturbed starts, 1..{MAX_EPISODES:,}")
+    run.add_argument("--journal", type=Path,
+                     help="append each finished episode here (JSON Lines; default <json>.journal.jsonl with --json)")
+    run.add_argument("--resume", action="store_true",
+                     help="continue the run recorded in --journal: only its missing episodes are run")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    out = parser.add_argument_group("output")
+    out.add_argument("--json", type=Path, help="write the full record (config, rate, CI, per episode) here")
+    out.add_argument("--video", type=Path, help="render the chosen episodes (--video-episodes) to this MP4")
+    out.add_argument("--video-episodes", default="auto",
+                     help="comma-separated episode indices for --video/--figure, or 'auto' "
+                          "(the first three successes and the first failure)")
+    out.add_argument("--camera", default="front", help="camera of --video (front, side, top, closeup, wrist)")
+    out.add_argument("--figure", type=Path,
+                     help="write the demos / generated / executed figure of the chosen episodes here (PNG)")
+    out.add_argument("--stiffness-figure", type=Path,
+                     help="write the eigenvalues of the stiffness commanded in the chosen episodes against time, "
+                          "beside the demos' (PNG)")
+    out.add_argument("--overwrite", action="store_true",
+                     help="replace outputs (--json, --video, --figure, --stiffness-figure, the journal) that an "
+                          "earlier pih run wrote; a file pih did not write is never replaced")
+    add_evaluation_options(parser, skill, run)
 
 
-def add_evaluation_options(parser: argparse.ArgumentParser) -> None:
-    """The options `config_from_args` reads, all but --episodes (shared with `pih compare --sequential`)."""
+def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, run: Any = None) -> None:
+    """The options `config_from_args` reads, all but --episodes, into the groups ``skill`` and ``run`` (new groups
+    when None) and the task group (shared with `pih compare --sequential`)."""
     d = EvaluationConfig()
-    parser.add_argument("--seed", type=int, default=d.seed, help=f"seed of the start poses (default {d.seed})")
-    parser.add_argument("--mode", choices=MODES, default=d.mode,
-                        help="closed-loop: query the flow at the measured pose every 10 ms (default); "
-                             "open-loop: generate the trajectory first and track it in time")
-    parser.add_argument("--workers", type=int, default=1, help="parallel processes (default 1)")
-    parser.add_argument("--pos-range", type=float, default=d.pos_range_m,
-                        help=f"start position perturbation half-width in m (default {d.pos_range_m:g})")
-    parser.add_argument("--rot-range", type=float, default=d.rot_range_deg,
-                        help=f"start orientation perturbation radius in deg (default {d.rot_range_deg:g})")
-    parser.add_argument("--around", choices=("mean", "demo"), default=d.around,
-                        help="centre of the start perturbations: the mean demo start (default) or a random demo's start")
-    parser.add_argument("--shape", help="the scene's peg/hole shape (default: the demos'; must match them)")
-    parser.add_argument("--hole-at-goal", action="store_true",
-                        help="place the target hole at the demos' goal pose (demos recorded elsewhere)")
-    parser.add_argument("--lookahead", type=float, default=DEFAULT_LOOKAHEAD_S,
-                        help=f"closed loop: flow time of the velocity query in s (default {DEFAULT_LOOKAHEAD_S:g})")
-    parser.add_argument("--feedforward", type=float, default=d.feedforward_gain,
-                        help=f"gain of the impedance velocity feed-forward, 0 = off (default {d.feedforward_gain:g})")
-    parser.add_argument("--speed", type=float, default=d.speed,
-                        help=f"time scaling of the learned flow, both modes (default {d.speed:g})")
-    parser.add_argument("--time-limit", type=float, default=d.time_limit_s,
-                        help=f"simulated seconds per episode (default {d.time_limit_s:g})")
-    parser.add_argument("--backend", choices=BACKENDS, default=d.backend,
-                        help="process: local worker processes (default); ray: Ray actors (pip install -e '.[cluster]')")
-    parser.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray on all cores)")
-    parser.add_argument("--unit-timeout", type=float, default=d.unit_timeout_s,
-                        help=f"wall-clock seconds per episode before its worker is killed and the episode "
-                             f"recorded 'wall_timeout'; 0 = no limit (default {d.unit_timeout_s:g})")
-    parser.add_argument("--no-contact-adaptation", action="store_true",
-                        help="closed loop: run the bare learned flow, without the axial push, frame shift and rotational "
-                             "compliance near the hole (envs/execution/adaptation.py; the ablation)")
-    parser.add_argument("--stiffness",
-                        help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`) or "
-                             "'constant:K' (K I, K > 0 in N/m); default: the controller's")
-    add_task_arguments(parser)
+    skill = parser.add_argument_group("skill") if skill is None else skill
+    run = parser.add_argument_group("starts and run") if run is None else run
+    skill.add_argument("--mode", choices=MODES, default=d.mode,
+                       help="closed-loop: query the flow at the measured pose every 10 ms; "
+                            "open-loop: generate the trajectory first and track it in time")
+    skill.add_argument("--lookahead-s", type=number(above=0.0), default=DEFAULT_LOOKAHEAD_S,
+                       help="closed loop: flow time of the velocity query, s")
+    skill.add_argument("--feedforward", type=number(minimum=0.0), default=d.feedforward_gain,
+                       help="gain of the impedance velocity feed-forward, 0 = off")
+    skill.add_argument("--speed", type=number(above=0.0), default=d.speed,
+                       help="time scaling of the learned flow, both modes")
+    skill.add_argument("--stiffness",
+                       help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`) "
+                            "or 'constant:K' (K I, K > 0 in N/m) (default: the controller's)")
+    skill.add_argument("--no-contact-adaptation", action="store_true",
+                       help="closed loop: run the bare learned flow, without the axial push, frame shift and "
+                            "rotational compliance near the hole (envs/execution/adaptation.py; the ablation)")
+    run.add_argument("--seed", type=seed, default=d.seed, help="seed of the start poses, 0..2**32-1")
+    run.add_argument("--pos-range-mm", type=number(minimum=0.0), default=d.pos_range_m * 1e3,
+                     help="start position perturbation half-width, mm")
+    run.add_argument("--rot-range-deg", type=number(minimum=0.0, maximum=179.0), default=d.rot_range_deg,
+                     help="start orientation perturbation radius, deg")
+    run.add_argument("--around", choices=AROUND, default=d.around,
+                     help="centre of the start perturbations: the mean demo start or a random demo's start")
+    run.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0), default=d.time_limit_s,
+                     help="simulated seconds per episode")
+    run.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel processes")
+    run.add_argument("--backend", choices=BACKENDS, default=d.backend,
+                     help="process: local worker processes; ray: Ray actors (pip install -e '.[cluster]')")
+    run.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray on all cores)")
+    run.add_argument("--unit-timeout-s", type=number(minimum=0.0), default=d.unit_timeout_s,
+                     help="wall-clock seconds per episode before its worker is killed and the episode recorded "
+                          "'wall_timeout'; 0 = no limit")
+    task = add_task_arguments(parser)
+    task.add_argument("--shape", help="the scene's peg/hole shape (default: the demos'; must match them)")
+    task.add_argument("--hole-at-goal", action="store_true",
+                      help="place the target hole at the demos' goal pose (demos recorded elsewhere)")
 
 
 def evaluation_task_fields(args: argparse.Namespace) -> dict[str, Any]:
@@ -118,11 +135,11 @@ def evaluation_task_fields(args: argparse.Namespace) -> dict[str, Any]:
 def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
     """EvaluationConfig of the parsed options (validated there)."""
     return EvaluationConfig(
-        episodes=args.episodes, seed=args.seed, mode=args.mode, pos_range_m=args.pos_range,
-        rot_range_deg=args.rot_range, around=args.around, lookahead_s=args.lookahead, feedforward_gain=args.feedforward, speed=args.speed,
-        time_limit_s=args.time_limit, **evaluation_task_fields(args),
-        shape=args.shape, hole_at_goal=args.hole_at_goal, workers=args.workers,
-        unit_timeout_s=None if args.unit_timeout == 0 else args.unit_timeout, backend=args.backend,
+        episodes=args.episodes, seed=args.seed, mode=args.mode, pos_range_m=args.pos_range_mm * 1e-3,
+        rot_range_deg=args.rot_range_deg, around=args.around, lookahead_s=args.lookahead_s,
+        feedforward_gain=args.feedforward, speed=args.speed, time_limit_s=args.time_limit_s,
+        **evaluation_task_fields(args), shape=args.shape, hole_at_goal=args.hole_at_goal, workers=args.workers,
+        unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s, backend=args.backend,
         ray_address=args.ray_address, stiffness=args.stiffness,
         contact_adaptation=not args.no_contact_adaptation)
 
@@ -133,8 +150,6 @@ def checked_config(args: argparse.Namespace) -> EvaluationConfig:
     Raises:
         EnvError: naming the offending option.
     """
-    if not (math.isfinite(args.unit_timeout) and args.unit_timeout >= 0.0):
-        raise EnvError(f"--unit-timeout {args.unit_timeout}: must be >= 0 seconds (0 = no limit)")
     if args.ray_address is not None and args.backend != "ray":
         raise EnvError("--ray-address needs --backend ray")
     return config_from_args(args)
@@ -145,24 +160,6 @@ def journal_path(args: argparse.Namespace) -> Path | None:
     if args.journal is not None:
         return args.journal
     return args.json.with_name(args.json.name + ".journal.jsonl") if args.json is not None else None
-
-
-def check_output(option: str, path: Path | None, suffix: str | None, may_replace: bool) -> None:
-    """An output path: its folder exists, the suffix is right, and it does not exist unless it may be replaced.
-
-    Raises:
-        EnvError: naming the option and the problem.
-    """
-    if path is None:
-        return
-    if suffix is not None and path.suffix.lower() != suffix:
-        raise EnvError(f"{option} {path}: must end in {suffix}")
-    if str(path.parent) and not path.parent.is_dir():
-        raise EnvError(f"{option} {path}: folder {path.parent} does not exist")
-    if path.is_dir():
-        raise EnvError(f"{option} {path} is a folder")
-    if path.exists() and not may_replace:
-        raise EnvError(f"{option} {path} already exists (use --overwrite to replace it)")
 
 
 def check_video_episodes(spec: str, episodes: int) -> None:
@@ -178,20 +175,39 @@ def check_video_episodes(spec: str, episodes: int) -> None:
         raise EnvError(f"--video-episodes {spec!r}: indices must lie in 0..{episodes - 1}")
 
 
-def check_camera(camera: str) -> None:
-    """--camera names a camera of the scene. Raises EnvError."""
-    import mujoco
+def load_preview(model_dir: Path) -> dict[str, Any] | None:
+    """The checkpoint's demos.npz (pos, quat, dt and, for a stiffness skill, stiffness) for the figures, or None
+    when there is none; read without unpickling.
 
-    from envs.scene import build_scene
+    Raises:
+        EnvError: the file is not a readable archive of numeric arrays of the documented shapes.
+    """
+    import zipfile
 
-    model = build_scene().model
-    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) for i in range(model.ncam)]
-    if camera not in names:
-        raise EnvError(f"--camera {camera!r} is not a camera of the scene (available: {', '.join(names)})")
+    import numpy as np
+
+    path = model_dir / "demos.npz"
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: np.asarray(data[key], dtype=np.float64) for key in ("pos", "quat", "dt", "stiffness")
+                      if key in data.files}
+    except (OSError, ValueError, EOFError, KeyError, TypeError, zipfile.BadZipFile) as err:
+        raise EnvError(f"{path}: not a readable demo preview ({type(err).__name__}: {err})") from None
+    pos, quat = arrays.get("pos"), arrays.get("quat")
+    if (pos is None or quat is None or pos.ndim != 3 or pos.shape[2] != 3 or quat.shape != pos.shape[:2] + (4,)
+            or arrays.get("dt", np.zeros(1)).shape != () or not all(np.all(np.isfinite(a)) for a in arrays.values())):
+        raise EnvError(f"{path}: a demo preview needs finite pos (N, M, 3), quat (N, M, 4) and a scalar dt")
+    k = arrays.get("stiffness")
+    if k is not None and k.shape != pos.shape[:2] + (3, 3):
+        raise EnvError(f"{path}: 'stiffness' must have shape {pos.shape[:2] + (3, 3)}, got {k.shape}")
+    return arrays
 
 
 def check_args(args: argparse.Namespace) -> EvaluationConfig:
-    """Every option, before any work: the config, the outputs, the journal, video and figure options.
+    """Every option, before any work: the config, the outputs (envs.output.check_output), the journal, the
+    video and figure options and the checkpoint's demo preview the figures read.
 
     Raises:
         EnvError: naming the offending option.
@@ -207,29 +223,33 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
                            "--stiffness expert|variability`)")
     if args.resume and args.overwrite:
         raise EnvError("--resume continues an earlier run and --overwrite replaces it: choose one")
-    check_output("--json", args.json, ".json", args.overwrite or args.resume)
-    check_output("--video", args.video, ".mp4", args.overwrite)
-    check_output("--figure", args.figure, ".png", args.overwrite)
-    check_output("--stiffness-figure", args.stiffness_figure, ".png", args.overwrite)
-    figures = [p.resolve() for p in (args.figure, args.stiffness_figure) if p is not None]
-    if len(set(figures)) < len(figures):
-        raise EnvError(f"--stiffness-figure {args.stiffness_figure} is also --figure")
     journal = journal_path(args)
     if args.resume and journal is None:
         raise EnvError("--resume needs the journal of the earlier run: give --journal or --json")
+    shown = 4 if args.video_episodes == "auto" else len(args.video_episodes.split(","))
+    records = 64 * 1024 + RECORD_BYTES * config.episodes
+    outputs = {"--json": args.json, "--video": args.video, "--figure": args.figure,
+               "--stiffness-figure": args.stiffness_figure, "--journal": journal}
+    check_distinct(outputs)
+    inputs = [args.model]
+    check_output("--json", args.json, args.overwrite or args.resume, suffix=".json", inputs=inputs,
+                 estimate_bytes=records)
+    check_output("--video", args.video, args.overwrite, suffix=".mp4", inputs=inputs,
+                 estimate_bytes=VIDEO_EPISODE_BYTES * shown)
+    for option in ("--figure", "--stiffness-figure"):
+        check_output(option, outputs[option], args.overwrite, suffix=".png", inputs=inputs,
+                     estimate_bytes=FIGURE_BYTES)
     if journal is not None:
-        outputs = {p.resolve() for p in (args.json, args.video, args.figure, args.stiffness_figure) if p is not None}
-        if journal.resolve() in outputs:
-            raise EnvError(f"--journal {journal} is also another output")
-        if str(journal.parent) and not journal.parent.is_dir():
-            raise EnvError(f"--journal {journal}: folder {journal.parent} does not exist")
         if args.resume and not journal.is_file():
             raise EnvError(f"--resume: journal {journal} does not exist")
         if journal.exists() and not (args.resume or args.overwrite):
             raise EnvError(f"journal {journal} already exists: use --resume to continue that run, "
                            "--overwrite to start again, or another --journal")
+        check_output("--journal", journal, args.overwrite or args.resume, inputs=inputs, estimate_bytes=records)
     if args.video is not None or args.figure is not None or args.stiffness_figure is not None:
         check_video_episodes(args.video_episodes, config.episodes)
+    if args.figure is not None or args.stiffness_figure is not None:
+        load_preview(args.model)
     if args.video is not None:
         check_camera(args.camera)
     return config
@@ -238,6 +258,9 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
 def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> EvaluationResult:
     """`evaluate` with the run's journal (opened here; a new journal with no episode in it is removed again
     when the evaluation fails before its first episode, so a bad input leaves nothing behind)."""
+    from batch import Journal
+    from envs.execution.evaluate import evaluate, journal_run
+
     path = journal_path(args)
     if path is None:
         return evaluate(args.model, config, progress=not args.quiet)
@@ -340,12 +363,10 @@ def plot_episode_stiffness(model_dir: Path, replays: Sequence[Any], starts: Sequ
     from envs.execution.figures import StiffnessCurve, plot_stiffness
 
     demos = []
-    preview = model_dir / "demos.npz"
-    if preview.is_file():
-        with np.load(preview, allow_pickle=False) as data:
-            if "stiffness" in data.files:
-                k, dt = data["stiffness"], float(data["dt"])
-                demos = [StiffnessCurve(dt * np.arange(k.shape[1]), k[n]) for n in range(k.shape[0])]
+    preview = load_preview(model_dir)
+    if preview is not None and "stiffness" in preview:
+        k, dt = preview["stiffness"], float(preview["dt"])
+        demos = [StiffnessCurve(dt * np.arange(k.shape[1]), k[n]) for n in range(k.shape[0])]
     executed = [StiffnessCurve(trace.times_s, trace.stiffness) for _, trace in replays if trace is not None]
     title = f"stiffness {config.stiffness or 'controller default'} ({config.mode}): episodes {[s.index for s in starts]}"
     return plot_stiffness(demos, executed, path, title)
@@ -360,10 +381,9 @@ def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: S
     from envs.execution.policy import generate_plan, on_goal_hemisphere
 
     demos = []
-    preview = model_dir / "demos.npz"
-    if preview.is_file():
-        with np.load(preview, allow_pickle=False) as data:
-            pos, quat, dt = data["pos"], data["quat"], float(data["dt"])
+    preview = load_preview(model_dir)
+    if preview is not None:
+        pos, quat, dt = preview["pos"], preview["quat"], float(preview["dt"])
         for n in range(pos.shape[0]):
             q = on_goal_hemisphere(quat[n], skill.goal_quat)
             demos.append(PoseCurve(dt * np.arange(pos.shape[1]), pos[n], skill.to_tangent(pos[n], q)[:, 3:]))

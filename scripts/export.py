@@ -23,8 +23,11 @@ from envs.datasets import LAYOUTS, require_layout  # noqa: E402
 from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demos  # noqa: E402
 from envs.datasets.output import check_export_folder, staged_folder  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
+from envs.output import MiB, check_output_folder  # noqa: E402
 
 DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x128"}
+VIDEO_BYTES = 500 * MiB
+"""Generous room for the frames of --video (a LeRobot MP4 stream or robomimic image arrays)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -119,6 +122,10 @@ def export_episodes(args: argparse.Namespace, root: Path) -> tuple[int, dict[int
 def main(args: argparse.Namespace) -> int:
     """Export; returns the exit status."""
     require_layout(args.format)
+    source = args.demos if args.demos is not None else args.episodes
+    check_output_folder("--out", args.out, inputs=[args.demos, args.episodes, args.model],
+                        estimate_bytes=4 * (source.stat().st_size if source.is_file() else 0)
+                        + (VIDEO_BYTES if args.video else 0))
     check_export_folder(args.out, args.overwrite)
     if args.demos is not None:
         extra = [name for name in ("model", "select", "video_size") if getattr(args, name) is not None]

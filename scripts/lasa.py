@@ -9,7 +9,7 @@ DTW in the z-scored tangent space at the goal (averaged over the 4 demos) and th
 
 `--all` runs every (shape, manifold, method) as one unit of `batch.run_batch`: each finished unit is appended
 to OUT/journal.jsonl at once, so `--resume` skips them after a crash or Ctrl-C; a worker that dies or overruns
-`--unit-timeout` is recorded as a failed unit with its reason and the batch goes on. results.json says
+`--unit-timeout-s` is recorded as a failed unit with its reason and the batch goes on. results.json says
 "complete": true only when every unit has a record; the exit status is 0 when every unit succeeded, 1 when
 some failed (their cells read "—" with the reason listed) and 130 when interrupted.
 """
@@ -18,16 +18,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
+from envs.output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
 from rflow.errors import RFlowError
 from rflow.lasa import (
     BENCHMARK_MANIFOLDS,
@@ -43,50 +41,55 @@ from rflow.lasa import (
 from rflow.model import ModelConfig
 from rflow.train import TrainConfig
 from scripts.lasa_report import MANIFOLD_LABELS, METHOD_LABELS, gains, markdown_table, plot_comparison, plot_results
+from scripts.options import MAX_EPOCHS, MAX_WORKERS, count, number, seed
 
 JOURNAL = "journal.jsonl"
 EXIT_FAILED_UNITS = 1
 EXIT_INTERRUPTED = 130
 _HYPERPARAMETERS = ("epochs", "layers", "lr", "batch_size")  # the options --config replaces
+UNIT_BYTES = 256 * 1024
+"""Generous size of one unit of --all on disk (its trajectories, journal line and share of the figures)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih lasa`."""
     parser.add_argument("--shape", help=f"LASA shape, one of: {', '.join(LASA_SHAPES)}")
-    parser.add_argument("--manifold", default="spd",
-                        help="spd (2x2 SPD matrices) or uq (unit quaternions); default spd")
-    parser.add_argument("--method", default="rflow", help=f"one of {', '.join(METHODS)}; default rflow")
+    parser.add_argument("--manifold", default="spd", help="spd (2x2 SPD matrices) or uq (unit quaternions)")
+    parser.add_argument("--method", default="rflow", help=f"one of {', '.join(METHODS)}")
     parser.add_argument("--json", type=Path, help="write the result of --shape as JSON")
     parser.add_argument("--save-trajectories", type=Path, metavar="FILE.npz",
                         help="write demos and generated trajectories of --shape (manifold and z-scored tangent)")
     parser.add_argument("--figure", type=Path, metavar="FILE.png", help="plot demos vs generated of --shape")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace outputs an earlier pih lasa wrote (--all: start its run again); never a file "
+                             "pih did not write")
     parser.add_argument("--all", action="store_true", help="run all 30 shapes x spd, uq x the four methods")
-    parser.add_argument("--workers", type=int, default=1, help="parallel worker processes for --all (default 1)")
+    parser.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel worker processes for --all")
     parser.add_argument("--out", type=Path, help="output folder of --all: results.json, results.md, comparison.png, "
                                                  "figures/, trajectories/, journal.jsonl")
     parser.add_argument("--resume", action="store_true",
                         help="--all: continue the run journalled in OUT (same options), skipping finished units")
-    parser.add_argument("--backend", default="process", help="--all: process (spawned workers, default) or ray")
+    parser.add_argument("--backend", default="process", help="--all: process (spawned workers) or ray")
     parser.add_argument("--ray-address", metavar="HOST:PORT",
                         help="--all --backend ray: join this Ray cluster (default: a local Ray instance)")
-    parser.add_argument("--unit-timeout", type=float, metavar="S",
+    parser.add_argument("--unit-timeout-s", type=number(above=0.0), metavar="S",
                         help="--all: record a run taking longer than S seconds as failed (default: no limit)")
     parser.add_argument("--shapes", help="comma-separated subset of shapes for --all (default all 30)")
-    parser.add_argument("--manifolds", default="spd,uq", help="comma-separated manifolds for --all (default spd,uq)")
-    parser.add_argument("--methods", default=",".join(METHODS),
-                        help=f"comma-separated methods for --all (default {','.join(METHODS)})")
-    parser.add_argument("--seed", type=int, default=0, help="training seed of rflow and naive (default 0)")
-    parser.add_argument("--n-points", type=int, default=LASA_POINTS,
-                        help=f"points per demo, evenly subsampled (default {LASA_POINTS}: the benchmark)")
+    parser.add_argument("--manifolds", default="spd,uq", help="comma-separated manifolds for --all")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods for --all")
+    parser.add_argument("--seed", type=seed, default=0, help="training seed of rflow and naive, 0..2**32-1")
+    parser.add_argument("--n-points", type=count(LASA_POINTS, minimum=2), default=LASA_POINTS,
+                        help=f"points per demo, evenly subsampled, 2..{LASA_POINTS} (default {LASA_POINTS}: the benchmark)")
     parser.add_argument("--config", type=Path, metavar="FILE.json",
                         help="training hyperparameters of rflow and naive from a config file (e.g. `pih search`'s "
                              "best.json) instead of --epochs, --layers, --lr, --batch-size")
     defaults = TrainConfig()
-    parser.add_argument("--epochs", type=int, help=f"training epochs (default {defaults.epochs})")
-    parser.add_argument("--layers", type=int, help=f"coupling layers (default {defaults.model.layers})")
-    parser.add_argument("--lr", type=float, help=f"learning rate (default {defaults.lr:g})")
-    parser.add_argument("--batch-size", type=int, help=f"transitions per step (default {defaults.batch_size})")
-    parser.add_argument("--threads", type=int, default=1,
+    parser.add_argument("--epochs", type=count(MAX_EPOCHS), help=f"training epochs (default {defaults.epochs})")
+    parser.add_argument("--layers", type=count(64), help=f"coupling layers, 1..64 (default {defaults.model.layers})")
+    parser.add_argument("--lr", type=number(above=0.0), help=f"learning rate (default {defaults.lr:g})")
+    parser.add_argument("--batch-size", type=count(1_000_000),
+                        help=f"transitions per step (default {defaults.batch_size})")
+    parser.add_argument("--threads", type=count(256), default=1,
                         help="torch threads of a single-shape run (default 1: the networks are too small to gain; "
                              "--all always uses 1 per worker)")
     parser.add_argument("--progress", action="store_true", help="show the training progress bar (single shape)")
@@ -147,40 +150,22 @@ def summary_line(result: ShapeResult) -> str:
             f"generate {result.generate_time_s:.2f} s")
 
 
-# ---- atomic output -------------------------------------------------------------------------------------
-def _atomic_write(path: Path, write: Callable[[Any], None], mode: str = "w") -> Path:
-    """Write through `write(file)` into a temporary file beside `path`, then rename it over `path`."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, mode) as handle:
-            write(handle)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def write_json(path: Path, record: Any) -> Path:
-    """Atomically write `record` as indented JSON."""
-    return _atomic_write(path, lambda f: json.dump(record, f, indent=2, allow_nan=False))
+# ---- output (envs.output: atomic, marked) ---------------------------------------------------------------
+FIGURE_DPI = 90
 
 
 def save_figure(path: Path, figure: Any) -> Path:
-    """Atomically write a matplotlib figure as PNG."""
-    return _atomic_write(path, lambda f: figure.savefig(f, format="png", dpi=90), mode="wb")
+    """Write a matplotlib figure as PNG (envs.output.save_figure; the argument order of lasa_report's ``save``)."""
+    from envs.output import save_figure as save_png
+
+    return save_png(figure, path, dpi=FIGURE_DPI)
 
 
 def save_trajectories(path: Path, result: ShapeResult) -> Path:
-    """Atomically write the demos and generated trajectories of one result to an .npz file."""
+    """Write the demos and generated trajectories of one result to an .npz file."""
     data = riemannian_lasa(result.shape, result.manifold, result.n_points)
-    arrays = {
-        "demos": data.demos, "generated": result.generated, "demos_z": result.demos_z,
-        "generated_z": result.generated_z, "goal": data.goal, "dt": np.float64(data.dt),
-    }
-    return _atomic_write(path, lambda f: np.savez(f, **arrays), mode="wb")
+    return save_npz(path, {"demos": data.demos, "generated": result.generated, "demos_z": result.demos_z,
+                           "generated_z": result.generated_z, "goal": data.goal, "dt": np.float64(data.dt)})
 
 
 # ---- batch units ---------------------------------------------------------------------------------------
@@ -204,9 +189,13 @@ def trajectory_path(out: Path, shape: str, manifold: str, method: str) -> Path:
 
 
 def init_worker(setup: BatchSetup) -> BatchSetup:
-    """Per worker: one torch thread (the networks are small; the workers share the cores)."""
+    """Per worker: one torch thread (the networks are small; the workers share the cores); its outputs are
+    marked as `pih lasa`'s."""
     import torch
 
+    from envs.output import set_command
+
+    set_command("lasa")
     torch.set_num_threads(1)
     return setup
 
@@ -225,8 +214,8 @@ def work_unit(setup: BatchSetup, unit: tuple[str, str, str]) -> dict[str, Any]:
     shape, manifold, method = unit
     result = run_job(shape, manifold, method, setup.config, setup.n_points)
     if result.error is None:
-        path = trajectory_path(setup.out, shape, manifold, method)
-        _atomic_write(path, lambda f: np.savez(f, demos_z=result.demos_z, generated_z=result.generated_z), mode="wb")
+        save_npz(trajectory_path(setup.out, shape, manifold, method),
+                 {"demos_z": result.demos_z, "generated_z": result.generated_z})
     return result.to_dict()
 
 
@@ -244,18 +233,21 @@ def _failure_record(setup: BatchSetup) -> Callable[[str, Any, str], dict]:
     return failure
 
 
-def _figure(out: Path, shape: str, results: list[ShapeResult]) -> None:
-    """The per-shape figure from the saved trajectories of its successful runs (never aborts the batch)."""
+def _figure(out: Path, shape: str, results: list[ShapeResult]) -> bool:
+    """The per-shape figure from the saved trajectories of its successful runs; False (and a line on stderr)
+    when it failed: the batch goes on, and `run_all` exits 1 at the end."""
     try:
         panels = []
         for r in results:
             path = trajectory_path(out, r.shape, r.manifold, r.method)
             if r.error is None and path.is_file():
-                with np.load(path) as arrays:
+                with np.load(path, allow_pickle=False) as arrays:
                     panels.append((r, arrays["demos_z"], arrays["generated_z"]))
         plot_results(out / "figures" / f"{shape}.png", shape, panels, save_figure)
     except Exception as err:  # noqa: BLE001 - a figure never aborts the batch
         print(f"figure of {shape} failed: {type(err).__name__}: {err}", file=sys.stderr)
+        return False
+    return True
 
 
 def run_all(args: argparse.Namespace) -> int:
@@ -268,32 +260,40 @@ def run_all(args: argparse.Namespace) -> int:
     manifolds = [_manifold_name(m) for m in _split(args.manifolds, check_manifold, "manifolds")]
     methods = _split(args.methods, _check_method, "methods")
     config = train_config(args)
-    if args.n_points < 2 or args.n_points > LASA_POINTS:
-        raise RFlowError(f"--n-points {args.n_points}: expected 2..{LASA_POINTS}")
     try:
-        batch_config = BatchConfig(workers=args.workers, unit_timeout_s=args.unit_timeout, backend=args.backend,
+        batch_config = BatchConfig(workers=args.workers, unit_timeout_s=args.unit_timeout_s, backend=args.backend,
                                    ray_address=args.ray_address)
     except BatchError as err:
-        raise RFlowError(str(err).replace("workers=", "--workers ").replace("unit_timeout_s=", "--unit-timeout ")
+        raise RFlowError(str(err).replace("workers=", "--workers ").replace("unit_timeout_s=", "--unit-timeout-s ")
                          .replace("backend=", "--backend ").replace("ray_address=", "--ray-address ")) from None
+    if args.resume and args.overwrite:
+        raise RFlowError("--resume continues an earlier run and --overwrite replaces it: choose one")
     out: Path = args.out
-    if out.exists() and not out.is_dir():
-        raise RFlowError(f"--out {out} exists and is not a folder")
-    if not args.resume and (out / JOURNAL).exists():
-        raise RFlowError(f"--out {out} holds a run already ({JOURNAL}): add --resume, or choose another folder")
+    units = [(unit_key(s, a, m), (s, a, m)) for s in shapes for a in manifolds for m in methods]
+    if not check_output_folder("--out", out, inputs=[args.config], estimate_bytes=UNIT_BYTES * len(units)):
+        if (out / JOURNAL).exists() and not (args.resume or args.overwrite):
+            raise RFlowError(f"--out {out} holds a run already ({JOURNAL}): add --resume (or --overwrite), or "
+                             "choose another folder")
+        planned = [out / name for name in (JOURNAL, "results.json", "results.md", "comparison.png")]
+        planned += [out / "figures" / f"{shape}.png" for shape in shapes]
+        planned += [trajectory_path(out, *unit) for _, unit in units]
+        for path in planned:
+            if path.exists() or path.is_symlink():
+                check_output("--out", path, args.overwrite or args.resume)
     if args.resume and not (out / JOURNAL).is_file():
         raise RFlowError(f"--resume: there is no run to continue in {out} (no {JOURNAL})")
-    units = [(unit_key(s, a, m), (s, a, m)) for s in shapes for a in manifolds for m in methods]
     run = {"command": "lasa", "shapes": shapes, "manifolds": manifolds, "methods": methods,
            "n_points": args.n_points, "config": dataclasses.asdict(config)}
-    out.mkdir(parents=True, exist_ok=True)
+    for folder in (out, out / "figures", out / "trajectories"):
+        folder.mkdir(parents=True, exist_ok=True)
     try:
-        journal = Journal.open(out / JOURNAL, run, resume=args.resume)
+        journal = Journal.open(out / JOURNAL, run, resume=args.resume, overwrite=args.overwrite)
     except BatchError as err:
         raise RFlowError(str(err)) from None
     setup = BatchSetup(config=config, n_points=args.n_points, out=out)
     results: dict[str, ShapeResult] = {k: ShapeResult.from_dict(r) for k, r in journal.done().items()}
     start = time.perf_counter()
+    figure_failures: list[str] = []
     if results:
         print(f"resuming: {len(results)} of {len(units)} runs already in {out / JOURNAL}", flush=True)
 
@@ -312,8 +312,8 @@ def run_all(args: argparse.Namespace) -> int:
         write_results(complete=False)
         print(f"[{len(results)}/{len(units)} {time.perf_counter() - start:.0f} s] {summary_line(result)}", flush=True)
         shape_keys = [unit_key(result.shape, a, m) for a in manifolds for m in methods]
-        if all(k in results for k in shape_keys):
-            _figure(out, result.shape, [results[k] for k in shape_keys])
+        if all(k in results for k in shape_keys) and not _figure(out, result.shape, [results[k] for k in shape_keys]):
+            figure_failures.append(result.shape)
 
     with journal:
         try:
@@ -325,7 +325,7 @@ def run_all(args: argparse.Namespace) -> int:
     complete = outcome.complete and not outcome.interrupted
     write_results(complete)
     ordered = [results[k] for k, _ in units if k in results]
-    _atomic_write(out / "results.md", lambda f: f.write(markdown_table(ordered, config)))
+    write_text(out / "results.md", markdown_table(ordered, config))
     plot_comparison(out / "comparison.png", ordered, save_figure)
     failed = sum(r.error is not None for r in ordered)
     means = "; ".join(f"{MANIFOLD_LABELS[a]} {METHOD_LABELS[m]} {g[m]:.1f} vs RiemannianFlow {g['rflow']:.1f}"
@@ -335,7 +335,9 @@ def run_all(args: argparse.Namespace) -> int:
     if outcome.interrupted:
         print(f"interrupted: {len(units) - len(ordered)} runs left; continue with --resume", file=sys.stderr)
         return EXIT_INTERRUPTED
-    return EXIT_FAILED_UNITS if failed else 0
+    if figure_failures:
+        print(f"pih lasa: the figures of {', '.join(figure_failures)} could not be written", file=sys.stderr)
+    return EXIT_FAILED_UNITS if failed or figure_failures else 0
 
 
 def run_one(args: argparse.Namespace) -> int:
@@ -344,17 +346,17 @@ def run_one(args: argparse.Namespace) -> int:
         raise RFlowError("give --shape NAME (or --all)")
     batch_only = [name for name, given in (("--resume", args.resume), ("--backend", args.backend != "process"),
                                            ("--ray-address", args.ray_address is not None),
-                                           ("--unit-timeout", args.unit_timeout is not None)) if given]
+                                           ("--unit-timeout-s", args.unit_timeout_s is not None)) if given]
     if batch_only:
         raise RFlowError(f"{batch_only[0]} applies to --all only")
     shape = check_shape(args.shape)
     manifold = _manifold_name(args.manifold)
     method = _check_method(args.method)
     config = train_config(args, args.threads)
-    for option in ("json", "save_trajectories", "figure"):
-        path = getattr(args, option)
-        if path is not None and path.parent != Path("") and not path.parent.is_dir():
-            raise RFlowError(f"--{option.replace('_', '-')} {path}: folder {path.parent} does not exist")
+    outputs = {"--json": args.json, "--save-trajectories": args.save_trajectories, "--figure": args.figure}
+    check_distinct(outputs)
+    for (option, path), suffix in zip(outputs.items(), (".json", ".npz", ".png")):
+        check_output(option, path, args.overwrite, suffix=suffix, inputs=[args.config], estimate_bytes=4 * MiB)
     result = evaluate_shape(shape, manifold, config, args.seed, method, args.n_points, progress=args.progress)
     if args.json is not None:
         write_json(args.json, result.to_dict())

@@ -1,6 +1,6 @@
 """`pih render`: execute a pose trajectory in physics and render it to MP4.
 
-    pih render --demos runs/demos.npz --index 0 --out runs/demo0.mp4 [--camera front]
+    pih render --demos runs/demos.npz --index 0 --out runs/demo0.mp4 [--camera front] [--overwrite]
 
 The demo's recorded peg_tip trajectory is replayed: the arm starts at its first pose and the impedance
 controller tracks it (resampled to the 100 Hz command rate); the commanded path and the goal frame are
@@ -24,9 +24,14 @@ from envs.demo_file import load_demos  # noqa: E402
 from envs.demos import scene_config_from_demos  # noqa: E402
 from envs.env import EpisodeConfig, PegInHoleEnv, StepResult, replay_trajectory  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
+from envs.output import MiB, check_output  # noqa: E402
 from envs.poses import Pose  # noqa: E402
 from envs.scene import SceneConfig  # noqa: E402
 from envs.video import EpisodeVideo, VideoConfig  # noqa: E402
+from scripts.options import MAX_DEMOS, check_camera, count, number  # noqa: E402
+
+VIDEO_BYTES = 100 * MiB
+"""Generous size of one rendered demo (640x480 H.264, a 10-20 s demo takes a few MiB)."""
 
 
 @dataclass(frozen=True)
@@ -48,13 +53,16 @@ class TrajectorySource:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih render`."""
     parser.add_argument("--demos", type=Path, required=True, help="demo file (.npz) written by `pih demos`")
-    parser.add_argument("--index", type=int, default=0, help="which demo to execute (default 0)")
+    parser.add_argument("--index", type=count(MAX_DEMOS - 1, minimum=0), default=0, help="which demo to execute")
     parser.add_argument("--out", type=Path, required=True, help="output video (.mp4)")
-    parser.add_argument("--camera", default="front", help="camera: front, side, top, closeup or wrist (default front)")
-    parser.add_argument("--width", type=int, default=640, help="frame width in pixels (default 640)")
-    parser.add_argument("--height", type=int, default=480, help="frame height in pixels (default 480)")
-    parser.add_argument("--fps", type=int, default=30, help="frames per second of simulated time (default 30)")
-    parser.add_argument("--hold", type=float, default=0.5, help="seconds to hold the final pose (default 0.5)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace --out when an earlier pih run wrote it (never a file pih did not write)")
+    parser.add_argument("--camera", default="front", help="camera: front, side, top, closeup or wrist")
+    parser.add_argument("--width-px", type=count(4096, minimum=16), default=640, help="frame width, pixels")
+    parser.add_argument("--height-px", type=count(4096, minimum=16), default=480, help="frame height, pixels")
+    parser.add_argument("--fps", type=count(240), default=30, help="frames per second of simulated time")
+    parser.add_argument("--hold-s", type=number(minimum=0.0, maximum=60.0), default=0.5,
+                        help="seconds to hold the final pose")
 
 
 def demo_source(path: Path, index: int) -> TrajectorySource:
@@ -111,13 +119,11 @@ def render_trajectory(source: TrajectorySource, out: Path, video: VideoConfig, h
 
 def main(args: argparse.Namespace) -> int:
     """Render the requested trajectory; returns the exit status."""
-    video = VideoConfig(width=args.width, height=args.height, fps=args.fps, camera=args.camera)
-    if args.out.suffix.lower() != ".mp4":
-        raise EnvError(f"--out {args.out} must end in .mp4")
-    if not args.out.parent.is_dir():
-        raise EnvError(f"--out {args.out}: folder {args.out.parent} does not exist")
+    video = VideoConfig(width=args.width_px, height=args.height_px, fps=args.fps, camera=args.camera)
+    check_camera(args.camera)
+    check_output("--out", args.out, args.overwrite, suffix=".mp4", inputs=[args.demos], estimate_bytes=VIDEO_BYTES)
     source = trajectory_source(args)
-    stats = render_trajectory(source, args.out, video, hold_s=args.hold)
+    stats = render_trajectory(source, args.out, video, hold_s=args.hold_s)
     print(f"wrote {args.out}: {source.label}, {stats['frames']} frames ({stats['sim_s']:.2f} s simulated) in "
           f"{stats['wall_s']:.1f} s; final peg_tip {stats['final_pos_error_mm']:.3f} mm from the goal, "
           f"{'inserted' if stats['success'] else 'NOT inserted'}")

@@ -1,13 +1,14 @@
 """`pih run`: the main job on defaults -- demos -> train -> evaluate -> figures and video, in runs/<name>/.
 
-    pih run [--name default] [--episodes 50] [--workers 2]
+    pih run [--name default] [--episodes 50] [--workers 2] [--overwrite]
 
 The task is the default "contact" preset (envs/task.py: grasped peg, 0.2 mm clearance, 1 mm chamfers, seated
 on the hole floor, hole-pose error up to 1 mm / 1 deg, 40 N force limit) unless --preset or a task option says
 otherwise. Writes runs/<name>/: demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png),
 eval.json (closed-loop evaluation, 50 perturbed starts), skill.png (demos / generated / executed, as the
 paper's peg-in-hole figure), outcomes.png (final errors), episodes.mp4 (three successes and the first
-failure, if any) and summary.json (timings and the success rate). Prints a summary.
+failure, if any) and summary.json (timings and the success rate). Prints a summary. Running it again on the
+same folder needs --overwrite, and replaces only what an earlier `pih run` wrote (envs/output.py).
 """
 
 from __future__ import annotations
@@ -21,29 +22,55 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from envs.errors import EnvError  # noqa: E402
-from envs.jsonable import write_json_atomic  # noqa: E402
+from envs.output import MiB, check_output, check_output_folder, write_json  # noqa: E402
+from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed  # noqa: E402
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "episodes.mp4", "summary.json")
-"""What `pih run` writes into runs/<name>/; a folder holding anything else is not replaced."""
+"""What `pih run` writes into runs/<name>/ (an earlier run's are replaced only with --overwrite, envs/output.py)."""
+RUN_BYTES = 200 * MiB
+"""Generous size of a run folder (a checkpoint, the demos, the record and a video of four episodes)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of `pih run`."""
+    """Options of `pih run`, in groups: output, demos, training, evaluation, task."""
     from scripts.train import DEFAULT_SUBSAMPLE
 
-    parser.add_argument("--name", default="default", help="run folder under --root (default 'default')")
-    parser.add_argument("--root", type=Path, default=Path("runs"), help="parent folder of runs (default runs/)")
-    parser.add_argument("--demos", type=int, default=7, help="scripted demos to record (default 7, as the paper)")
-    parser.add_argument("--demo-seed", type=int, default=0, help="seed of the demo starts (default 0)")
-    parser.add_argument("--epochs", type=int, default=None, help="training epochs (default: `pih train`'s)")
-    parser.add_argument("--subsample", type=int, default=DEFAULT_SUBSAMPLE,
-                        help=f"keep every k-th demo sample (default {DEFAULT_SUBSAMPLE})")
-    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes (default 50)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation starts (default 0)")
-    parser.add_argument("--workers", type=int, default=2, help="training and evaluation processes (default 2)")
-    parser.add_argument("--no-video", action="store_true", help="skip the MP4")
+    out = parser.add_argument_group("output")
+    out.add_argument("--name", default="default", help="run folder under --root")
+    out.add_argument("--root", type=Path, default=Path("runs"), help="parent folder of runs")
+    out.add_argument("--overwrite", action="store_true",
+                     help="replace the outputs of an earlier `pih run` in the run folder (never a file pih did not write)")
+    out.add_argument("--no-video", action="store_true", help="skip the MP4")
+    demos = parser.add_argument_group("demos")
+    demos.add_argument("--demos", type=count(MAX_DEMOS), default=7,
+                       help=f"scripted demos to record, 1..{MAX_DEMOS:,} (default 7, as the paper)")
+    demos.add_argument("--demo-seed", type=seed, default=0, help="seed of the demo starts, 0..2**32-1")
+    training = parser.add_argument_group("training")
+    training.add_argument("--epochs", type=count(MAX_EPOCHS), default=None, help="training epochs (default: `pih train`'s)")
+    training.add_argument("--subsample", type=count(MAX_SAMPLES), default=DEFAULT_SUBSAMPLE,
+                          help="keep every k-th demo sample")
+    evaluation = parser.add_argument_group("evaluation")
+    evaluation.add_argument("--episodes", type=count(MAX_EPISODES), default=50,
+                            help=f"evaluation episodes, 1..{MAX_EPISODES:,}")
+    evaluation.add_argument("--seed", type=seed, default=0, help="seed of the evaluation starts, 0..2**32-1")
+    evaluation.add_argument("--workers", type=count(MAX_WORKERS), default=2, help="training and evaluation processes")
     add_task_arguments(parser)
+
+
+def check_run_folder(out: Path, overwrite: bool, video: bool) -> None:
+    """runs/<name> may be written: the folder (envs.output.check_output_folder) and each output `pih run`
+    writes that is there already (an earlier run's, replaced only with ``overwrite``; never anything else).
+    Other files in the folder are left alone.
+
+    Raises:
+        EnvError: naming the output and the problem.
+    """
+    if check_output_folder("run folder", out, estimate_bytes=RUN_BYTES):
+        return
+    for name in RUN_OUTPUTS:
+        if name != "episodes.mp4" or video:
+            check_output("run output", out / name, overwrite, folder=name == "model")
 
 
 def _step(name: str) -> None:
@@ -67,7 +94,7 @@ def main(args: argparse.Namespace) -> int:
     config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers,
                               perturbations=task.perturbations, force_limit_n=task.force_limit_n)  # validated first
     out = args.root / args.name
-    check_run_folder(out)
+    check_run_folder(out, args.overwrite, video=not args.no_video)
     out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     wall = time.perf_counter()
@@ -89,7 +116,7 @@ def main(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     overrides = {} if args.epochs is None else {"epochs": args.epochs}
     model_dir = train_skill(demo_path, out / "model", skill_train_config(**overrides), subsample=args.subsample,
-                            overwrite=True, workers=args.workers)  # this run's own checkpoint (a foreign folder there is refused)
+                            overwrite=args.overwrite, workers=args.workers)
     timings["train_s"] = time.perf_counter() - t0
 
     _step(f"3/4 evaluating {args.episodes} perturbed starts (closed loop, {args.workers} workers)")
@@ -119,7 +146,7 @@ def main(args: argparse.Namespace) -> int:
                "success_rate": result.success_rate, "success_rate_ci95": [low, high],
                "episodes": len(result.records), "timings": timings, "video": extras["video"],
                "figure": extras["figure"], "load_average_1min": os.getloadavg()[0]}
-    write_json_atomic(out / "summary.json", summary)
+    write_json(out / "summary.json", summary)
     print()
     print(result.summary_table())
     print(f"{'files':<30}  {out}/ (demos.npz, model/, eval.json, skill.png, outcomes.png"
@@ -127,19 +154,3 @@ def main(args: argparse.Namespace) -> int:
     print("timings (s)".ljust(30) + "  " + ", ".join(f"{k[:-2]} {v:.0f}" for k, v in timings.items()))
     return 0
 
-
-def check_run_folder(out: Path) -> None:
-    """runs/<name> may be (re)written only when it is new or holds nothing but `pih run` outputs.
-
-    Raises:
-        EnvError: naming what in the folder `pih run` did not write.
-    """
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise EnvError(f"run folder {out} is a file")
-    foreign = sorted(p.name for p in out.iterdir()  # outputs and their temporary names (".eval.json.tmp-1", "model.tmp-x")
-                     if not any(p.name.lstrip(".").startswith(name) for name in RUN_OUTPUTS))
-    if foreign:
-        shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
-        raise EnvError(f"run folder {out} holds files `pih run` did not write ({shown}): choose another --name")

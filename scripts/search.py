@@ -20,28 +20,34 @@ from typing import Any
 from rflow.errors import RFlowError
 from rflow.lasa import LASA_POINTS, LASA_SHAPES
 from rflow.train import TrainConfig
+from scripts.options import MAX_EPOCHS, MAX_TRIALS, count, seed
+
+OUTPUT_BYTES_PER_TRIAL = 64 * 1024
+"""Generous size of one trial in search.json and the SQLite study."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih search`."""
     d = TrainConfig()
-    parser.add_argument("--shape", default="NShape",
-                        help=f"LASA shape (default NShape), one of: {', '.join(LASA_SHAPES)}")
-    parser.add_argument("--manifold", default="spd", help="spd or uq (default spd)")
-    parser.add_argument("--trials", type=int, default=40, help="trials this process runs (default 40)")
+    parser.add_argument("--shape", default="NShape", help=f"LASA shape, one of: {', '.join(LASA_SHAPES)}")
+    parser.add_argument("--manifold", default="spd", help="spd or uq")
+    parser.add_argument("--trials", type=count(MAX_TRIALS), default=40, help="trials this process runs")
     parser.add_argument("--out", type=Path, required=True, help="output folder: study.db, search.json, best.json")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace search.json and best.json of an earlier pih search in --out (the study "
+                             "itself is continued, never replaced)")
     parser.add_argument("--storage", help="SQLAlchemy URL of the Optuna storage shared by all processes "
                                           "(default sqlite:///OUT/study.db)")
     parser.add_argument("--study", help="study name (default SHAPE-MANIFOLD-seedSEED); processes with the same "
                                         "name and storage share one study")
-    parser.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs per trial (default {d.epochs})")
-    parser.add_argument("--report-every", type=int, default=10,
-                        help="epochs between validation DTW reports to the median pruner (default 10)")
-    parser.add_argument("--seed", type=int, default=0, help="training seed of every trial (default 0)")
-    parser.add_argument("--sampler-seed", type=int, default=0,
-                        help="TPE sampler seed (default 0); give each process sharing a study its own")
-    parser.add_argument("--n-points", type=int, default=LASA_POINTS,
-                        help=f"points per demo (default {LASA_POINTS}: the benchmark's)")
+    parser.add_argument("--epochs", type=count(MAX_EPOCHS), default=d.epochs, help="training epochs per trial")
+    parser.add_argument("--report-every", type=count(MAX_EPOCHS), default=10,
+                        help="epochs between validation DTW reports to the median pruner")
+    parser.add_argument("--seed", type=seed, default=0, help="training seed of every trial, 0..2**32-1")
+    parser.add_argument("--sampler-seed", type=seed, default=0,
+                        help="TPE sampler seed; give each process sharing a study its own")
+    parser.add_argument("--n-points", type=count(LASA_POINTS, minimum=2), default=LASA_POINTS,
+                        help=f"points per demo, 2..{LASA_POINTS} (default {LASA_POINTS}: the benchmark's)")
 
 
 def _storage_url(args: argparse.Namespace, out: Path) -> str:
@@ -67,12 +73,10 @@ def _trial_record(trial: Any) -> dict[str, Any]:
 
 def main(args: argparse.Namespace) -> int:
     """Run `pih search`; returns the exit status."""
-    from rflow.config_file import save_train_config
+    from envs.output import check_output, check_output_folder, write_json
+    from rflow.config_file import train_config_record
     from rflow.search import SearchConfig, best_config, run_search
-    from scripts.lasa import write_json
 
-    if args.epochs < 1 or args.n_points < 2 or args.n_points > LASA_POINTS:
-        raise RFlowError(f"need --epochs >= 1 and 2 <= --n-points <= {LASA_POINTS}, got {args.epochs}, {args.n_points}")
     manifold = {"spd": "spd", "uq": "uq", "sphere": "uq"}.get(args.manifold)
     if manifold is None:
         raise RFlowError(f"unknown benchmark manifold {args.manifold!r}; expected 'spd' or 'uq'")
@@ -80,8 +84,9 @@ def main(args: argparse.Namespace) -> int:
     config = SearchConfig(shape=args.shape, manifold=manifold, trials=args.trials, base=base,
                           report_every=args.report_every, n_points=args.n_points, sampler_seed=args.sampler_seed)
     out: Path = args.out
-    if out.exists() and not out.is_dir():
-        raise RFlowError(f"--out {out} exists and is not a folder")
+    if not check_output_folder("--out", out, estimate_bytes=OUTPUT_BYTES_PER_TRIAL * args.trials):
+        for name in ("search.json", "best.json"):
+            check_output("--out", out / name, args.overwrite)
     storage = _storage_url(args, out)
     study_name = args.study or f"{config.shape}-{manifold}-seed{args.seed}"
     if not study_name.strip():
@@ -99,7 +104,7 @@ def main(args: argparse.Namespace) -> int:
                                      "counts": counts, "best": {"trial": number, "validation_dtw": value,
                                                                 "config": dataclasses.asdict(best)},
                                      "trials": trials})
-    save_train_config(out / "best.json", best, source)
+    write_json(out / "best.json", train_config_record(best, source))
     print(f"wrote {out / 'best.json'}, {out / 'search.json'}: study {study_name!r} has {len(trials)} trials "
           f"({counts['COMPLETE']} complete, {counts['PRUNED']} pruned, {counts['FAIL']} failed); best trial {number}: "
           f"validation DTW {value:.1f}, {best.model.layers} layers, {best.model.activation}, {best.optimizer}, "

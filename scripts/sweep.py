@@ -1,7 +1,7 @@
 """`pih sweep`: success maps of a trained skill over a grid of task settings.
 
     pih sweep --model runs/default/model --clearance-mm 1,0.5,0.2,0.1 --hole-error-mm 0,0.5,1,2 \\
-        --episodes 30 --seed 0 --out runs/sweep [--chamfer-mm 0,1] [--hole-error-deg 0,1] [--pos-range 0.05] \\
+        --episodes 30 --seed 0 --out runs/sweep [--chamfer-mm 0,1] [--hole-error-deg 0,1] [--pos-range-mm 50] \\
         [--stiffness learned,constant:500,constant:1500,constant:4000] \\
         [--workers 2] [--backend ray --ray-address HOST:PORT] [--resume | --overwrite]
 
@@ -9,6 +9,7 @@ Every cell (the product of the axes) runs the same K seeded starts (envs/executi
 sweep.json (per cell: rate, Wilson interval, median time, peak forces, contact rate; every episode),
 sweep.png (heat map: clearance x hole error, or the first two axes) and journal.jsonl (finished episodes,
 for --resume). Settings not swept come from --preset and the task options, and the scene from the demos.
+Outputs follow envs/output.py: an earlier sweep's files are replaced only with --overwrite, others never.
 """
 
 from __future__ import annotations
@@ -19,15 +20,13 @@ import os
 import time
 
 from pathlib import Path
-from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from envs.errors import EnvError  # noqa: E402
-from envs.jsonable import write_json_atomic  # noqa: E402
-from envs.execution.evaluate import EvaluationConfig  # noqa: E402
-from envs.execution.policy import MODES  # noqa: E402
-from envs.execution.sweep import SweepAxes, sweep, sweep_cells, sweep_run  # noqa: E402
+from envs.execution.config import MODES, EvaluationConfig  # noqa: E402
+from envs.output import MiB, check_output, check_output_folder, write_json  # noqa: E402
+from scripts.options import MAX_EPISODES, MAX_WORKERS, count, number, seed  # noqa: E402
 from scripts.task_options import task_from_args  # noqa: E402
 
 AXIS_OPTIONS: dict[str, tuple[str, float]] = {
@@ -35,46 +34,55 @@ AXIS_OPTIONS: dict[str, tuple[str, float]] = {
     "hole_error_m": ("--hole-error-mm", 1e-3),
     "chamfer_m": ("--chamfer-mm", 1e-3),
     "hole_error_deg": ("--hole-error-deg", 1.0),
-    "pos_range_m": ("--pos-range", 1.0),
+    "pos_range_m": ("--pos-range-mm", 1e-3),
 }
 OUTPUTS: tuple[str, ...] = ("sweep.json", "sweep.png", "journal.jsonl")
+RECORD_BYTES = 8 * 1024
+"""Generous size of one episode in sweep.json and in the journal (a record is ~2 KB)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of `pih sweep`."""
-    from batch import BACKENDS
+    """Options of `pih sweep`, in groups: skill, axes, run, output, task."""
+    from batch.runner import BACKENDS
 
     d = EvaluationConfig()
-    parser.add_argument("--model", required=True, type=Path, help="checkpoint directory from `pih train`")
-    parser.add_argument("--out", required=True, type=Path, help="output folder (created; sweep.json, sweep.png, journal)")
+    skill = parser.add_argument_group("skill")
+    skill.add_argument("--model", required=True, type=Path, help="checkpoint directory from `pih train`")
+    skill.add_argument("--mode", choices=MODES, default=d.mode, help="skill execution")
     axes = parser.add_argument_group("axes (comma-separated values; the map is clearance x hole error)")
-    axes.add_argument("--clearance-mm", help="hole clearances in mm, e.g. 1,0.5,0.2,0.1")
-    axes.add_argument("--hole-error-mm", help="hole-pose error radii in mm, e.g. 0,0.5,1,2")
-    axes.add_argument("--chamfer-mm", help="chamfer widths in mm")
-    axes.add_argument("--hole-error-deg", help="hole-pose angle errors in deg")
-    axes.add_argument("--pos-range", help="start position ranges in m")
+    axes.add_argument("--clearance-mm", help="hole clearances, mm, e.g. 1,0.5,0.2,0.1")
+    axes.add_argument("--hole-error-mm", help="hole-pose error radii, mm, e.g. 0,0.5,1,2")
+    axes.add_argument("--chamfer-mm", help="chamfer widths, mm")
+    axes.add_argument("--hole-error-deg", help="hole-pose angle errors, deg")
+    axes.add_argument("--pos-range-mm", help="start position ranges, mm (half-width of the box)")
     axes.add_argument("--stiffness", help="commanded translational stiffness per cell: 'learned' (a skill from "
                                           "`pih train --stiffness`) or 'constant:K' (K I, K > 0 in N/m), e.g. "
                                           "learned,constant:500,constant:1500,constant:4000")
-    parser.add_argument("--episodes", type=int, default=30, help="episodes per cell (default 30)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the starts and perturbations (default 0)")
-    parser.add_argument("--mode", choices=MODES, default=d.mode, help=f"skill execution (default {d.mode})")
-    parser.add_argument("--time-limit", type=float, default=d.time_limit_s,
-                        help=f"simulated seconds per episode (default {d.time_limit_s:g})")
-    parser.add_argument("--workers", type=int, default=2, help="parallel workers (default 2)")
-    parser.add_argument("--backend", choices=BACKENDS, default=d.backend, help="process (default) or ray")
-    parser.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray)")
-    parser.add_argument("--unit-timeout", type=float, default=d.unit_timeout_s,
-                        help=f"wall seconds per episode before its worker is killed (default {d.unit_timeout_s:g}; 0 = none)")
-    parser.add_argument("--resume", action="store_true", help="continue the sweep recorded in --out/journal.jsonl")
-    parser.add_argument("--overwrite", action="store_true", help="replace an earlier sweep's outputs in --out")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    task = parser.add_argument_group("task settings that are not swept")
+    run = parser.add_argument_group("run")
+    run.add_argument("--episodes", type=count(MAX_EPISODES), default=30, help=f"episodes per cell, 1..{MAX_EPISODES:,}")
+    run.add_argument("--seed", type=seed, default=0, help="seed of the starts and perturbations, 0..2**32-1")
+    run.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0), default=d.time_limit_s,
+                     help="simulated seconds per episode")
+    run.add_argument("--workers", type=count(MAX_WORKERS), default=2, help="parallel workers")
+    run.add_argument("--backend", choices=BACKENDS, default=d.backend, help="process or ray")
+    run.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray)")
+    run.add_argument("--unit-timeout-s", type=number(minimum=0.0), default=d.unit_timeout_s,
+                     help="wall seconds per episode before its worker is killed; 0 = none")
+    run.add_argument("--resume", action="store_true", help="continue the sweep recorded in --out/journal.jsonl")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    out = parser.add_argument_group("output")
+    out.add_argument("--out", required=True, type=Path,
+                     help="output folder (created; sweep.json, sweep.png, journal.jsonl)")
+    out.add_argument("--overwrite", action="store_true",
+                     help="replace an earlier sweep's outputs in --out (files pih did not write are never replaced)")
+    task = parser.add_argument_group("task settings that are not swept (default: the demos' scene and --preset)")
     task.add_argument("--preset", help="task preset (contact, paper, factory) for the settings not swept")
     task.add_argument("--peg-mount", choices=("grasped", "welded"), help="peg mount (default: the demos')")
-    task.add_argument("--grasp-force", type=float, help="grasp force per finger in N")
-    task.add_argument("--grasp-offset-mm", type=float, help="grasp offset range along the peg axis in mm")
-    task.add_argument("--force-limit", type=float, help="wrist force limit in N (default 40)")
+    task.add_argument("--grasp-force-n", type=number(above=0.0), help="grasp force per finger, N")
+    task.add_argument("--grasp-offset-mm", type=number(minimum=0.0),
+                      help="grasp offset range along the peg axis, mm (default: the preset's)")
+    task.add_argument("--force-limit-n", type=number(above=0.0, infinite=True),
+                      help="wrist force limit, N, on the force held for 5 ms (default: the preset's, 40)")
 
 
 def parse_values(option: str, text: str | None, scale: float) -> tuple[float, ...]:
@@ -114,11 +122,11 @@ def base_config(args: argparse.Namespace) -> EvaluationConfig:
     task = task_from_args(argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in swept}))
     explicit_scene = task.scene_fields() if args.preset else {}
     return EvaluationConfig(
-        episodes=args.episodes, seed=args.seed, mode=args.mode, time_limit_s=args.time_limit,
+        episodes=args.episodes, seed=args.seed, mode=args.mode, time_limit_s=args.time_limit_s,
         workers=args.workers, backend=args.backend, ray_address=args.ray_address,
-        unit_timeout_s=None if args.unit_timeout == 0 else args.unit_timeout,
+        unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s,
         peg_mode=args.peg_mount or explicit_scene.get("peg_mode"),
-        grasp_force_n=args.grasp_force if args.grasp_force is not None else explicit_scene.get("grasp_force_n"),
+        grasp_force_n=args.grasp_force_n if args.grasp_force_n is not None else explicit_scene.get("grasp_force_n"),
         clearance_m=explicit_scene.get("clearance_m"), chamfer_m=explicit_scene.get("chamfer_m"),
         perturbations=task.perturbations, force_limit_n=task.force_limit_n)
 
@@ -128,25 +136,23 @@ def main(args: argparse.Namespace) -> int:
     from batch import Journal
     from envs.execution.evaluate import journal_run
     from envs.execution.figures import plot_success_map
+    from envs.execution.sweep import SweepAxes, sweep, sweep_cells, sweep_run
 
     axes = SweepAxes(**{name: parse_values(option, getattr(args, option[2:].replace("-", "_")), scale)
                         for name, (option, scale) in AXIS_OPTIONS.items()}, stiffness=parse_stiffness(args.stiffness))
-    if not isinstance(args.episodes, int) or args.episodes < 1:
-        raise EnvError(f"--episodes {args.episodes}: need at least 1")
     if args.resume and args.overwrite:
         raise EnvError("--resume and --overwrite exclude each other")
     cells = sweep_cells(base_config(args), axes)
     out: Path = args.out
-    if out.exists() and not out.is_dir():
-        raise EnvError(f"--out {out} is a file, not a folder")
-    if not out.parent.is_dir():
-        raise EnvError(f"--out {out}: folder {out.parent} does not exist")
+    records = 64 * 1024 + RECORD_BYTES * args.episodes * len(cells)
+    created = check_output_folder("--out", out, inputs=[args.model], estimate_bytes=2 * records + 4 * MiB)
     existing = [name for name in OUTPUTS if (out / name).exists()]
     if existing and not (args.resume or args.overwrite):
         raise EnvError(f"--out {out} already holds {', '.join(existing)} (use --resume or --overwrite)")
+    for name in existing:
+        check_output("--out", out / name, args.overwrite or args.resume)
     checksum = journal_run(args.model, cells[0].config)["skill_sha256"]
-    created = not out.exists()
-    out.mkdir(exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     wall = time.perf_counter()
     journal_path = out / "journal.jsonl"
     try:
@@ -159,7 +165,7 @@ def main(args: argparse.Namespace) -> int:
             if created and not any(out.iterdir()):
                 out.rmdir()
         raise
-    write_json_atomic(out / "sweep.json", result.to_dict())
+    write_json(out / "sweep.json", result.to_dict())
     active = axes.active()
     rows: str | None
     if {"clearance_m", "hole_error_m"} <= set(active):
@@ -179,7 +185,7 @@ def main(args: argparse.Namespace) -> int:
               f"median peak wrist force {'-' if force is None else f'{force:.1f} N'}")
     print(f"wrote {out / 'sweep.json'} and {out / 'sweep.png'} ({time.perf_counter() - wall:.0f} s)")
     if result.interrupted:
-        print(f"interrupted: continue with the same command and --resume", flush=True)
+        print("interrupted: continue with the same command and --resume", flush=True)
         return 130
     return 0 if result.complete else 3
 

@@ -37,62 +37,68 @@ STIFFNESS_SOURCES = ("expert", "variability")
 DEFAULT_BOUNDS = StiffnessBounds()
 
 
+CHECKPOINT_BYTES = 64 * 2**20
+"""Generous size of a checkpoint (weights of the default models are ~1 MB, the preview and figure a few)."""
 SCENE_METADATA: tuple[str, ...] = ("goal_pos", "goal_yaw_deg", "hole_depth_m", "insertion_depth_m", "chamfer_m",
                                    "peg_mode", "grasp_force_n")
 """The demos' scene settings a checkpoint keeps, so `pih evaluate` rebuilds the scene the skill was taught in."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Register the options of `pih train`."""
+    """Register the options of `pih train`, in groups: input, output, skill, training, run."""
+    from rflow.model import MAX_WIDTH
     from rflow.train import TrainConfig
+    from scripts.options import MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, number, seed
 
     d = TrainConfig()
-    parser.add_argument("--demos", required=True, help="demo file (.npz) from `pih demos` or the same schema")
-    parser.add_argument("--out", required=True,
-                        help="checkpoint directory to write (built beside it and renamed into place); an earlier "
-                             "checkpoint there is replaced only with --overwrite, anything else never")
-    parser.add_argument("--overwrite", action="store_true", help="replace an earlier checkpoint at --out")
-    parser.add_argument("--joint", action="store_true",
-                        help="one joint 6-D model on R^3 x S^3 instead of separate position and orientation models")
-    parser.add_argument("--stiffness", choices=STIFFNESS_SOURCES,
-                        help="also learn the translational stiffness, in one joint 12-D model on R^3 x S^3 x SPD(3): "
-                             "'expert' = the stiffness recorded in the demo file, 'variability' = alpha (Sigma + eps "
-                             "I)^-1 from the demos' spread (rflow.stiffness)")
-    parser.add_argument("--k-min", type=float, default=DEFAULT_BOUNDS.k_min_n_m,
-                        help=f"--stiffness: smallest eigenvalue of the commanded stiffness, N/m "
-                             f"(default {DEFAULT_BOUNDS.k_min_n_m:g})")
-    parser.add_argument("--k-max", type=float, default=DEFAULT_BOUNDS.k_max_n_m,
-                        help=f"--stiffness: largest eigenvalue of the commanded stiffness, N/m "
-                             f"(default {DEFAULT_BOUNDS.k_max_n_m:g})")
-    parser.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs (default {d.epochs})")
-    parser.add_argument("--subsample", type=int, default=DEFAULT_SUBSAMPLE,
-                        help=f"keep every k-th demo sample, counted from the goal (default {DEFAULT_SUBSAMPLE})")
-    parser.add_argument("--layers", type=int, default=d.model.layers, help=f"coupling layers (default {d.model.layers})")
-    parser.add_argument("--width", type=int, default=d.model.width,
-                        help=f"hidden units per coupling MLP (default {d.model.width})")
-    parser.add_argument("--log-scale-clamp", type=float, default=DEFAULT_LOG_SCALE_CLAMP,
-                        help=f"bound c of each coupling layer's log-scale (default {DEFAULT_LOG_SCALE_CLAMP:g})")
-    parser.add_argument("--prior-weight", type=float, default=DEFAULT_PRIOR_WEIGHT,
-                        help=f"weight of the off-data identity prior, 0 for the paper's plain likelihood "
-                             f"(default {DEFAULT_PRIOR_WEIGHT:g})")
-    parser.add_argument("--prior-radius", type=float, default=d.prior_radius,
-                        help=f"prior box half-width in multiples of the demos' extent (default {d.prior_radius:g})")
-    parser.add_argument("--lr", type=float, default=d.lr, help=f"Adam learning rate (default {d.lr:g})")
-    parser.add_argument("--batch-size", type=int, default=d.batch_size, help=f"batch size (default {d.batch_size})")
-    parser.add_argument("--transitions-per-epoch", type=int, default=d.transitions_per_epoch,
-                        help=f"transitions sampled per epoch (default {d.transitions_per_epoch})")
-    parser.add_argument("--horizon", type=int, default=d.horizon,
-                        help=f"largest transition horizon in (subsampled) steps (default {d.horizon})")
-    parser.add_argument("--seed", type=int, default=d.seed, help=f"training seed (default {d.seed})")
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch threads (default 1: deterministic and polite on a shared 2-core machine)")
-    parser.add_argument("--workers", type=int, default=2,
-                        help="processes training the position and orientation models at the same time (default 2; "
-                             "1 trains them one after the other; same weights either way)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.add_argument("--config", metavar="FILE.json",
-                        help="training hyperparameters from a config file (e.g. `pih search`'s best.json) instead of "
-                             "the hyperparameter options; --seed and --threads still apply")
+    given = parser.add_argument_group("input")
+    given.add_argument("--demos", required=True, type=Path, help="demo file (.npz) from `pih demos` or the same schema")
+    given.add_argument("--config", type=Path, metavar="FILE.json",
+                       help="training hyperparameters from a config file (e.g. `pih search`'s best.json) instead of "
+                            "the training options; --seed and --threads still apply")
+    out = parser.add_argument_group("output")
+    out.add_argument("--out", required=True, type=Path,
+                     help="checkpoint directory to write (built beside it and renamed into place); an earlier "
+                          "checkpoint there is replaced only with --overwrite, anything else never")
+    out.add_argument("--overwrite", action="store_true", help="replace an earlier checkpoint at --out")
+    skill = parser.add_argument_group("skill")
+    skill.add_argument("--joint", action="store_true",
+                       help="one joint 6-D model on R^3 x S^3 instead of separate position and orientation models")
+    skill.add_argument("--stiffness", choices=STIFFNESS_SOURCES,
+                       help="also learn the translational stiffness, in one joint 12-D model on R^3 x S^3 x SPD(3): "
+                            "'expert' = the stiffness recorded in the demo file, 'variability' = alpha (Sigma + eps "
+                            "I)^-1 from the demos' spread (rflow.stiffness)")
+    skill.add_argument("--k-min-n-m", type=number(above=0.0), default=DEFAULT_BOUNDS.k_min_n_m,
+                       help="--stiffness: smallest eigenvalue of the commanded stiffness, N/m")
+    skill.add_argument("--k-max-n-m", type=number(above=0.0), default=DEFAULT_BOUNDS.k_max_n_m,
+                       help="--stiffness: largest eigenvalue of the commanded stiffness, N/m")
+    skill.add_argument("--subsample", type=count(MAX_SAMPLES), default=DEFAULT_SUBSAMPLE,
+                       help="keep every k-th demo sample, counted from the goal")
+    train = parser.add_argument_group("training (replaced by --config)")
+    train.add_argument("--epochs", type=count(MAX_EPOCHS), default=d.epochs, help="training epochs")
+    train.add_argument("--layers", type=count(64), default=d.model.layers, help="coupling layers, 1..64")
+    train.add_argument("--width", type=count(MAX_WIDTH), default=d.model.width,
+                       help=f"hidden units per coupling MLP, 1..{MAX_WIDTH}")
+    train.add_argument("--log-scale-clamp", type=number(above=0.0), default=DEFAULT_LOG_SCALE_CLAMP,
+                       help="bound c of each coupling layer's log-scale")
+    train.add_argument("--prior-weight", type=number(minimum=0.0), default=DEFAULT_PRIOR_WEIGHT,
+                       help="weight of the off-data identity prior, 0 for the paper's plain likelihood")
+    train.add_argument("--prior-radius", type=number(above=0.0), default=d.prior_radius,
+                       help="prior box half-width in multiples of the demos' extent")
+    train.add_argument("--lr", type=number(above=0.0), default=d.lr, help="Adam learning rate")
+    train.add_argument("--batch-size", type=count(1_000_000), default=d.batch_size, help="batch size")
+    train.add_argument("--transitions-per-epoch", type=count(100_000_000), default=d.transitions_per_epoch,
+                       help="transitions sampled per epoch")
+    train.add_argument("--horizon", type=count(1_000_000), default=d.horizon,
+                       help="largest transition horizon in (subsampled) steps")
+    run = parser.add_argument_group("run")
+    run.add_argument("--seed", type=seed, default=d.seed, help="training seed, 0..2**32-1")
+    run.add_argument("--threads", type=count(256), default=1,
+                     help="torch threads (default 1: deterministic and polite on a shared 2-core machine)")
+    run.add_argument("--workers", type=count(MAX_WORKERS), default=2,
+                     help="processes training the position and orientation models at the same time (default 2; "
+                          "1 trains them one after the other; same weights either way)")
+    run.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def skill_train_config(**overrides: Any) -> Any:
@@ -235,13 +241,14 @@ def check_demo_scene(demos: Any, demos_path: str | Path) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run `pih train`."""
-    wall = time.perf_counter()
-    if args.workers < 1:
-        from rflow.errors import RFlowError
+    from envs.output import check_output
 
-        raise RFlowError(f"--workers {args.workers} must be >= 1")
-    bounds = StiffnessBounds(args.k_min, args.k_max)
-    out = train_skill(args.demos, args.out, train_config_from_args(args), args.joint, args.subsample,
+    wall = time.perf_counter()
+    bounds = StiffnessBounds(args.k_min_n_m, args.k_max_n_m)
+    config = train_config_from_args(args)
+    check_output("--out", args.out, args.overwrite, folder=True, inputs=[args.demos, args.config],
+                 estimate_bytes=CHECKPOINT_BYTES)
+    out = train_skill(args.demos, args.out, config, args.joint, args.subsample,
                       progress=not args.quiet, stiffness=args.stiffness, bounds=bounds, overwrite=args.overwrite,
                       workers=args.workers)
     record = json.loads((out / "skill.json").read_text())

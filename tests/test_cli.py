@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from scripts.cli import SUBCOMMANDS, build_parser, chosen_command
+from scripts.cli import SUBCOMMANDS, build_parser, chosen_command, main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -19,7 +19,8 @@ def imported_after(code: str) -> dict[str, object]:
     """Run ``code`` in a fresh interpreter and report which scripts.* modules and heavy libraries it loaded."""
     probe = (f"import sys, json\n{code}\n"
              "print(json.dumps({'scripts': sorted(m for m in sys.modules if m.startswith('scripts.')),"
-             " 'torch': 'torch' in sys.modules, 'optuna': 'optuna' in sys.modules}))")
+             " 'torch': 'torch' in sys.modules, 'optuna': 'optuna' in sys.modules,"
+             " 'mujoco': 'mujoco' in sys.modules}))")
     out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -30,6 +31,22 @@ def test_building_the_parser_for_one_command_imports_only_that_command():
     assert "scripts.demos" in loaded["scripts"]
     assert not others & set(loaded["scripts"])
     assert not loaded["torch"] and not loaded["optuna"]  # the simulator's path needs neither
+
+
+@pytest.mark.parametrize("command", ["evaluate", "demos", "sweep", "run"])
+def test_the_help_of_the_simulator_commands_loads_neither_torch_nor_mujoco(command):
+    loaded = imported_after(f"from scripts.cli import build_parser\nbuild_parser({command!r}).format_help()")
+    assert not loaded["torch"] and not loaded["mujoco"]
+
+
+def test_help_is_grouped_and_shows_units_and_defaults(capsys):
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for heading in ("skill:", "starts and run:", "output:", "task (default: the values of --preset):"):
+        assert heading in text
+    assert "--pos-range-mm" in text and "--time-limit-s" in text and "--force-limit-n" in text
+    assert "(default 50.0)" in text and "(default 0.2)" in text  # the start range and the preset's clearance
 
 
 def test_the_top_level_help_lists_every_command_without_importing_them():

@@ -54,8 +54,8 @@ def short_demo_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_render_writes_the_requested_video(short_demo_file: Path, tmp_path: Path) -> None:
     out = tmp_path / "demo.mp4"
-    args = ["render", "--demos", str(short_demo_file), "--out", str(out), "--width", "160", "--height", "120",
-            "--hold", "0", "--camera", "top"]
+    args = ["render", "--demos", str(short_demo_file), "--out", str(out), "--width-px", "160", "--height-px", "120",
+            "--hold-s", "0", "--camera", "top"]
     assert main(args) == 0
     reader = imageio.get_reader(out)
     assert reader.get_meta_data()["size"] == (160, 120)

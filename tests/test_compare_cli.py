@@ -99,7 +99,7 @@ def test_an_existing_output_is_replaced_only_with_overwrite_and_only_if_it_is_a_
     assert pih(args) == 2 and "--overwrite" in capsys.readouterr().err
     assert pih(args + ["--overwrite"]) == 0
     assert pih(["compare", files["base"], files["base"], "--json", files["worse"], "--overwrite"]) == 2
-    assert "not an output of `pih compare`" in capsys.readouterr().err
+    assert "not written by pih" in capsys.readouterr().err
     assert json.loads(Path(files["worse"]).read_text()) == synthetic_evaluation(WORSE)
 
 

@@ -104,7 +104,7 @@ def test_franka_tcp_example_places_the_peg_tip_beyond_the_tcp(tmp_path: Path, gr
     down = Rotation.from_euler("x", 180, degrees=True)
     tcp_quat = np.tile(wxyz(down), (m, 1))
     source = write_npz(tmp_path / "rec.npz", pos=tcp_pos[None], quat=tcp_quat[None])
-    code, out = run_import(tmp_path, source, "--tool-offset", "franka-tcp", "--dt", "0.002", "--samples", str(m))
+    code, out = run_import(tmp_path, source, "--tool-offset", "franka-tcp", "--dt-s", "0.002", "--samples", str(m))
     assert code == 0
     demos = load_demos(out)
     rot_ft = Rotation.from_euler("z", -45, degrees=True).as_matrix()
@@ -176,18 +176,20 @@ def test_small_quaternion_norm_errors_are_normalised(tmp_path: Path, grasp) -> N
     np.testing.assert_allclose(np.linalg.norm(load_demos(out).quat, axis=-1), 1.0, atol=1e-12)
 
 
-def test_overwrite_replaces_an_existing_output(tmp_path: Path, grasp) -> None:
+def test_overwrite_replaces_only_an_earlier_output(tmp_path: Path, grasp) -> None:
     pos, quat = peg_tip_demos(n=1)
     tool_pos, tool_quat = to_tool_frame(pos, quat, OFFSET, grasp)
     source = write_npz(tmp_path / "rec.npz", pos=tool_pos, quat=tool_quat, dt=0.01)
     out = tmp_path / "out" / "demos.npz"
     out.parent.mkdir()
-    out.write_bytes(b"somebody else's file")
     args = ["--tool-offset", OFFSET_ARG, "--samples", "40"]
-    assert run_import(tmp_path, source, *args)[0] == 2
-    assert out.read_bytes() == b"somebody else's file"
+    assert run_import(tmp_path, source, *args)[0] == 0
+    assert run_import(tmp_path, source, *args)[0] == 2  # without --overwrite
     assert run_import(tmp_path, source, *args, "--overwrite")[0] == 0
     assert load_demos(out).num_demos == 1
+    out.write_bytes(b"somebody else's file")
+    assert run_import(tmp_path, source, *args, "--overwrite")[0] == 2  # pih did not write it
+    assert out.read_bytes() == b"somebody else's file"
 
 
 def _good(tmp_path: Path) -> dict[str, np.ndarray]:
@@ -243,7 +245,7 @@ def _bad_file(tmp_path: Path, case: str) -> Path:
     ("not_npz", [], "not a readable .npz"),
     ("pickled", [], "not a readable .npz"),
     ("pickled_member", [], "Object arrays"),
-    ("no_dt", [], "--dt"),
+    ("no_dt", [], "--dt-s"),
     ("file_dt_nan", [], "dt"),
     ("file_dt_zero", [], "dt"),
     ("pos_wrong_shape", [], "pos"),
@@ -255,14 +257,15 @@ def _bad_file(tmp_path: Path, case: str) -> Path:
     ("no_demos", [], "no demos"),
     ("both_layouts", [], "both"),
     ("ragged_gap", [], "without gaps"),
-    ("good", ["--dt", "0.02"], "differs"),
-    ("good", ["--dt", "0"], "--dt"),
-    ("good", ["--dt", "-0.01"], "--dt"),
-    ("good", ["--dt", "nan"], "--dt"),
+    ("good", ["--dt-s", "0.02"], "differs"),
+    ("good", ["--dt-s", "0"], "--dt-s"),
+    ("good", ["--dt-s", "-0.01"], "--dt-s"),
+    ("good", ["--dt-s", "nan"], "--dt-s"),
     ("good", ["--tool-offset", "0,0,0.1,1,0,0"], "7 finite numbers"),
     ("good", ["--tool-offset", "0,0,x,1,0,0,0"], "7 finite numbers"),
     ("good", ["--tool-offset", "0,0,nan,1,0,0,0"], "7 finite numbers"),
-    ("good", ["--tool-offset", "0,0,0.1,0,0,0,0"], "zero"),
+    ("good", ["--tool-offset", "0,0,0.1,0,0,0,0"], "not 1"),
+    ("good", ["--tool-offset", "0,0,0.1,0.7071,0,0,0.7071"], "norm 0.99999041"),
     ("good", ["--tool-offset", "franka"], "7 finite numbers"),
     ("good", ["--samples", "1"], "--samples"),
     ("good", ["--shape", "circle", "--check", "3"], "--check"),
@@ -301,9 +304,11 @@ def test_shape_in_the_file_must_match_the_flag(tmp_path: Path, capsys) -> None:
     assert code == 2 and not out.exists() and "--shape circle" in capsys.readouterr().err
 
 
-def test_parse_tool_offset_normalises_the_quaternion() -> None:
-    offset = parse_tool_offset("0.1, 0, 0, 2, 0, 0, 0")
+def test_parse_tool_offset_takes_a_unit_quaternion_and_refuses_others() -> None:
+    offset = parse_tool_offset("0.1, 0, 0, 1, 0, 0, 0")
     np.testing.assert_allclose(offset.quat, [1.0, 0.0, 0.0, 0.0])
+    with pytest.raises(EnvError, match="not 1"):
+        parse_tool_offset("0.1, 0, 0, 2, 0, 0, 0")  # once normalised without a word
     with pytest.raises(EnvError):
         parse_tool_offset("")
 

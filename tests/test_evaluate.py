@@ -167,3 +167,11 @@ def test_learned_stiffness_result_reports_the_demos_reproduction():
     assert "Log-Euclidean" in learned.summary_table() and "0.250" in learned.summary_table()
     constant = EvaluationResult(EvaluationConfig(episodes=1, stiffness="constant:500"), records, 1.0, metadata=metadata)
     assert constant.to_dict()["stiffness_reproduction"] is None and "Log-Euclidean" not in constant.summary_table()
+
+
+def test_summary_says_what_the_force_limit_measures():
+    records = [EpisodeRecord(0, 0, [0.0] * 3, [1.0, 0, 0, 0], success=True, peak_wrist_force_n=55.0,
+                             peak_sustained_wrist_force_n=22.0)]
+    table = EvaluationResult(EvaluationConfig(episodes=1), records, 1.0).summary_table()
+    line = next(row for row in table.splitlines() if row.startswith("force limit"))
+    assert "40 N on the wrist force held for 5 ms" in line and "peaks may exceed it" in line and "22.0 N" in line

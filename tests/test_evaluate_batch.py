@@ -21,7 +21,7 @@ from scripts.cli import main as pih
 from skill_fixtures import tiny_skill
 
 PIH = str(Path(sys.executable).with_name("pih"))
-FAST = ["--episodes", "4", "--time-limit", "0.05", "--quiet"]
+FAST = ["--episodes", "4", "--time-limit-s", "0.05", "--quiet"]
 
 
 @pytest.fixture(scope="module")
@@ -77,11 +77,11 @@ def test_bad_video_options_fail_before_any_episode(model, tmp_path, capsys, opti
     assert list(tmp_path.iterdir()) == []  # no JSON, no journal, no video
 
 
-def test_existing_json_needs_overwrite(model, tmp_path, capsys):
+def test_someone_elses_json_is_never_replaced(model, tmp_path, capsys):
     out = tmp_path / "e.json"
     out.write_text("someone's results")
-    assert pih(["evaluate", "--model", str(model), *FAST, "--json", str(out)]) == 2
-    assert "--overwrite" in capsys.readouterr().err and out.read_text() == "someone's results"
+    assert pih(["evaluate", "--model", str(model), *FAST, "--json", str(out), "--overwrite"]) == 2
+    assert "not written by pih" in capsys.readouterr().err and out.read_text() == "someone's results"
 
 
 def test_existing_journal_needs_resume_or_overwrite(model, tmp_path, capsys):
@@ -137,7 +137,7 @@ def _children(pid: int) -> list[int]:
 @pytest.mark.slow
 def test_sigkill_of_a_worker_is_recorded_and_the_run_completes(model, tmp_path):
     out, journal = tmp_path / "e.json", tmp_path / "e.json.journal.jsonl"
-    proc = _run(["--model", str(model), "--episodes", "8", "--time-limit", "1.0", "--workers", "2", "--quiet",
+    proc = _run(["--model", str(model), "--episodes", "8", "--time-limit-s", "1.0", "--workers", "2", "--quiet",
                  "--json", str(out)])
     try:
         _wait_for_records(journal, 1, proc)
@@ -157,7 +157,7 @@ def test_sigkill_of_a_worker_is_recorded_and_the_run_completes(model, tmp_path):
 
 @pytest.mark.slow
 def test_ctrl_c_then_resume_gives_the_uninterrupted_json(model, tmp_path):
-    args = ["--model", str(model), "--episodes", "8", "--time-limit", "1.0", "--quiet"]
+    args = ["--model", str(model), "--episodes", "8", "--time-limit-s", "1.0", "--quiet"]
     whole = _run(args + ["--json", str(tmp_path / "whole.json")])
     assert whole.wait(300) == 0, whole.stderr.read()
     out, journal = tmp_path / "e.json", tmp_path / "e.json.journal.jsonl"

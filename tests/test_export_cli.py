@@ -80,7 +80,7 @@ def test_a_foreign_dataset_needs_a_tool_offset(tmp_path: Path, demo_file: Path,
     with h5py.File(tmp_path / "ds" / "demos.hdf5", "r+") as f:
         del f["data"].attrs["pih_export"]  # as if written elsewhere: no frame, dt, shape or clearance
     capsys.readouterr()
-    assert import_back(tmp_path / "ds", "robomimic", tmp_path / "back.npz", "--dt", "0.05") == 2
+    assert import_back(tmp_path / "ds", "robomimic", tmp_path / "back.npz", "--dt-s", "0.05") == 2
     assert "--tool-offset is required" in capsys.readouterr().err
 
 

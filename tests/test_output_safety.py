@@ -1,7 +1,7 @@
 """Outputs never destroy what is not ours, and inputs are checked before work: `pih train --out` on a file or
 a foreign folder exits 2 with nothing deleted; an earlier checkpoint needs --overwrite; demo files of an
 unknown shape or a bad clearance are refused before training; demo files follow the umask; `pih run`
-refuses a run folder holding files it did not write."""
+replaces only its own earlier outputs, and only with --overwrite."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import pytest
 
 from envs.demo_file import save_demos
 from envs.errors import EnvError
+from envs.output import write_json
 from envs.video import Mp4Writer
 from scripts.cli import main
 from scripts.run import check_run_folder
@@ -78,23 +79,20 @@ def test_demo_file_mode_follows_the_umask(tmp_path):
     assert stat.S_IMODE(path.stat().st_mode) == 0o644
 
 
-def test_run_folder_with_foreign_files_is_refused(tmp_path):
-    (tmp_path / "eval.json").write_text("{}")
-    (tmp_path / ".eval.json.tmp-12").write_text("")
-    check_run_folder(tmp_path)  # only what `pih run` writes: fine to rerun
-    (tmp_path / "thesis.tex").write_text("keep me")
-    with pytest.raises(EnvError, match="thesis.tex"):
-        check_run_folder(tmp_path)
+def test_run_folder_outputs_are_replaced_only_when_pih_wrote_them(tmp_path):
+    write_json(tmp_path / "eval.json", {"episodes": 1})
+    (tmp_path / "thesis.tex").write_text("keep me")  # not an output of `pih run`: left alone
+    check_run_folder(tmp_path, overwrite=True, video=True)
+    with pytest.raises(EnvError, match="--overwrite"):
+        check_run_folder(tmp_path, overwrite=False, video=True)
+    (tmp_path / "eval.json").write_text("{}")  # the user's own eval.json
+    with pytest.raises(EnvError, match="not written by pih"):
+        check_run_folder(tmp_path, overwrite=True, video=True)
 
 
-def test_a_video_cut_off_mid_write_leaves_a_run_folder_pih_run_accepts(tmp_path):
-    """A hard kill while episodes.mp4 is encoded leaves the writer's temporary file: it must count as `pih run`'s."""
+def test_a_video_cut_off_mid_write_leaves_nothing(tmp_path):
     writer = Mp4Writer(tmp_path / "episodes.mp4", fps=30)
-    try:
-        writer.append(np.zeros((64, 64, 3), dtype=np.uint8))
-        writer.temporary_path.touch()  # what a killed run leaves (ffmpeg may not have opened it yet)
-        assert writer.temporary_path.parent == tmp_path
-        check_run_folder(tmp_path)
-    finally:
-        writer.abort()
+    writer.append(np.zeros((64, 64, 3), dtype=np.uint8))
+    assert writer.temporary_path.parent == tmp_path and writer.temporary_path.name.startswith(".episodes.mp4.")
+    writer.abort()
     assert not any(tmp_path.iterdir())

@@ -8,13 +8,14 @@ import os
 import numpy as np
 import pytest
 
-from rflow.config_file import save_train_config
+from envs.output import write_json
+from rflow.config_file import train_config_record
 from rflow.lasa import ShapeResult
 from rflow.model import ModelConfig
 from rflow.train import TrainConfig
 from scripts import cli
 from scripts import lasa as lasa_script
-from scripts.lasa import run_job, write_json
+from scripts.lasa import run_job
 from scripts.lasa_report import gains, markdown_table, summary
 
 TINY = ["--n-points", "30", "--epochs", "1", "--layers", "2"]
@@ -45,7 +46,7 @@ def test_bad_input_is_a_one_line_error_with_exit_2(argv: list[str], capsys: pyte
 
 
 def test_config_file_together_with_a_hyperparameter_option_is_refused(tmp_path, capsys) -> None:
-    path = save_train_config(tmp_path / "best.json", TrainConfig())
+    path = write_json(tmp_path / "best.json", train_config_record(TrainConfig()))
     assert cli.main(["lasa", "--shape", "Angle", "--config", str(path), "--lr", "0.01"]) == 2
     assert "--lr" in capsys.readouterr().err
 
@@ -87,13 +88,6 @@ def test_markdown_table_has_a_row_per_shape_and_lists_failures() -> None:
 def test_run_job_records_a_failure_instead_of_raising() -> None:
     result = run_job("Angle", "spd", "rflow", TrainConfig(), n_points=1)
     assert result.error is not None and result.error.startswith("RFlowError") and math.isnan(result.dtw)
-
-
-def test_write_json_replaces_atomically_and_leaves_no_temp_file(tmp_path) -> None:
-    path = write_json(tmp_path / "r.json", {"a": 1})
-    with pytest.raises(ValueError):
-        write_json(path, {"a": math.nan})  # allow_nan=False: the write fails half-way
-    assert json.loads(path.read_text()) == {"a": 1} and [p.name for p in tmp_path.iterdir()] == ["r.json"]
 
 
 @pytest.mark.slow
@@ -150,7 +144,7 @@ def test_single_shape_writes_json_and_trajectories(tmp_path, capsys: pytest.Capt
 
 def test_single_shape_takes_hyperparameters_from_a_config_file(tmp_path, capsys) -> None:
     config = TrainConfig(model=ModelConfig(layers=2, width=8, activation="tanh"), optimizer="rmsprop", epochs=1)
-    path = save_train_config(tmp_path / "best.json", config)
+    path = write_json(tmp_path / "best.json", train_config_record(config))
     argv = ["lasa", "--shape", "Angle", "--method", "rflow", "--n-points", "30", "--config", str(path),
             "--json", str(tmp_path / "r.json")]
     assert cli.main(argv) == 0

@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from rflow.config_file import load_train_config, save_train_config, train_config_from_dict
+from envs.output import write_json
+from rflow.config_file import load_train_config, train_config_from_dict, train_config_record
 from rflow.errors import RFlowError
 from rflow.lasa import riemannian_lasa
 from rflow.model import ModelConfig
@@ -46,7 +47,7 @@ def test_trial_config_sets_only_the_searched_fields() -> None:
 
 def test_config_file_round_trips_and_rejects_unknown_fields(tmp_path) -> None:
     config = TrainConfig(model=ModelConfig(layers=9, activation="tanh"), optimizer="sgd", lr=0.02, seed=3)
-    path = save_train_config(tmp_path / "c.json", config, {"trial": 7})
+    path = write_json(tmp_path / "c.json", train_config_record(config, {"trial": 7}))
     assert load_train_config(path) == config
     with pytest.raises(RFlowError, match="model.depth"):
         train_config_from_dict({"model": {"depth": 3}})
@@ -105,7 +106,7 @@ def test_pih_train_takes_its_hyperparameters_from_a_config_file(tmp_path) -> Non
     from scripts import train as train_script
 
     config = TrainConfig(model=ModelConfig(layers=9, activation="tanh"), optimizer="adamax", lr=0.004, epochs=7)
-    path = save_train_config(tmp_path / "best.json", config)
+    path = write_json(tmp_path / "best.json", train_config_record(config))
     parser = argparse.ArgumentParser()
     train_script.add_arguments(parser)
     args = parser.parse_args(["--demos", "d.npz", "--out", "m", "--config", str(path), "--seed", "4"])

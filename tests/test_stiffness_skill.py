@@ -155,8 +155,8 @@ def test_pih_train_stiffness_reports_the_log_euclidean_distance(tmp_path, capsys
     assert load_skill(tmp_path / "ck").has_stiffness
 
 
-@pytest.mark.parametrize("args,words", [(["--stiffness", "expert", "--k-min", "-1"], "k_min"),
-                                        (["--stiffness", "expert", "--k-min", "500", "--k-max", "400"], "k_min"),
+@pytest.mark.parametrize("args,words", [(["--stiffness", "expert", "--k-min-n-m", "-1"], "--k-min-n-m"),
+                                        (["--stiffness", "expert", "--k-min-n-m", "500", "--k-max-n-m", "400"], "k_min"),
                                         (["--stiffness", "expert"], "no 'stiffness'")])
 def test_pih_train_stiffness_bad_input_exits_2(tmp_path, capsys, args, words):
     from skill_fixtures import write_demo_file

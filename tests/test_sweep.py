@@ -85,7 +85,7 @@ def test_out_of_range_value_is_rejected_before_any_work(model_dir, tmp_path, cap
 def test_sweep_writes_its_map_and_refuses_to_clobber_it(model_dir, tmp_path, capsys) -> None:
     out = tmp_path / "sweep"
     argv = ["sweep", "--model", str(model_dir), "--clearance-mm", "1,0.5", "--hole-error-mm", "0",
-            "--episodes", "1", "--time-limit", "0.2", "--workers", "1", "--out", str(out), "--quiet"]
+            "--episodes", "1", "--time-limit-s", "0.2", "--workers", "1", "--out", str(out), "--quiet"]
     assert cli.main(argv) == 0
     result = json.loads((out / "sweep.json").read_text())
     assert result["complete"] and len(result["cells"]) == 2 and len(result["per_episode"]) == 2
@@ -114,7 +114,7 @@ def test_stiffness_is_an_axis_and_each_cell_commands_its_own() -> None:
 def test_sweep_over_stiffness_records_it_and_resume_needs_the_same_axis(model_dir, tmp_path, capsys) -> None:
     out = tmp_path / "sweep"
     argv = ["sweep", "--model", str(model_dir), "--stiffness", "constant:500,constant:2000", "--episodes", "1",
-            "--time-limit", "0.1", "--workers", "1", "--out", str(out), "--quiet"]
+            "--time-limit-s", "0.1", "--workers", "1", "--out", str(out), "--quiet"]
     assert cli.main(argv) == 0
     result = json.loads((out / "sweep.json").read_text())
     assert [c["settings"]["stiffness"] for c in result["cells"]] == ["constant:500", "constant:2000"]

@@ -42,18 +42,21 @@ def test_options_override_the_preset_and_only_given_scene_options_are_reported()
 
 @pytest.mark.parametrize("argv, match", [
     (("--clearance-mm", "-1"), "clearance"),
-    (("--clearance-mm", "nan"), "clearance"),
     (("--chamfer-mm", "-0.5"), "chamfer"),
-    (("--chamfer-mm", "nan"), "chamfer"),
     (("--hole-error-mm", "-1"), "hole_error_m"),
-    (("--hole-error-deg", "nan"), "hole_error_deg"),
     (("--grasp-offset-mm", "-3"), "grasp_offset_m"),
-    (("--force-limit", "0"), "force limit"),
-    (("--force-limit", "nan"), "force limit"),
+    (("--force-limit-n", "0"), "force limit"),
 ])
 def test_bad_values_name_the_setting(argv, match) -> None:
     with pytest.raises(EnvError, match=match):
         task_from_args(parse(*argv))
+
+
+@pytest.mark.parametrize("option", ["--clearance-mm", "--chamfer-mm", "--hole-error-deg", "--force-limit-n"])
+def test_nan_is_refused_while_parsing_naming_the_option(option, tmp_path: Path, capsys) -> None:
+    assert cli.main(["evaluate", "--model", str(tmp_path), option, "nan"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and option in err[0] and "finite" in err[0]
 
 
 @pytest.mark.parametrize("command", ["demos", "evaluate"])

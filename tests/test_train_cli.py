@@ -74,7 +74,7 @@ def test_training_config_records_the_off_data_prior(trained, tmp_path):
 def test_negative_prior_weight_fails_cleanly(tmp_path, capsys):
     demos = write_demo_file(tmp_path)
     assert main(["train", "--demos", str(demos), "--out", str(tmp_path / "ck"), "--prior-weight", "-1", *TINY_ARGS]) == 2
-    assert "prior_weight" in _one_line_error(capsys) and not (tmp_path / "ck").exists()
+    assert "--prior-weight" in _one_line_error(capsys) and not (tmp_path / "ck").exists()
 
 
 def test_joint_option_writes_one_joint_model(tmp_path):
@@ -116,13 +116,13 @@ def test_evaluate_in_a_scene_of_another_shape_exits_2(tmp_path, capsys):
 
 def test_evaluate_rejects_a_negative_range(trained, capsys):
     _, ck = trained
-    assert main(["evaluate", "--model", str(ck), "--pos-range", "-1", "--quiet"]) == 2
-    assert "pos_range_m" in _one_line_error(capsys)
+    assert main(["evaluate", "--model", str(ck), "--pos-range-mm", "-1", "--quiet"]) == 2
+    assert "--pos-range-mm" in _one_line_error(capsys)
 
 
 def test_evaluate_rejects_nan_lookahead(trained, capsys):
     _, ck = trained
-    assert main(["evaluate", "--model", str(ck), "--lookahead", "nan", "--quiet"]) == 2
+    assert main(["evaluate", "--model", str(ck), "--lookahead-s", "nan", "--quiet"]) == 2
     assert "lookahead" in _one_line_error(capsys)
 
 

@@ -30,6 +30,7 @@ import numpy.typing as npt
 from envs.demo_file import DemoSet
 from envs.demo_import import RecordedDemos, check_trajectory
 from envs.errors import EnvError
+from envs.output import EXPORT_MARKER_FILE
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -41,7 +42,7 @@ STIFFNESS_NAMES: tuple[str, ...] = tuple(f"k_{r}{c}" for r in "xyz" for c in "xy
 #: The format version of the metadata this package writes (``ExportMeta.to_json``).
 EXPORT_VERSION: int = 1
 #: The marker file of an export folder: our metadata; its presence lets `--overwrite` replace the folder.
-MARKER_FILE: str = "pih_export.json"
+MARKER_FILE: str = EXPORT_MARKER_FILE
 
 
 @dataclass(frozen=True)
@@ -266,7 +267,7 @@ def recorded_from_poses(poses: Sequence[np.ndarray], stiffness: Sequence[np.ndar
     Args:
         poses: one (T_n, 7) array per episode, [x, y, z, qw, qx, qy, qz].
         stiffness: one (T_n, 9) array per episode (3x3 row-major), or None.
-        dt: seconds between frames (None: not known; give --dt).
+        dt: seconds between frames (None: not known; give --dt-s).
         meta: our metadata when the file was exported here (`read_meta`), else None.
         layout: "lerobot" or "robomimic".
         source: the file, for messages.

@@ -42,7 +42,7 @@ from envs.datasets.features import (FEATURE_BY_KEY, MARKER_FILE, ExportEpisode, 
                                     recorded_from_poses)
 from envs.demo_import import RecordedDemos
 from envs.errors import EnvError
-from envs.jsonable import write_json_atomic
+from envs.output import write_json
 
 CODEBASE_VERSION: str = "v3.0"
 ROBOT_TYPE: str = "franka_panda"
@@ -233,9 +233,9 @@ def write_lerobot(root: Path, meta: ExportMeta, episodes: Sequence[ExportEpisode
             "data_files_size_in_mb": DATA_FILE_SIZE_MB, "video_files_size_in_mb": VIDEO_FILE_SIZE_MB, "fps": fps,
             "splits": {"train": f"0:{len(episodes)}"}, "data_path": DATA_PATH,
             "video_path": VIDEO_PATH if video is not None else None, "features": features}
-    write_json_atomic(root / "meta" / "info.json", info)
-    write_json_atomic(root / "meta" / "stats.json", stats)
-    write_json_atomic(root / MARKER_FILE, meta.to_json("lerobot"))
+    write_json(root / "meta" / "info.json", info, mark=False)  # LeRobot's own format
+    write_json(root / "meta" / "stats.json", stats, mark=False)
+    write_json(root / MARKER_FILE, meta.to_json("lerobot"))
     return info
 
 

@@ -32,7 +32,7 @@ import numpy as np
 from envs.datasets.features import FEATURE_BY_KEY, MARKER_FILE, ExportEpisode, ExportMeta, read_meta, recorded_from_poses
 from envs.demo_import import RecordedDemos
 from envs.errors import EnvError
-from envs.jsonable import write_json_atomic
+from envs.output import write_json
 
 ENV_NAME: str = "pih/PegInHole-v0"
 GYM_TYPE: int = 2  # robomimic.envs.env_base.EnvType.GYM_TYPE
@@ -93,7 +93,7 @@ class RobomimicWriter:
         self._data.attrs["pih_export"] = json.dumps(self.meta.to_json("robomimic"))
         self._file.create_dataset("mask/successful", data=np.array(self._successful, dtype="S"))
         self._file.close()
-        write_json_atomic(self.root / MARKER_FILE, self.meta.to_json("robomimic"))
+        write_json(self.root / MARKER_FILE, self.meta.to_json("robomimic"))
         return self.path
 
     def abort(self) -> None:

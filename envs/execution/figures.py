@@ -1,4 +1,4 @@
-"""Figures of the peg-in-hole skill (matplotlib, Agg backend, written atomically as PNG).
+"""Figures of the peg-in-hole skill (matplotlib, Agg backend, PNG written by envs.output.save_figure).
 
 - `plot_loss`: training loss per epoch of each model (train and validation).
 - `plot_skill`: like the paper's peg-in-hole figure: (a) positions in 3-D, (b) orientation projected on
@@ -26,6 +26,7 @@ import numpy as np  # noqa: E402
 import numpy.typing as npt  # noqa: E402
 
 from envs.errors import EnvError  # noqa: E402
+from envs.output import save_figure  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -54,14 +55,7 @@ def _save(fig: Any, path: str | os.PathLike[str]) -> Path:
     if str(out.parent) and not out.parent.is_dir():
         plt.close(fig)
         raise EnvError(f"cannot write figure {out}: folder {out.parent} does not exist")
-    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}.png")
-    try:
-        fig.savefig(tmp, dpi=120)
-        os.replace(tmp, out)
-    finally:
-        plt.close(fig)
-        tmp.unlink(missing_ok=True)
-    return out
+    return save_figure(fig, out, dpi=120)
 
 
 def plot_loss(histories: Mapping[str, Mapping[str, Sequence[float]]], path: str | os.PathLike[str]) -> Path:

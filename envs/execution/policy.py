@@ -51,6 +51,7 @@ from controllers.impedance import full_stiffness
 from envs.errors import EnvError
 from envs.geometry import vector_norm
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
+from envs.execution.config import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.poses import (Pose, quat_conj, quat_from_rotvec_one, quat_mul, quat_mul_one, quat_to_rotvec,
                          quat_to_rotvec_one, rotate)
 from rflow.errors import RFlowError
@@ -58,11 +59,6 @@ from rflow.generate import next_point, rollout
 from rflow.skill_io import PoseSkill
 
 FloatArray = npt.NDArray[np.float64]
-
-MODES: tuple[str, ...] = ("closed-loop", "open-loop")
-DEFAULT_LOOKAHEAD_S: float = 0.05
-"""Closed-loop lookahead along the learned flow (tuned on the default scene, see envs/execution/evaluate.py)."""
-
 
 @dataclass(frozen=True)
 class Command:
@@ -89,44 +85,6 @@ class Command:
     stiffness: FloatArray | None = None
     push: FloatArray = field(default_factory=lambda: np.zeros(6))
     rotational_stiffness: float | None = None
-
-
-STIFFNESS_KINDS: tuple[str, ...] = ("learned", "constant")
-
-
-@dataclass(frozen=True)
-class StiffnessSetting:
-    """Which translational stiffness a policy commands: "learned" (the skill's) or "constant" (K I, N/m)."""
-
-    kind: str
-    constant_n_m: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.kind not in STIFFNESS_KINDS:
-            raise EnvError(f"stiffness kind {self.kind!r} must be one of {', '.join(STIFFNESS_KINDS)}")
-        if self.kind == "constant" and not (np.isfinite(self.constant_n_m) and self.constant_n_m > 0.0):
-            raise EnvError(f"constant stiffness {self.constant_n_m!r} N/m must be a positive finite number")
-
-    @classmethod
-    def parse(cls, text: str) -> "StiffnessSetting":
-        """"learned" or "constant:K" (K in N/m, > 0). Raises EnvError naming the text."""
-        if text == "learned":
-            return cls("learned")
-        kind, _, value = str(text).partition(":")
-        if kind != "constant" or not value:
-            raise EnvError(f"stiffness {text!r} must be 'learned' or 'constant:K' with K in N/m")
-        try:
-            k = float(value)
-        except ValueError:
-            raise EnvError(f"stiffness {text!r}: K={value!r} is not a number of N/m") from None
-        if not (np.isfinite(k) and k > 0.0):
-            raise EnvError(f"stiffness {text!r}: K must be a positive finite number of N/m")
-        return cls("constant", k)
-
-    def check_skill(self, skill: PoseSkill) -> None:
-        """Raise EnvError when "learned" is asked of a skill without a stiffness model."""
-        if self.kind == "learned" and not skill.has_stiffness:
-            raise EnvError("stiffness 'learned' needs a skill trained with `pih train --stiffness ...`")
 
 
 def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.ArrayLike, dt: float) -> FloatArray:

@@ -11,6 +11,7 @@ an error instead of a silently different trajectory.
 from __future__ import annotations
 
 import dataclasses
+import math
 import json
 import os
 from dataclasses import dataclass
@@ -69,6 +70,8 @@ def evaluation_config_from_dict(values: dict[str, Any], source: str) -> Evaluati
         except TypeError as err:
             raise EnvError(f"{source}: 'config.perturbations' is malformed ({err})") from None
     fields.update(workers=1, backend="process", ray_address=None)
+    if "force_limit_n" in fields and fields["force_limit_n"] is None:
+        fields["force_limit_n"] = math.inf  # strict JSON writes "no limit" (inf) as null (envs.output)
     try:
         return EvaluationConfig(**fields)
     except TypeError as err:

@@ -1,0 +1,85 @@
+"""Value types of the `pih` options, checked while the command line is parsed (before any work): a bad value
+is one line ``pih CMD: error: argument --OPT: ...`` and exit status 2.
+
+    --seed S         an integer seed in 0 .. 2**32 - 1 (NumPy's and torch's seed range)
+    counts           an integer in 1 .. a stated maximum (episodes, demos, samples, workers, epochs, trials)
+    numbers          a finite float, optionally bounded (NaN is refused, infinity where it means no limit)
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Callable
+
+MAX_SEED = 2**32 - 1
+MAX_EPISODES = 100_000
+"""Episodes of one evaluation or of one sweep cell (a record is ~2 KB; 100000 take hours on a workstation)."""
+MAX_DEMOS = 1_000
+MAX_SAMPLES = 100_000
+"""Samples per demo (M = 4000 in the paper)."""
+MAX_WORKERS = 1_024
+MAX_EPOCHS = 1_000_000
+MAX_TRIALS = 100_000
+
+
+def seed(text: str) -> int:
+    """An integer seed in 0 .. 2**32 - 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer seed") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"{text} is outside 0..{MAX_SEED} (2**32 - 1)")
+    return value
+
+
+def count(maximum: int, minimum: int = 1) -> Callable[[str], int]:
+    """An option type: an integer in ``minimum`` .. ``maximum``."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if not minimum <= value <= maximum:
+            raise argparse.ArgumentTypeError(f"{text} is outside {minimum}..{maximum:,}")
+        return value
+
+    parse.__name__ = "count"
+    return parse
+
+
+def number(minimum: float | None = None, maximum: float | None = None, above: float | None = None,
+           infinite: bool = False) -> Callable[[str], float]:
+    """An option type: a finite float (or +inf with ``infinite``: "no limit"), >= ``minimum``, <= ``maximum``
+    and > ``above`` where given."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) or (infinite and value == math.inf)):
+            raise argparse.ArgumentTypeError(f"{text} must be a finite number")
+        if minimum is not None and value < minimum:
+            raise argparse.ArgumentTypeError(f"{text} must be >= {minimum:g}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"{text} must be <= {maximum:g}")
+        if above is not None and value <= above:
+            raise argparse.ArgumentTypeError(f"{text} must be > {above:g}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def check_camera(camera: str) -> None:
+    """--camera names a camera of the scene (checked in main: the scene module loads MuJoCo).
+
+    Raises:
+        EnvError: naming the camera and the available ones.
+    """
+    from envs.errors import EnvError
+    from envs.scene import CAMERAS
+
+    if camera not in CAMERAS:
+        raise EnvError(f"--camera {camera!r} is not a camera of the scene (available: {', '.join(CAMERAS)})")
