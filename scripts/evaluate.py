@@ -9,9 +9,12 @@ and +-rot-range (ball) -- see envs/execution/evaluate.py. Success is the physics
 
 Long runs: each finished episode is appended to a journal (--journal, default <json>.journal.jsonl), so
 after Ctrl-C (exit 130) the same command with --resume runs only the missing episodes and writes the same
-JSON. A worker that dies or an episode over --unit-timeout is a failed episode ("worker_died",
-"wall_timeout"). Exit status: 0 when every episode has a record (failed episodes are results), 3 when the
-batch is incomplete, 130 when interrupted, 2 on bad input (all options are checked before any episode).
+JSON. An episode over --unit-timeout is a failed episode ("wall_timeout"). An episode whose worker dies runs
+again on another one; only when all its tries are lost is it an infrastructure error: not scored, listed
+apart, and run again by --resume. Infrastructure events go to stderr and the JSON. Exit status: 0 when every
+episode has a record (failed episodes are results), 3 when the batch is incomplete (infrastructure errors),
+1 when a fault stopped it (the Ray head lost), 130 when interrupted, 2 on bad input (all options are checked
+before any episode).
 """
 
 from __future__ import annotations
@@ -27,13 +30,14 @@ from typing import Any, Sequence
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from batch import BACKENDS, Journal  # noqa: E402
+from batch import BACKENDS, Journal, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
 from scripts.task_options import add_task_arguments, scene_given, task_from_args  # noqa: E402
 from envs.execution.evaluate import EvaluationConfig, EvaluationResult, StartPose, evaluate, journal_run  # noqa: E402
 from envs.execution.policy import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
 
 GOAL_MISMATCH_WARN_MM = 5.0
+EXIT_FAULT = 1
 EXIT_INCOMPLETE = 3
 EXIT_INTERRUPTED = 130
 
@@ -366,7 +370,7 @@ def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: S
 
 def main(args: argparse.Namespace) -> int:
     """Run `pih evaluate`; returns the exit status: 0 when every episode has a record (even failed ones:
-    the record says so), 3 when the batch is incomplete, 130 when interrupted."""
+    the record says so), 3 when the batch is incomplete, 1 when a fault stopped it, 130 when interrupted."""
     wall = time.perf_counter()
     config = check_args(args)
     result = run_evaluation(args, config)
@@ -374,15 +378,23 @@ def main(args: argparse.Namespace) -> int:
         print(f"pih evaluate: warning: the skill's goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
               "for demos recorded elsewhere use --hole-at-goal", file=sys.stderr)
     print(result.summary_table())
+    for event in result.infrastructure_events:
+        print(f"pih evaluate: infrastructure: {describe_event(event)}", file=sys.stderr)
     if args.json is not None:
         result.save_json(args.json)
         print(f"wrote {args.json}")
-    if result.interrupted or not result.complete:
+    if result.fault is not None or result.interrupted or not result.complete:
+        if result.fault is not None:
+            print(f"pih evaluate: error: {result.fault}", file=sys.stderr)
         what = "interrupted" if result.interrupted else "incomplete"
-        print(f"pih evaluate: {what} after {len(result.records)} of {config.episodes} episodes", file=sys.stderr)
+        unscored = f" ({len(result.infrastructure_errors)} lost to infrastructure)" if result.infrastructure_errors else ""
+        print(f"pih evaluate: {what} after {len(result.records)} of {config.episodes} episodes{unscored}",
+              file=sys.stderr)
         if journal_path(args) is not None:
             print(f"pih evaluate: finished episodes are in {journal_path(args)}; continue with: {resume_command(args)}",
                   file=sys.stderr)
+        if result.fault is not None:
+            return EXIT_FAULT
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
     figure_episodes = choose_episodes(result, args.video_episodes, failures=0)  # 'auto': successes only
     chosen = choose_episodes(result, args.video_episodes) if args.video else figure_episodes
