@@ -37,6 +37,7 @@ from batch.config import BatchConfig
 from batch.errors import BatchError
 from batch.journal import Journal, as_json
 from batch.processes import run_in_processes
+from batch.ray_backend import run_on_ray
 from batch.supervision import Failure, Fault, Init, Schedule, Work, error_reason
 
 
@@ -122,8 +123,6 @@ def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Wo
             if not todo:
                 pass
             elif config.backend == "ray":
-                from batch.ray_backend import run_on_ray
-
                 run_on_ray(schedule, setup, init, work, config)
             elif config.workers == 1:
                 _run_here(schedule, setup, init, work, config.unit_timeout_s)

@@ -1,9 +1,11 @@
 """Toy units for the batch tests: module-level functions that spawned workers and Ray actors can import.
 
-A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep" | "kill_first" | "note_pid" | "await_pid"};
-its record is computed from n and the worker context so that a correct batch gives the same records on any
-backend, and whatever worker it runs on. "kill_first" kills its worker on its first ``times`` tries (counted
-in files beside ``counter``); a setup with "kill_starts" and "counter" kills that many workers in ``init``.
+A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep" | "kill_first" | "meet" | "note_pid" |
+"await_pid"}; its record is computed from n and the worker context so that a correct batch gives the same
+records on any backend, and whatever worker it runs on. "kill_first" kills its worker on its first ``times``
+tries (counted in files beside ``counter``); "meet" returns once ``count`` such units run at the same time
+(each leaves a file in ``folder``); a setup with "kill_starts" and "counter" kills that many workers in
+``init``.
 """
 
 from __future__ import annotations
@@ -47,6 +49,11 @@ def work(context: dict[str, Any], unit: dict[str, Any]) -> dict[str, Any]:
         raise ZeroDivisionError("unit asked to raise")
     elif action == "kill_first" and count(unit["counter"]) <= unit.get("times", 1):
         os.kill(os.getpid(), signal.SIGKILL)
+    elif action == "meet":
+        Path(unit["folder"], str(unit["n"])).touch()
+        deadline = time.monotonic() + unit.get("seconds", 60.0)
+        while len(list(Path(unit["folder"]).iterdir())) < unit["count"] and time.monotonic() < deadline:
+            time.sleep(0.05)
     elif action == "sleep":
         time.sleep(unit.get("seconds", 60.0))
     elif action == "note_pid":  # write this worker's pid, return once the unit "await_pid" runs in another one

@@ -122,10 +122,11 @@ def on_ray(cluster: Cluster, **config) -> BatchConfig:
     return BatchConfig(backend="ray", ray_address=cluster.address, **{"workers": 2, **config})
 
 
-def test_a_two_node_cluster_gives_the_records_of_the_process_backend(cluster):
-    todo = units(6)
-    local = run_batch(todo, {"offset": 3}, init, work, failure, BatchConfig(workers=2))
-    outcome = run_batch(todo, {"offset": 3}, init, work, failure, on_ray(cluster, workers=1))
+def test_a_two_node_cluster_gives_the_records_of_the_process_backend(cluster, tmp_path):
+    """The first two units run at the same time, so both actors take part."""
+    meet = {"do": "meet", "folder": str(tmp_path), "count": 2}
+    outcome = run_batch(units(6, {0: meet, 1: meet}), {"offset": 3}, init, work, failure, on_ray(cluster, workers=1))
+    local = run_batch(units(6), {"offset": 3}, init, work, failure, BatchConfig(workers=2))
     assert outcome.complete and outcome.records == local.records
     assert outcome.workers == 2  # workers=1: one actor per CPU of the cluster
 
@@ -161,23 +162,26 @@ def kill_after_the_first_record(key, record):
     while victims:
         os.kill(victims.pop(), signal.SIGKILL)
 todo = units(6, {i: {"do": "sleep", "seconds": 1.5} for i in range(6)})
+if sys.argv[3]:  # the first two units run at the same time, so both actors take part
+    todo[:2] = units(2, {i: {"do": "meet", "folder": sys.argv[3], "count": 2} for i in range(2)})
 out = run_batch(todo, {"offset": 0}, init, work, failure,
                 BatchConfig(workers=2, backend="ray", ray_address=sys.argv[1]), on_record=kill_after_the_first_record)
 print(json.dumps({"records": out.records, "events": out.events, "fault": out.fault}))
 """
 
 
-def drive(cluster: Cluster, victims: list[int]) -> dict:
-    """Run six 1.5 s units on two actors in a driver process that SIGKILLs ``victims`` after the first record;
-    its stdout must be its JSON line alone. The limit is twice Ray's own 60 s wait for a lost head."""
-    proc = subprocess.run([sys.executable, "-c", DRIVER, cluster.address, ",".join(map(str, victims))],
+def drive(cluster: Cluster, victims: list[int], meet: Path | None = None) -> dict:
+    """Run six 1.5 s units on two actors (with ``meet``, a folder, the first two instead run at the same time:
+    both actors take part) in a driver process that SIGKILLs ``victims`` after the first record; its stdout
+    must be its JSON line alone. The limit is twice Ray's own 60 s wait for a lost head."""
+    proc = subprocess.run([sys.executable, "-c", DRIVER, cluster.address, ",".join(map(str, victims)), str(meet or "")],
                           env=cluster.env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads(proc.stdout)
 
 
-def test_a_lost_worker_node_changes_no_record_and_ray_keeps_off_stdout(cluster):
-    data = drive(cluster, cluster.pids(1, "raylet"))
+def test_a_lost_worker_node_changes_no_record_and_ray_keeps_off_stdout(cluster, tmp_path):
+    data = drive(cluster, cluster.pids(1, "raylet"), tmp_path)
     assert data["fault"] is None
     assert data["records"] == run_batch(units(6), {"offset": 0}, init, work, failure).records
     assert [e["unit_action"] for e in data["events"] if e["event"] == "worker_lost"] == ["retried"]

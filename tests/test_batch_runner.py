@@ -93,10 +93,9 @@ def test_workers_that_never_start_stop_the_batch_with_a_fault(tmp_path):
 
 
 def test_the_outcome_counts_the_workers_that_ran(tmp_path):
-    """Two units that must run at the same time (the first waits for the second to start) on workers=3."""
-    files = {"pidfile": str(tmp_path / "pid"), "started": str(tmp_path / "started")}
-    todo = [("u000", {"n": 0, "do": "note_pid", **files}), ("u001", {"n": 1, "do": "await_pid", **files})]
-    assert run(todo, BatchConfig(workers=3)).workers == 2
+    """Two units that must run at the same time, on workers=3."""
+    meet = {"do": "meet", "folder": str(tmp_path), "count": 2}
+    assert run(units(2, {0: meet, 1: meet}), BatchConfig(workers=3)).workers == 2
 
 
 def test_a_worker_with_nothing_left_to_do_ends_while_the_others_run(tmp_path):
