@@ -3,9 +3,14 @@
 File layout, one JSON object per line::
 
     {"kind": "header", "run": {...}}                     what the run is (config, inputs' checksums)
-    {"kind": "unit", "key": "...", "record": {...}}      one line per finished unit, in finishing order
+    {"kind": "unit", "key": "...", "record": {...}, "segment": 0, "elapsed_s": 12.5}
+                                                         one line per finished unit, in finishing order
+    {"kind": "event", "event": {...}, "segment": 0, "elapsed_s": 3.2}
+                                                         an infrastructure event (batch.supervision)
 
-Each line is written whole, flushed and fsynced before `append` returns, so a crash loses at most the line
+``segment`` counts the times the run was started (0, then one more per resume) and ``elapsed_s`` is the wall
+time since the journal was opened in that segment, so the wall time of the earlier segments (each up to its
+last line) is known on resume. Each line is written whole, flushed and fsynced before `append` returns, so a crash loses at most the line
 being written. Such a torn last line (no newline, or not JSON) is ignored on resume and cut off before the
 next append. A resumed run must describe the same run: its header's ``run`` must equal the new one (after
 a JSON round trip, so tuples and lists compare equal).
@@ -16,6 +21,8 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 from typing import Any, TextIO
@@ -24,6 +31,7 @@ from batch.errors import BatchError
 
 HEADER = "header"
 UNIT = "unit"
+EVENT = "event"
 
 
 def as_json(value: Any, what: str) -> Any:
@@ -50,15 +58,37 @@ def _first_difference(old: dict[str, Any], new: dict[str, Any]) -> str:
     return "none"
 
 
-class Journal:
-    """JSON Lines journal of a batch run: line 1 {"kind": "header", "run": {...}}; then one line
-    {"kind": "unit", "key": str, "record": {...}} per finished unit, flushed and fsynced as it ends."""
+@dataclass
+class _Contents:
+    """What a journal file holds: the run, the finished units, the events, each segment's wall time."""
 
-    def __init__(self, path: Path, run: dict[str, Any], done: dict[str, dict[str, Any]], handle: TextIO):
+    run: dict[str, Any]
+    done: dict[str, dict[str, Any]] = field(default_factory=dict)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    wall_s: dict[int, float] = field(default_factory=dict)
+    good_bytes: int = 0
+
+
+class Journal:
+    """JSON Lines journal of a batch run: line 1 {"kind": "header", "run": {...}}; then one line per finished
+    unit and per infrastructure event, flushed and fsynced as it is written (module docstring).
+
+    Attributes:
+        path: the file.
+        run: the run description (its header).
+        earlier_wall_s: wall seconds the earlier segments of this run took, each up to its last line (0 for a
+            new journal); a resumed run's wall time is this plus its own.
+    """
+
+    def __init__(self, path: Path, contents: _Contents, handle: TextIO):
         """Use `Journal.open`."""
         self.path = path
-        self.run = run
-        self._done = done
+        self.run = contents.run
+        self._done = contents.done
+        self._events = contents.events
+        self.earlier_wall_s = sum(contents.wall_s.values())
+        self._segment = max(contents.wall_s, default=-1) + 1
+        self._opened = time.monotonic()
         self._handle: TextIO | None = handle
 
     @classmethod
@@ -87,23 +117,27 @@ class Journal:
         if resume:
             if not out.is_file():
                 raise BatchError(f"cannot resume: journal {out} does not exist")
-            old_run, done, good_bytes = _read(out)
-            if old_run != header:
+            contents = _read(out)
+            if contents.run != header:
                 raise BatchError(f"cannot resume from journal {out}: it records a different run "
-                                 f"(key {_first_difference(old_run, header)})")
+                                 f"(key {_first_difference(contents.run, header)})")
             handle = open(out, "r+", encoding="utf-8")
-            handle.truncate(good_bytes)  # drop a torn last line before appending
-            handle.seek(good_bytes)
-            return cls(out, header, done, handle)
+            handle.truncate(contents.good_bytes)  # drop a torn last line before appending
+            handle.seek(contents.good_bytes)
+            return cls(out, contents, handle)
         if out.exists() or out.is_symlink():
             if not overwrite:
                 raise BatchError(f"journal {out} already exists: use --resume or choose another path")
             _read(out)  # raises unless it is a journal: never replace a file that is not ours
-        return cls(out, header, {}, _create(out, header))
+        return cls(out, _Contents(header), _create(out, header))
 
     def done(self) -> dict[str, dict[str, Any]]:
         """key -> record of the units already finished (a copy)."""
         return dict(self._done)
+
+    def events(self) -> list[dict[str, Any]]:
+        """The infrastructure events written so far, earlier segments' included (a copy)."""
+        return list(self._events)
 
     def append(self, key: str, record: dict[str, Any]) -> None:
         """Write one finished unit, flushed and fsynced before returning.
@@ -111,13 +145,25 @@ class Journal:
         Raises:
             BatchError: the journal is closed or the record is not JSON-serialisable.
         """
+        self._done[str(key)] = self._write({"kind": UNIT, "key": str(key),
+                                            "record": as_json(record, f"record of unit {key!r}")})["record"]
+
+    def note(self, event: dict[str, Any]) -> None:
+        """Write one infrastructure event, flushed and fsynced before returning.
+
+        Raises:
+            BatchError: the journal is closed or the event is not JSON-serialisable.
+        """
+        self._events.append(self._write({"kind": EVENT, "event": as_json(event, "an infrastructure event")})["event"])
+
+    def _write(self, entry: dict[str, Any]) -> dict[str, Any]:
         if self._handle is None:
             raise BatchError(f"journal {self.path} is closed")
-        line = json.dumps({"kind": UNIT, "key": str(key), "record": as_json(record, f"record of unit {key!r}")})
-        self._handle.write(line + "\n")
+        entry = {**entry, "segment": self._segment, "elapsed_s": round(time.monotonic() - self._opened, 3)}
+        self._handle.write(json.dumps(entry) + "\n")
         self._handle.flush()
         os.fsync(self._handle.fileno())
-        self._done[str(key)] = json.loads(line)["record"]
+        return entry
 
     def close(self) -> None:
         """Close the file (idempotent)."""
@@ -151,8 +197,8 @@ def _create(out: Path, header: dict[str, Any]) -> TextIO:
     return open(out, "a", encoding="utf-8")
 
 
-def _read(path: Path) -> tuple[dict[str, Any], dict[str, dict[str, Any]], int]:
-    """(header run, key -> record, bytes up to the end of the last whole line) of a journal.
+def _read(path: Path) -> _Contents:
+    """The contents of a journal, with the bytes up to the end of its last whole line.
 
     Raises:
         BatchError: unreadable, no header, or a corrupt line before the last one.
@@ -179,9 +225,15 @@ def _read(path: Path) -> tuple[dict[str, Any], dict[str, dict[str, Any]], int]:
         entries.append(entry)
     if not entries or entries[0].get("kind") != HEADER or not isinstance(entries[0].get("run"), dict):
         raise BatchError(f"{path} is not a batch journal (no header line)")
-    done: dict[str, dict[str, Any]] = {}
+    contents = _Contents(entries[0]["run"], good_bytes=good_bytes)
     for number, entry in enumerate(entries[1:], start=2):
-        if entry.get("kind") != UNIT or not isinstance(entry.get("key"), str) or not isinstance(entry.get("record"), dict):
-            raise BatchError(f"{path} line {number} is not a unit line")
-        done[entry["key"]] = entry["record"]
-    return entries[0]["run"], done, good_bytes
+        if entry.get("kind") == UNIT and isinstance(entry.get("key"), str) and isinstance(entry.get("record"), dict):
+            contents.done[entry["key"]] = entry["record"]
+        elif entry.get("kind") == EVENT and isinstance(entry.get("event"), dict):
+            contents.events.append(entry["event"])
+        else:
+            raise BatchError(f"{path} line {number} is neither a unit nor an event line")
+        segment, elapsed = entry.get("segment", 0), entry.get("elapsed_s", 0.0)
+        if isinstance(segment, int) and isinstance(elapsed, (int, float)):
+            contents.wall_s[segment] = max(contents.wall_s.get(segment, 0.0), float(elapsed))
+    return contents

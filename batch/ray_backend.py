@@ -1,22 +1,49 @@
-"""The Ray backend of `batch.runner.run_batch`: one actor per worker, ``init`` once per actor, units
-streamed back with ``ray.wait`` as they finish.
+"""The Ray backend of `batch.runner.run_batch`: one actor per worker, ``init`` once per actor, units streamed
+back with ``ray.wait`` as they finish.
 
-A dead actor (its process killed, a segfault, its node lost) surfaces as RayActorError on the unit's
-result and is recorded "worker_died"; a unit over the wall-time limit has its actor killed and is
-recorded "wall_timeout"; either way a fresh actor takes the next unit. Without an address a local Ray
-instance is started on all local cores (and shut down after the batch); with HOST:PORT the driver joins
-that cluster (started with `ray start --head` / `ray start --address`), whose nodes must have this
-project installed.
+A dead actor (its process killed, a segfault, its node lost) surfaces as RayActorError on the unit's result:
+a fresh actor takes its place and the unit runs again (`batch.supervision.Schedule`); an actor lost before
+it was ready is replaced up to max_retries times in a row. A unit over the wall-time limit has its actor
+killed and is recorded "wall_timeout". Without an address a local Ray instance is started on all local cores
+(and shut down after the batch); with HOST:PORT the driver joins that cluster (started with `ray start
+--head` / `ray start --address`), whose nodes must have this project installed.
+
+The head. Ray's driver waits 60 s for a lost head (its GCS) and then ends the process with exit status 1 and
+no message; ``ray.kill`` and actor creation block meanwhile. So the GCS port is probed with a plain TCP
+connection every second (`_HeadWatch`), no Ray call waits longer than a second (Ctrl-C is seen between
+them), and a head that has not answered for HEAD_LOST_AFTER_S stops the batch with a one-line `Fault`;
+the finished units are in the journal. The driver's shutdown does not wait on the lost head either: its
+task-event flush is bounded and it exports no metrics (QUICK_SHUTDOWN_ENV, set while Ray starts).
+
+Ray's own messages. The driver prints the cluster's error messages (e.g. a lost raylet's last 20 log lines)
+on stdout from a background thread; while the batch runs they go to stderr, one line each, so stdout keeps
+only the program's own output.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import socket
+import sys
 import time
-from typing import Any, Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Iterator
 
+from batch.config import BatchConfig
 from batch.errors import BatchError
-from batch.runner import WALL_TIMEOUT, WORKER_DIED, BatchConfig, Failure, Init, Work, error_reason
+from batch.supervision import Fault, Init, Schedule, Work, error_reason
+
+POLL_S = 1.0
+"""Longest single wait on Ray (Ctrl-C and the head's health are looked at between waits)."""
+HEAD_LOST_AFTER_S = 3.0
+"""A head whose GCS refuses or ignores connections this long is lost."""
+PROBE_TIMEOUT_S = 1.0
+QUICK_SHUTDOWN_ENV: dict[str, str] = {
+    "RAY_task_events_shutdown_flush_timeout_ms": "1000",
+    "RAY_enable_metrics_collection": "0",
+}
+"""Driver settings (unless already set) that keep its shutdown from waiting 15 s on a lost head."""
 
 
 class _UnitActor:
@@ -26,9 +53,14 @@ class _UnitActor:
         self._work = work
         self._context = init(setup)
 
-    def ready(self) -> bool:
-        """Answers once ``init`` has run (a unit's wall-time clock starts only then)."""
-        return True
+    def ready(self) -> dict[str, Any]:
+        """Where this actor runs (for infrastructure events); answers once ``init`` has run, so a unit's
+        wall-time clock starts only then."""
+        import ray
+
+        context = ray.get_runtime_context()
+        return {"actor": context.get_actor_id(), "node": context.get_node_id(), "ip": ray.util.get_node_ip_address(),
+                "pid": os.getpid()}
 
     def run(self, unit: Any) -> tuple[str, Any]:
         """("done", record) or ("error", reason) of one unit."""
@@ -46,91 +78,235 @@ def _import_ray() -> Any:
     return ray
 
 
-def run_on_ray(todo: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Work, failure: Failure,
-               config: BatchConfig, record: Callable[[str, dict], None]) -> None:
-    """Run ``todo`` on Ray actors, calling ``record(key, record)`` as each unit ends (see module docstring).
+class _HeadWatch:
+    """Whether the Ray head's GCS accepts TCP connections (module docstring)."""
+
+    def __init__(self, address: str):
+        host, _, port = address.rpartition(":")
+        self.address = address
+        self._target = (host, int(port))
+        self._failing_since: float | None = None
+        self._last_probe = -float("inf")
+
+    @property
+    def lost(self) -> bool:
+        """The last probe failed."""
+        return self._failing_since is not None
+
+    def answers(self) -> bool:
+        """Probe now."""
+        self._last_probe = time.monotonic()
+        try:
+            socket.create_connection(self._target, timeout=PROBE_TIMEOUT_S).close()
+        except OSError:
+            if self._failing_since is None:
+                self._failing_since = self._last_probe
+            return False
+        self._failing_since = None
+        return True
+
+    def check(self) -> None:
+        """Probe at most once per POLL_S.
+
+        Raises:
+            Fault: no answer for HEAD_LOST_AFTER_S.
+        """
+        if time.monotonic() - self._last_probe >= POLL_S:
+            self.answers()
+        if self._failing_since is not None and time.monotonic() - self._failing_since >= HEAD_LOST_AFTER_S:
+            raise Fault(f"lost the Ray head at {self.address}: its GCS has not answered for "
+                        f"{time.monotonic() - self._failing_since:.0f} s")
+
+
+@contextlib.contextmanager
+def _env_defaults(values: dict[str, str]) -> Iterator[None]:
+    """``values`` in os.environ (where not set) for the duration."""
+    added = [k for k in values if k not in os.environ]
+    os.environ.update({k: values[k] for k in added})
+    try:
+        yield
+    finally:
+        for key in added:
+            os.environ.pop(key, None)
+
+
+@contextlib.contextmanager
+def _driver_messages_on_stderr() -> Iterator[None]:
+    """Ray's driver prints the cluster's error messages through ``ray._private.worker.print_to_stdstream`` (to
+    stdout); for the duration each goes to stderr as its first line. A Ray without that function is left as
+    it is."""
+    import ray._private.worker as driver
+
+    original = getattr(driver, "print_to_stdstream", None)
+    if original is None:
+        yield
+        return
+
+    def first_line_to_stderr(data: dict[str, Any], ignore_prefix: bool = False) -> None:
+        for text in data.get("lines", [])[:1]:
+            line = str(text).strip().splitlines()[0] if str(text).strip() else ""
+            print(f"ray ({data.get('pid', '?')}): {line[:300]}", file=sys.stderr, flush=True)
+
+    driver.print_to_stdstream = first_line_to_stderr
+    try:
+        yield
+    finally:
+        driver.print_to_stdstream = original
+
+
+def run_on_ray(schedule: Schedule, setup: Any, init: Init, work: Work, config: BatchConfig) -> None:
+    """Run the units of ``schedule`` on Ray actors (module docstring).
 
     Raises:
         BatchError: Ray missing, the cluster unreachable, or ``init`` failing in an actor.
+        Fault: the head lost, or no actor able to start.
     """
     ray = _import_ray()
     started_here = not ray.is_initialized()
-    if started_here:
-        try:
-            if config.ray_address is None:
-                ray.init(num_cpus=os.cpu_count() or 1, include_dashboard=False, log_to_driver=False,
-                         configure_logging=False)
-            else:
-                ray.init(address=config.ray_address, log_to_driver=False, configure_logging=False)
-        except (ConnectionError, RuntimeError, ValueError) as err:
-            where = config.ray_address or "a local instance"
-            raise BatchError(f"cannot start Ray on {where}: {str(err).splitlines()[0] if str(err) else err}") from None
-    try:
-        _stream(ray, todo, setup, init, work, failure, config, record)
-    finally:
+    with _driver_messages_on_stderr():
         if started_here:
-            ray.shutdown()
-
-
-def _stream(ray: Any, todo: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Work, failure: Failure,
-            config: BatchConfig, record: Callable[[str, dict], None]) -> None:
-    actor_class = ray.remote(num_cpus=1, max_restarts=0, max_task_retries=0)(_UnitActor)
-    workers = config.workers
-    if workers == 1:
-        workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
-    setup_ref = ray.put(setup)
-    queue = list(reversed(todo))
-    starting: dict[Any, Any] = {}  # ready() ref -> actor: not given a unit before init has run
-    running: dict[Any, tuple[Any, str, Any, float]] = {}  # result ref -> (actor, key, unit, start)
-    idle: list[Any] = []
-
-    def start_actor() -> None:
-        actor = actor_class.remote(setup_ref, init, work)
-        starting[actor.ready.remote()] = actor
-
-    for _ in range(min(workers, len(todo))):
-        start_actor()
-    try:
-        while queue or running:
-            while idle and queue:
-                actor = idle.pop()
-                key, unit = queue.pop()
-                running[actor.run.remote(unit)] = (actor, key, unit, time.monotonic())
-            timeout = None
-            if config.unit_timeout_s is not None and running:
-                timeout = max(0.0, min(s for *_, s in running.values()) + config.unit_timeout_s - time.monotonic())
-            finished, _ = ray.wait(list(running) + list(starting), num_returns=1, timeout=timeout)
-            for ref in finished:
-                if ref in starting:
-                    actor = starting.pop(ref)
-                    try:
-                        ray.get(ref)
-                    except ray.exceptions.RayActorError as err:
-                        detail = str(err).strip().splitlines()[-1] if str(err).strip() else type(err).__name__
-                        raise BatchError(f"a Ray worker failed to start: {detail}") from None
-                    idle.append(actor)
-                    continue
-                actor, key, unit, _ = running.pop(ref)
-                try:
-                    kind, payload = ray.get(ref)
-                except ray.exceptions.RayActorError:
-                    record(key, failure(key, unit, WORKER_DIED))
-                    if queue:
-                        start_actor()
-                    continue
-                record(key, payload if kind == "done" else failure(key, unit, payload))
-                idle.append(actor)
-            if config.unit_timeout_s is not None:
-                now = time.monotonic()
-                for ref in [r for r, (*_, s) in running.items() if now - s > config.unit_timeout_s]:
-                    actor, key, unit, _ = running.pop(ref)
-                    ray.kill(actor, no_restart=True)
-                    record(key, failure(key, unit, WALL_TIMEOUT))
-                    if queue:
-                        start_actor()
-    finally:
-        for actor in idle + list(starting.values()) + [a for a, *_ in running.values()]:
             try:
-                ray.kill(actor, no_restart=True)
-            except Exception:  # noqa: BLE001 -- already dead
-                pass
+                with _env_defaults(QUICK_SHUTDOWN_ENV):
+                    if config.ray_address is None:
+                        ray.init(num_cpus=os.cpu_count() or 1, include_dashboard=False, log_to_driver=False,
+                                 configure_logging=False)
+                    else:
+                        ray.init(address=config.ray_address, log_to_driver=False, configure_logging=False)
+            except (ConnectionError, RuntimeError, ValueError) as err:
+                where = config.ray_address or "a local instance"
+                detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+                raise BatchError(f"cannot start Ray on {where}: {detail}") from None
+        try:
+            _Stream(ray, schedule, setup, init, work, config).run()
+        finally:
+            if started_here:
+                ray.shutdown()
+
+
+@dataclass
+class _Running:
+    """A unit on an actor: the actor's slot, the actor, the unit's key and payload, its start time."""
+
+    slot: int
+    actor: Any
+    key: str
+    unit: Any
+    start: float
+
+
+class _Stream:
+    """One batch on Ray actors: starting, feeding and replacing them, watching the head."""
+
+    def __init__(self, ray: Any, schedule: Schedule, setup: Any, init: Init, work: Work, config: BatchConfig):
+        self.ray = ray
+        self.schedule = schedule
+        self.config = config
+        self.head = _HeadWatch(ray.get_runtime_context().gcs_address)
+        self.actor_class = ray.remote(num_cpus=1, max_restarts=0, max_task_retries=0)(_UnitActor)
+        self.setup_ref = ray.put(setup)
+        self.init, self.work = init, work
+        self.starting: dict[Any, tuple[int, Any]] = {}  # ready() ref -> (slot, actor): no unit before init ran
+        self.running: dict[Any, _Running] = {}  # result ref -> the unit
+        self.idle: list[tuple[int, Any]] = []
+        self.unstarted: list[int] = []  # slots whose actor waits for the head to answer
+        self.where: dict[Any, dict[str, Any]] = {}  # actor -> its ready() answer
+
+    def start(self, slot: int) -> None:
+        """A fresh actor in ``slot`` (creating one waits on the head: not while it does not answer)."""
+        if not self.head.answers():
+            self.unstarted.append(slot)
+            return
+        actor = self.actor_class.remote(self.setup_ref, self.init, self.work)
+        self.starting[actor.ready.remote()] = (slot, actor)
+
+    def run(self) -> None:
+        workers = self.config.workers
+        if workers == 1:
+            workers = max(1, int(self.ray.cluster_resources().get("CPU", 1)))
+        for slot in range(min(workers, self.schedule.remaining)):
+            self.start(slot)
+        try:
+            while self.schedule.remaining or self.running:
+                self.step()
+        finally:
+            actors = [a for _, a in self.idle] + [a for _, a in self.starting.values()]
+            for actor in actors + [r.actor for r in self.running.values()]:
+                self.kill(actor)
+
+    def kill(self, actor: Any) -> None:
+        """End an actor (a call to the head: skipped while the head does not answer)."""
+        if self.head.lost or not self.head.answers():
+            return
+        with contextlib.suppress(Exception):  # already dead
+            self.ray.kill(actor, no_restart=True)
+
+    def step(self) -> None:
+        """Feed the idle actors, wait up to POLL_S for an answer, handle it; check the head and the limits."""
+        while self.idle and self.schedule.remaining:
+            slot, actor = self.idle.pop()
+            key, unit = self.schedule.take()
+            self.running[actor.run.remote(unit)] = _Running(slot, actor, key, unit, time.monotonic())
+        if self.unstarted and self.head.answers():
+            slots, self.unstarted = self.unstarted, []
+            for slot in slots:
+                self.start(slot)
+        if not (self.running or self.starting or self.idle or self.unstarted):
+            raise Fault("every Ray worker was lost while starting; no unit can run")
+        self.head.check()
+        limit = self.config.unit_timeout_s
+        timeout = POLL_S
+        if limit is not None and self.running:
+            first = min(r.start for r in self.running.values())
+            timeout = min(timeout, max(0.0, first + limit - time.monotonic()))
+        refs = list(self.running) + list(self.starting)
+        if refs:
+            finished, _ = self.ray.wait(refs, num_returns=1, timeout=timeout)
+        else:
+            time.sleep(timeout)
+            finished = []
+        for ref in finished:
+            if ref in self.starting:
+                self.started(ref)
+            else:
+                self.answered(ref)
+        if limit is not None:
+            now = time.monotonic()
+            for ref in [r for r, run in self.running.items() if now - run.start > limit]:
+                run = self.running.pop(ref)
+                self.kill(run.actor)
+                self.schedule.timed_out(run.key, run.unit)
+                if self.schedule.remaining:
+                    self.start(run.slot)
+
+    def started(self, ref: Any) -> None:
+        slot, actor = self.starting.pop(ref)
+        try:
+            self.where[actor] = self.ray.get(ref)
+        except self.ray.exceptions.RayActorError as err:
+            if err.actor_init_failed:
+                raise BatchError(f"a Ray worker failed to start: {_last_line(err)}") from None
+            self.kill(actor)
+            if self.schedule.start_lost(slot, {"actor": err.actor_id}, _last_line(err)):
+                self.start(slot)
+            return
+        self.schedule.worker_ready(slot)
+        self.idle.append((slot, actor))
+
+    def answered(self, ref: Any) -> None:
+        run = self.running.pop(ref)
+        try:
+            kind, payload = self.ray.get(ref)
+        except self.ray.exceptions.RayActorError as err:
+            where = self.where.pop(run.actor, {"actor": err.actor_id})
+            self.kill(run.actor)  # "unavailable" may come back: it must not hold a CPU then
+            if self.schedule.worker_lost((run.key, run.unit), where, _last_line(err)):
+                self.start(run.slot)
+            return
+        self.schedule.finished(run.key, run.unit, kind, payload)
+        self.idle.append((run.slot, run.actor))
+
+
+def _last_line(err: BaseException, limit: int = 200) -> str:
+    """The last line of an error's message (Ray's say what happened last), at most ``limit`` characters."""
+    text = str(err).strip()
+    return text.splitlines()[-1].strip()[:limit] if text else type(err).__name__

@@ -5,8 +5,8 @@ torch thread (``TrainConfig.threads``, 1 by default), so on two cores training b
 the wall time. Each model is the one `fit` gives in this process -- same seed, data and thread count -- so the
 weights are bit-identical to training the models one after the other.
 
-The processes are the batch runner's (`batch.runner.run_batch`, "process" backend): a process that dies or a
-Ctrl-C never hangs training. Only arrays, configs and loss histories cross the process boundary: a worker
+The processes are the batch runner's (`batch.runner.run_batch`, "process" backend): a process that dies
+trains its model again in a fresh one (up to twice), and neither that nor a Ctrl-C hangs training. Only arrays, configs and loss histories cross the process boundary: a worker
 writes its model with `RiemannianFlow.save` into a private temporary directory and this process reads it back
 with `RiemannianFlow.load` (torch.load with weights_only=True), so no model object is ever unpickled.
 """
@@ -20,8 +20,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from batch.errors import BatchError
-from batch.runner import BatchConfig, run_batch
+from batch import BatchConfig, BatchError, run_batch
 from rflow.errors import RFlowError
 from rflow.model import RiemannianFlow
 from rflow.train import TrainConfig, TrainHistory, fit
@@ -99,9 +98,11 @@ def fit_in_processes(jobs: Mapping[str, FitJob], dt: float, config: TrainConfig,
             raise RFlowError(f"training in processes failed: {err}") from None
         if outcome.interrupted:
             raise KeyboardInterrupt
+        if outcome.fault is not None:
+            raise RFlowError(f"training in processes failed: {outcome.fault}")
         results: dict[str, tuple[RiemannianFlow, TrainHistory]] = {}
         for name in jobs:
-            record = outcome.records[name]
+            record = outcome.records.get(name) or outcome.infrastructure_errors[name]
             if "failure" in record:
                 reason = record["failure"].removeprefix("error: RFlowError: ")
                 raise RFlowError(f"{name} model: {reason}")

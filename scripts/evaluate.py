@@ -10,10 +10,12 @@ peg_tip pose. Prints a summary table.
 
 Long runs: each finished episode is appended to a journal (--journal, default <json>.journal.jsonl), so
 after Ctrl-C (exit 130) the same command with --resume runs only the missing episodes and writes the same
-JSON. A worker that dies or an episode over --unit-timeout-s is a failed episode ("worker_died",
-"wall_timeout"). Exit status: 0 when every episode has a record (failed episodes are results), 3 when the
-batch is incomplete, 130 when interrupted, 2 on bad input (all options and outputs are checked before any
-episode, envs/output.py), 1 on an operating-system error while writing (a full disk).
+JSON. An episode over --unit-timeout-s is a failed episode ("wall_timeout"). An episode whose worker dies runs
+again on another one; only when all its tries are lost is it an infrastructure error: not scored, listed
+apart, and run again by --resume. Infrastructure events go to stderr and the JSON. Exit status: 0 when every
+episode has a record (failed episodes are results), 3 when the batch is incomplete (infrastructure errors),
+1 when a fault stopped it (the Ray head lost), 130 when interrupted, 2 on bad input (all options and
+outputs are checked before any episode, envs/output.py), 1 also on an operating-system error while writing.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from batch.runner import BACKENDS  # noqa: E402
+from batch import BACKENDS, Journal, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
 from envs.execution.config import AROUND, DEFAULT_LOOKAHEAD_S, MODES, EvaluationConfig  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402
@@ -39,6 +41,7 @@ if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
     from envs.execution.evaluate import EvaluationResult, StartPose
 
 GOAL_MISMATCH_WARN_MM = 5.0
+EXIT_FAULT = 1
 EXIT_INCOMPLETE = 3
 EXIT_INTERRUPTED = 130
 RECORD_BYTES = 8 * 1024
@@ -401,7 +404,7 @@ def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: S
 
 def main(args: argparse.Namespace) -> int:
     """Run `pih evaluate`; returns the exit status: 0 when every episode has a record (even failed ones:
-    the record says so), 3 when the batch is incomplete, 130 when interrupted."""
+    the record says so), 3 when the batch is incomplete, 1 when a fault stopped it, 130 when interrupted."""
     wall = time.perf_counter()
     config = check_args(args)
     result = run_evaluation(args, config)
@@ -409,15 +412,23 @@ def main(args: argparse.Namespace) -> int:
         print(f"pih evaluate: warning: the skill's goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
               "for demos recorded elsewhere use --hole-at-goal", file=sys.stderr)
     print(result.summary_table())
+    for event in result.infrastructure_events:
+        print(f"pih evaluate: infrastructure: {describe_event(event)}", file=sys.stderr)
     if args.json is not None:
         result.save_json(args.json)
         print(f"wrote {args.json}")
-    if result.interrupted or not result.complete:
+    if result.fault is not None or result.interrupted or not result.complete:
+        if result.fault is not None:
+            print(f"pih evaluate: error: {result.fault}", file=sys.stderr)
         what = "interrupted" if result.interrupted else "incomplete"
-        print(f"pih evaluate: {what} after {len(result.records)} of {config.episodes} episodes", file=sys.stderr)
+        unscored = f" ({len(result.infrastructure_errors)} lost to infrastructure)" if result.infrastructure_errors else ""
+        print(f"pih evaluate: {what} after {len(result.records)} of {config.episodes} episodes{unscored}",
+              file=sys.stderr)
         if journal_path(args) is not None:
             print(f"pih evaluate: finished episodes are in {journal_path(args)}; continue with: {resume_command(args)}",
                   file=sys.stderr)
+        if result.fault is not None:
+            return EXIT_FAULT
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
     figure_episodes = choose_episodes(result, args.video_episodes, failures=0)  # 'auto': successes only
     chosen = choose_episodes(result, args.video_episodes) if args.video else figure_episodes

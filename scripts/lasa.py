@@ -8,10 +8,12 @@ One model per shape, manifold and method; each demo is reproduced from its first
 DTW in the z-scored tangent space at the goal (averaged over the 4 demos) and the manifold distance.
 
 `--all` runs every (shape, manifold, method) as one unit of `batch.run_batch`: each finished unit is appended
-to OUT/journal.jsonl at once, so `--resume` skips them after a crash or Ctrl-C; a worker that dies or overruns
-`--unit-timeout-s` is recorded as a failed unit with its reason and the batch goes on. results.json says
-"complete": true only when every unit has a record; the exit status is 0 when every unit succeeded, 1 when
-some failed (their cells read "—" with the reason listed) and 130 when interrupted.
+to OUT/journal.jsonl at once, so `--resume` skips them after a crash or Ctrl-C; a unit that overruns
+`--unit-timeout-s` is recorded as a failed unit with its reason and the batch goes on; a unit whose worker dies
+runs again, and one lost on every try is an infrastructure error (listed in results.json, not journalled).
+results.json says "complete": true only when every unit has a record; the exit status is 0 when every unit
+succeeded, 1 when some failed (their cells read "—" with the reason listed) or a fault stopped the batch (the
+Ray head lost), 3 when units were lost to infrastructure (`--resume` runs them) and 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from scripts.options import MAX_EPOCHS, MAX_WORKERS, count, number, seed
 
 JOURNAL = "journal.jsonl"
 EXIT_FAILED_UNITS = 1
+EXIT_INCOMPLETE = 3
 EXIT_INTERRUPTED = 130
 _HYPERPARAMETERS = ("epochs", "layers", "lr", "batch_size")  # the options --config replaces
 UNIT_BYTES = 256 * 1024
@@ -252,7 +255,7 @@ def _figure(out: Path, shape: str, results: list[ShapeResult]) -> bool:
 
 def run_all(args: argparse.Namespace) -> int:
     """Run the benchmark grid as journalled batch units; write results.json, results.md and the figures."""
-    from batch import BatchConfig, BatchError, Journal, run_batch
+    from batch import BatchConfig, BatchError, Journal, describe_event, run_batch
 
     if args.out is None:
         raise RFlowError("--all needs --out DIR")
@@ -297,13 +300,15 @@ def run_all(args: argparse.Namespace) -> int:
     if results:
         print(f"resuming: {len(results)} of {len(units)} runs already in {out / JOURNAL}", flush=True)
 
-    def write_results(complete: bool) -> None:
+    def write_results(complete: bool, outcome: Any = None) -> None:
         ordered = [results[k] for k, _ in units if k in results]
         write_json(out / "results.json", {
             "config": dataclasses.asdict(config), "n_points": args.n_points, "complete": complete,
             "runs": len(units), "finished": len(ordered), "failed": sum(r.error is not None for r in ordered),
             "gains": {m: gains(ordered, m) for m in methods if m != "rflow"},
             "results": [r.to_dict() for r in ordered],
+            "infrastructure_errors": list(outcome.infrastructure_errors.values()) if outcome else [],
+            "infrastructure_events": outcome.events if outcome else [],
         })
 
     def on_record(key: str, record: dict) -> None:
@@ -323,7 +328,7 @@ def run_all(args: argparse.Namespace) -> int:
             raise RFlowError(str(err)) from None
     results = {k: ShapeResult.from_dict(r) for k, r in outcome.records.items()}
     complete = outcome.complete and not outcome.interrupted
-    write_results(complete)
+    write_results(complete, outcome)
     ordered = [results[k] for k, _ in units if k in results]
     write_text(out / "results.md", markdown_table(ordered, config))
     plot_comparison(out / "comparison.png", ordered, save_figure)
@@ -332,9 +337,18 @@ def run_all(args: argparse.Namespace) -> int:
                       for m in methods if m != "rflow" for a, g in gains(ordered, m).items())
     print(f"wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'comparison.png'}: {len(ordered)} of "
           f"{len(units)} runs, {failed} failed, {time.perf_counter() - start:.0f} s. Mean DTW: {means or 'n/a'}")
+    for event in outcome.events:
+        print(f"pih lasa: infrastructure: {describe_event(event)}", file=sys.stderr)
+    if outcome.fault is not None:
+        print(f"pih lasa: error: {outcome.fault}; continue with --resume", file=sys.stderr)
+        return EXIT_FAILED_UNITS
     if outcome.interrupted:
         print(f"interrupted: {len(units) - len(ordered)} runs left; continue with --resume", file=sys.stderr)
         return EXIT_INTERRUPTED
+    if not outcome.complete:
+        print(f"pih lasa: incomplete: {len(outcome.infrastructure_errors)} runs lost to infrastructure; continue "
+              "with --resume", file=sys.stderr)
+        return EXIT_INCOMPLETE
     if figure_failures:
         print(f"pih lasa: the figures of {', '.join(figure_failures)} could not be written", file=sys.stderr)
     return EXIT_FAILED_UNITS if failed or figure_failures else 0

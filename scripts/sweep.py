@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 import time
 
 from pathlib import Path
@@ -43,7 +44,7 @@ RECORD_BYTES = 8 * 1024
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih sweep`, in groups: skill, axes, run, output, task."""
-    from batch.runner import BACKENDS
+    from batch.config import BACKENDS
 
     d = EvaluationConfig()
     skill = parser.add_argument_group("skill")
@@ -132,8 +133,8 @@ def base_config(args: argparse.Namespace) -> EvaluationConfig:
 
 
 def main(args: argparse.Namespace) -> int:
-    """Run the sweep; exit 0 when complete, 3 when incomplete, 130 when interrupted."""
-    from batch import Journal
+    """Run the sweep; exit 0 when complete, 3 when incomplete, 1 when a fault stopped it, 130 when interrupted."""
+    from batch import Journal, describe_event
     from envs.execution.evaluate import journal_run
     from envs.execution.figures import plot_success_map
     from envs.execution.sweep import SweepAxes, sweep, sweep_cells, sweep_run
@@ -184,10 +185,19 @@ def main(args: argparse.Namespace) -> int:
               f"contact {100 * summary['contact_rate']:.0f} %, "
               f"median peak wrist force {'-' if force is None else f'{force:.1f} N'}")
     print(f"wrote {out / 'sweep.json'} and {out / 'sweep.png'} ({time.perf_counter() - wall:.0f} s)")
+    for event in result.infrastructure_events:
+        print(f"pih sweep: infrastructure: {describe_event(event)}", file=sys.stderr)
+    if result.fault is not None:
+        print(f"pih sweep: error: {result.fault}; continue with the same command and --resume", file=sys.stderr)
+        return 1
     if result.interrupted:
         print("interrupted: continue with the same command and --resume", flush=True)
         return 130
-    return 0 if result.complete else 3
+    if not result.complete:
+        print(f"pih sweep: incomplete: {len(result.infrastructure_errors)} episode(s) lost to infrastructure; "
+              "continue with the same command and --resume", file=sys.stderr)
+        return 3
+    return 0
 
 
 

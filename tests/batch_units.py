@@ -1,7 +1,11 @@
 """Toy units for the batch tests: module-level functions that spawned workers and Ray actors can import.
 
-A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep" | "note_pid" | "await_pid"}; its record is
-computed from n and the worker context so that a correct batch gives the same records on any backend.
+A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep" | "kill_first" | "meet" | "note_pid" |
+"await_pid"}; its record is computed from n and the worker context so that a correct batch gives the same
+records on any backend, and whatever worker it runs on. "kill_first" kills its worker on its first ``times``
+tries (counted in files beside ``counter``); "meet" returns once ``count`` such units run at the same time
+(each leaves a file in ``folder``); a setup with "kill_starts" and "counter" kills that many workers in
+``init``.
 """
 
 from __future__ import annotations
@@ -14,10 +18,24 @@ from typing import Any
 
 
 def init(setup: dict[str, Any]) -> dict[str, Any]:
-    """Worker context: the setup's offset (a failing init when asked)."""
+    """Worker context: the setup's offset (a failing init, or a killed worker, when asked)."""
     if setup.get("fail_init"):
         raise ValueError("init was told to fail")
+    if "kill_starts" in setup and count(setup["counter"]) <= setup["kill_starts"]:
+        os.kill(os.getpid(), signal.SIGKILL)
     return {"offset": setup["offset"]}
+
+
+def count(counter: str) -> int:
+    """How many times this was called with ``counter``, this call included (atomic across processes: call
+    n creates the file counter.n)."""
+    n = 1
+    while True:
+        try:
+            os.close(os.open(f"{counter}.{n}", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            return n
+        except FileExistsError:
+            n += 1
 
 
 def work(context: dict[str, Any], unit: dict[str, Any]) -> dict[str, Any]:
@@ -29,6 +47,13 @@ def work(context: dict[str, Any], unit: dict[str, Any]) -> dict[str, Any]:
         os._exit(3)
     elif action == "raise":
         raise ZeroDivisionError("unit asked to raise")
+    elif action == "kill_first" and count(unit["counter"]) <= unit.get("times", 1):
+        os.kill(os.getpid(), signal.SIGKILL)
+    elif action == "meet":
+        Path(unit["folder"], str(unit["n"])).touch()
+        deadline = time.monotonic() + unit.get("seconds", 60.0)
+        while len(list(Path(unit["folder"]).iterdir())) < unit["count"] and time.monotonic() < deadline:
+            time.sleep(0.05)
     elif action == "sleep":
         time.sleep(unit.get("seconds", 60.0))
     elif action == "note_pid":  # write this worker's pid, return once the unit "await_pid" runs in another one

@@ -105,3 +105,29 @@ def test_append_after_close_is_an_error(tmp_path):
     journal.close()
     with pytest.raises(BatchError, match="closed"):
         journal.append("a", {})
+
+
+def test_events_survive_a_reopen_and_do_not_count_as_units(tmp_path):
+    path = tmp_path / "j.jsonl"
+    with Journal.open(path, RUN) as journal:
+        journal.note({"event": "worker_lost", "unit": "a"})
+        journal.append("b", {"x": 1})
+    with Journal.open(path, RUN, resume=True) as journal:
+        assert journal.events() == [{"event": "worker_lost", "unit": "a"}]
+        assert journal.done() == {"b": {"x": 1}}
+
+
+def test_earlier_wall_time_adds_each_segment_up_to_its_last_line(tmp_path):
+    path = tmp_path / "j.jsonl"
+    Journal.open(path, RUN).close()
+    header = path.read_text()
+    lines = [{"kind": "unit", "key": "a", "record": {}, "segment": 0, "elapsed_s": 2.0},
+             {"kind": "event", "event": {}, "segment": 0, "elapsed_s": 5.0},
+             {"kind": "unit", "key": "b", "record": {}, "segment": 1, "elapsed_s": 1.5}]
+    path.write_text(header + "".join(json.dumps(line) + "\n" for line in lines))
+    with Journal.open(path, RUN, resume=True) as journal:
+        assert journal.earlier_wall_s == 6.5
+        journal.append("c", {})
+    assert json.loads(path.read_text().splitlines()[-1])["segment"] == 2
+    with Journal.open(tmp_path / "new.jsonl", RUN) as journal:
+        assert journal.earlier_wall_s == 0.0

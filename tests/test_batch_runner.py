@@ -1,5 +1,7 @@
-"""batch.runner: a killed worker, an overrunning unit and an escaped exception each become one failed
-record and the batch goes on; records do not depend on the number of workers; a journal resumes a run."""
+"""batch.runner: a killed worker (mid-unit or while starting) changes no record, its unit runs again and the
+loss is listed; a unit lost on every try is an infrastructure error, outside the records and the journal; an
+overrunning unit and an escaped exception each become one failed record and the batch goes on; records do
+not depend on the number of workers; a journal resumes a run."""
 
 from __future__ import annotations
 
@@ -34,12 +36,66 @@ def test_records_do_not_depend_on_the_number_of_workers():
     assert run(units(6)).records == run(units(6), BatchConfig(workers=3)).records
 
 
-@pytest.mark.parametrize("action", ["kill", "exit"])
-def test_a_dead_worker_is_one_failed_unit_and_the_batch_goes_on(action):
-    outcome = run(units(6, {2: {"do": action}}), BatchConfig(workers=2))
-    assert outcome.complete
-    assert outcome.records["u002"]["reason"] == "worker_died"
-    assert [r["value"] for k, r in outcome.records.items() if k != "u002"] == [i * i + 7 for i in (0, 1, 3, 4, 5)]
+def kill_first(counter, times=1):
+    return {"do": "kill_first", "counter": str(counter), "times": times}
+
+
+def test_a_worker_killed_mid_unit_changes_no_record_and_the_loss_is_listed(tmp_path):
+    outcome = run(units(6, {2: kill_first(tmp_path / "c")}), BatchConfig(workers=2))
+    assert outcome.complete and outcome.records == run(units(6)).records
+    (event,) = outcome.events
+    assert (event["event"], event["unit"], event["unit_action"], event["tries"]) == ("worker_lost", "u002", "retried", 1)
+    assert event["where"]["exit_code"] == -9 and event["where"]["pid"] > 0
+
+
+def test_two_workers_killed_at_once_change_no_record(tmp_path):
+    outcome = run(units(5, {0: kill_first(tmp_path / "a"), 1: kill_first(tmp_path / "b")}), BatchConfig(workers=2))
+    assert outcome.records == run(units(5)).records
+    assert sorted(e["unit"] for e in outcome.events) == ["u000", "u001"]
+
+
+@pytest.mark.parametrize("action, exit_code", [("kill", -9), ("exit", 3)])
+def test_a_unit_lost_on_every_try_is_an_infrastructure_error(action, exit_code):
+    outcome = run(units(4, {2: {"do": action}}), BatchConfig(workers=2, max_retries=1))
+    assert not outcome.complete and "u002" not in outcome.records
+    assert outcome.infrastructure_errors["u002"]["reason"] == "infrastructure: worker_died after 2 tries"
+    assert [(e["unit_action"], e["where"]["exit_code"]) for e in outcome.events] == [("retried", exit_code),
+                                                                                    ("given_up", exit_code)]
+    assert [r["value"] for r in outcome.records.values()] == [7, 8, 16]
+
+
+def test_resume_runs_an_infrastructure_error_again(tmp_path):
+    path, todo = tmp_path / "j.jsonl", units(4, {1: kill_first(tmp_path / "c", times=2)})
+    with Journal.open(path, {"run": 1}) as journal:
+        first = run(todo, BatchConfig(workers=2, max_retries=1), journal=journal)
+    assert list(first.infrastructure_errors) == ["u001"] and "u001" not in journal.done()
+    with Journal.open(path, {"run": 1}, resume=True) as journal:
+        second = run(todo, BatchConfig(workers=2, max_retries=1), journal=journal)
+    assert second.complete and second.records == run(units(4)).records
+    assert second.events == first.events  # the journal keeps the earlier segment's events
+
+
+def test_workers_killed_while_starting_are_replaced(tmp_path):
+    """Both first workers are killed in init (so neither finishes the batch before the other's loss is seen)."""
+    setup = {**SETUP, "kill_starts": 2, "counter": str(tmp_path / "c")}
+    outcome = run_batch(units(4), setup, init, work, failure, BatchConfig(workers=2))
+    assert outcome.complete and outcome.records == run(units(4)).records
+    assert [(e["event"], e["replaced"], e["where"]["exit_code"]) for e in outcome.events] == [
+        ("worker_lost_at_start", True, -9)] * 2
+
+
+def test_workers_that_never_start_stop_the_batch_with_a_fault(tmp_path):
+    setup = {**SETUP, "kill_starts": 100, "counter": str(tmp_path / "c")}
+    outcome = run_batch(units(3), setup, init, work, failure, BatchConfig(workers=2, max_retries=1))
+    assert outcome.fault is not None and "starting" in outcome.fault
+    assert outcome.records == {} and not outcome.complete and not outcome.interrupted
+    assert [e["event"] for e in outcome.events] == ["worker_lost_at_start"] * 4 + ["batch_stopped"]
+
+
+def test_the_outcome_counts_the_workers_that_ran(tmp_path):
+    """Two units that must run at the same time, on workers=3."""
+    meet = {"do": "meet", "folder": str(tmp_path), "count": 2}
+    assert run(units(2, {0: meet, 1: meet}), BatchConfig(workers=3)).workers == 2
 
 
 def test_a_worker_with_nothing_left_to_do_ends_while_the_others_run(tmp_path):
@@ -50,11 +106,6 @@ def test_a_worker_with_nothing_left_to_do_ends_while_the_others_run(tmp_path):
     outcome = run(todo, BatchConfig(workers=2))
     assert outcome.records["u000"]["value"] == 7
     assert outcome.records["u001"]["value"] is True  # u000's worker ended while u001 was running
-
-
-def test_two_dead_workers_in_a_row_are_both_recorded():
-    outcome = run(units(5, {0: {"do": "kill"}, 1: {"do": "kill"}}), BatchConfig(workers=2))
-    assert [r["reason"] for r in outcome.records.values()] == ["worker_died"] * 2 + ["ok"] * 3
 
 
 def test_a_unit_over_the_wall_time_limit_is_killed_and_recorded():
@@ -147,6 +198,6 @@ def test_ctrl_c_stops_workers_keeps_the_journal_and_prints_no_traceback(tmp_path
 
 def test_config_is_validated():
     for bad in ({"workers": 0}, {"unit_timeout_s": -1.0}, {"backend": "dask"},
-                {"backend": "ray", "ray_address": "nohost"}, {"ray_address": "127.0.0.1:6379"}):
+                {"backend": "ray", "ray_address": "nohost"}, {"ray_address": "127.0.0.1:6379"}, {"max_retries": -1}):
         with pytest.raises(BatchError):
             BatchConfig(**bad)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from batch.errors import BatchError
-from batch.runner import BatchConfig
+from batch.config import BatchConfig
 from envs.errors import EnvError
 from envs.perturbation import PerturbationRanges
 from envs.sorter import check_chamfer, check_clearance

@@ -10,8 +10,13 @@ episode runs, so the result does not depend on the number of workers.
 
 Batch. Episodes are the units of a `batch.run_batch`: in this process, in spawned worker processes or on
 Ray; each finished record goes into the run's journal (if any) as it ends, so an interrupted evaluation
-resumes from it with the same result. A worker that dies or an episode over ``unit_timeout_s`` of wall
-time is recorded as a failed episode with reason "worker_died" or "wall_timeout".
+resumes from it with the same result. An episode over ``unit_timeout_s`` of wall time is the skill's
+outcome, a failed episode "wall_timeout" (the limit, 300 s against ~1 s per episode, leaves a wide margin
+for a loaded machine). A lost worker, actor or machine is not: its episode runs again on another worker (it
+is deterministic from its start, so the record is the one an undisturbed run gives), and only after every
+try is lost is it an infrastructure error -- not scored, not journalled (a resumed run tries it again),
+and the evaluation is incomplete. The success rate is over the scored episodes; the infrastructure errors
+and events are listed apart.
 
 Episode. The arm is put at the start with mink IK (PegInHoleEnv.reset; an unreachable or colliding start
 is recorded as a failure with its reason, not raised), then each control period the policy
@@ -183,7 +188,16 @@ def check_goal_reachable(env: Any) -> None:
 
 @dataclass
 class EvaluationResult:
-    """All episodes of an evaluation and their statistics."""
+    """All episodes of an evaluation and their statistics.
+
+    Attributes:
+        records: the scored episodes (the statistics are theirs).
+        wall_s: wall time, the earlier parts of a resumed run included.
+        infrastructure_errors: episodes whose every try lost its worker (not scored; module docstring).
+        infrastructure_events: lost workers, actors, nodes and retried episodes (batch.supervision).
+        workers: processes or actors the episodes ran on (0: all were in the journal already).
+        fault: what stopped the whole evaluation (e.g. the Ray head lost), else None.
+    """
 
     config: EvaluationConfig
     records: list[EpisodeRecord]
@@ -194,6 +208,10 @@ class EvaluationResult:
     goal_mismatch_mm: float = 0.0
     complete: bool = True
     interrupted: bool = False
+    infrastructure_errors: list[EpisodeRecord] = field(default_factory=list)
+    infrastructure_events: list[dict[str, Any]] = field(default_factory=list)
+    workers: int = 1
+    fault: str | None = None
 
     @property
     def num_success(self) -> int:
@@ -202,7 +220,7 @@ class EvaluationResult:
 
     @property
     def success_rate(self) -> float:
-        """Successes / episodes."""
+        """Successes / scored episodes."""
         return self.num_success / max(len(self.records), 1)
 
     @property
@@ -249,8 +267,9 @@ class EvaluationResult:
         return {k: record[k] for k in keys if k in record}
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON record: config, success rate with its Wilson interval, statistics, the learned stiffness's
-        reproduction of the demos' (`stiffness_reproduction`), episodes."""
+        """The JSON record: config, success rate with its Wilson interval over the scored episodes, statistics,
+        the learned stiffness's reproduction of the demos' (`stiffness_reproduction`), the scored episodes, the
+        infrastructure errors and events, the workers that ran and the fault that stopped the run (if any)."""
         low, high = self.interval
         return {
             "model": self.model_dir,
@@ -267,7 +286,11 @@ class EvaluationResult:
             "statistics": self.statistics(),
             "stiffness_reproduction": self.stiffness_reproduction,
             "wall_s": self.wall_s,
+            "workers": self.workers,
+            "fault": self.fault,
             "per_episode": [r.to_dict() for r in self.records],
+            "infrastructure_errors": [r.to_dict() for r in self.infrastructure_errors],
+            "infrastructure_events": self.infrastructure_events,
         }
 
     def save_json(self, path: str | os.PathLike[str]) -> Path:
@@ -310,10 +333,19 @@ class EvaluationResult:
                                     f"{fmt(s['min_stiffness_n_m'], 'N/m', 0)} to {fmt(s['max_stiffness_n_m'], 'N/m', 0)}"),
             *self._reproduction_rows(),
             ("failures", ", ".join(f"{k}: {v}" for k, v in s["failures_by_kind"].items()) or "none"),
-            ("wall time", f"{self.wall_s:.1f} s ({self.config.workers} worker(s))"),
+            ("infrastructure", self._infrastructure_text()),
+            ("wall time", f"{self.wall_s:.1f} s ({self.workers} worker(s))"),
         ]
         width = max(len(k) for k, _ in rows)
         return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+    def _infrastructure_text(self) -> str:
+        events = self.infrastructure_events
+        if not events:
+            return "no worker lost"
+        lost = sum(e["event"].startswith("worker_lost") for e in events)
+        return (f"{lost} worker(s) lost, {sum(e.get('unit_action') == 'retried' for e in events)} episode try(s) "
+                f"run again, {len(self.infrastructure_errors)} episode(s) not scored")
 
     def _reproduction_rows(self) -> list[tuple[str, str]]:
         rec = self.stiffness_reproduction
@@ -373,7 +405,7 @@ def _run_unit(context: dict[str, Any], start: StartPose) -> dict[str, Any]:
 
 
 def _failed_unit(key: str, start: StartPose, reason: str) -> dict[str, Any]:
-    """The record of an episode that produced none ("worker_died", "wall_timeout", "error: ...")."""
+    """The record of an episode that produced none ("wall_timeout", "error: ...", "infrastructure: ...")."""
     return EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
                          reason=reason, perturbation=start.perturbation.to_dict()).to_dict()
 
@@ -428,7 +460,8 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
 
     Returns:
         EvaluationResult (records sorted by episode index; ``complete`` False and ``interrupted`` True
-        after Ctrl-C / SIGTERM, with the episodes finished so far).
+        after Ctrl-C / SIGTERM, with the episodes finished so far; ``complete`` False with infrastructure
+        errors, or with ``fault`` set when the whole batch was stopped).
 
     Raises:
         RFlowError / EnvError: bad checkpoint, shape mismatch, unreachable goal with hole_at_goal.
@@ -472,8 +505,11 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
         torch.set_num_threads(threads)
         bar.close()
     records = sorted((record_from_dict(r) for r in outcome.records.values()), key=lambda r: r.index)
-    return EvaluationResult(config, records, time.perf_counter() - wall, str(model_dir), skill.metadata,
-                            to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted)
+    earlier_s = journal.earlier_wall_s if journal is not None else 0.0
+    return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, str(model_dir), skill.metadata,
+                            to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted,
+                            [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
+                            outcome.workers, outcome.fault)
 
 
 def iter_replays(model_dir: str | os.PathLike[str], config: EvaluationConfig, starts: Sequence[StartPose],

@@ -7,7 +7,8 @@ Every cell of the grid (the Cartesian product of the axes) is an EvaluationConfi
 all cells use the same K start poses and per-episode perturbation draws (common random numbers: the seeds
 do not depend on the cell, so cells differ only by their setting). The unit of work is one episode of one
 cell, run through `batch.run_batch` (processes or Ray, journal, resume), so a sweep survives dead workers and
-Ctrl-C like an evaluation. Per cell: the success rate with its 95 % Wilson interval, the median time to
+Ctrl-C like an evaluation: an episode whose worker is lost runs again, and one lost on every try is an
+infrastructure error, left out of its cell's statistics and listed apart (envs.execution.evaluate). Per cell: the success rate with its 95 % Wilson interval, the median time to
 seat, the median and largest peak wrist force of the successes, the share of episodes touching a wall, and
 the failures by kind.
 """
@@ -203,7 +204,9 @@ def sweep_run(model_dir: str, cells: Sequence[Cell], checksum: str) -> dict[str,
 
 @dataclass
 class SweepResult:
-    """A finished (or interrupted) sweep: the cells, their statistics and every episode record."""
+    """A finished (or interrupted) sweep: the cells, their statistics and every scored episode record; the
+    episodes lost to infrastructure, the infrastructure events and the fault that stopped it (if any) apart;
+    the wall time includes the earlier parts of a resumed sweep."""
 
     model_dir: str
     cells: list[Cell]
@@ -212,6 +215,9 @@ class SweepResult:
     complete: bool
     interrupted: bool
     wall_s: float
+    infrastructure_errors: dict[str, dict[str, Any]] = field(default_factory=dict)
+    infrastructure_events: list[dict[str, Any]] = field(default_factory=list)
+    fault: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record of the sweep (sweep.json)."""
@@ -226,7 +232,11 @@ class SweepResult:
             "base_config": base,
             "cells": self.summaries,
             "wall_s": self.wall_s,
+            "fault": self.fault,
             "per_episode": [self.records[k] for k in sorted(self.records, key=_key_order)],
+            "infrastructure_errors": [self.infrastructure_errors[k] for k in sorted(self.infrastructure_errors,
+                                                                                     key=_key_order)],
+            "infrastructure_events": self.infrastructure_events,
         })
 
 
@@ -282,5 +292,7 @@ def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal:
     for key, record in outcome.records.items():
         by_cell[int(record.get("cell", _key_order(key)[0]))].append(record)
     summaries = [cell_summary(c, by_cell[c.index]) for c in cells]
+    earlier_s = journal.earlier_wall_s if journal is not None else 0.0
     return SweepResult(str(model_dir), list(cells), summaries, dict(outcome.records), outcome.complete,
-                       outcome.interrupted, time.perf_counter() - wall)
+                       outcome.interrupted, earlier_s + time.perf_counter() - wall, outcome.infrastructure_errors,
+                       outcome.events, outcome.fault)

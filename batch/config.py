@@ -1,0 +1,51 @@
+"""How a batch runs: the workers, the wall-time limit per unit, the retries of units lost to infrastructure and
+the backend."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from batch.errors import BatchError
+
+BACKENDS: tuple[str, ...] = ("process", "ray")
+
+
+@dataclass(frozen=True)
+class BatchConfig:
+    """How a batch runs.
+
+    Attributes:
+        workers: parallel workers; 1 runs the units in this process, no pool (process backend).
+            With the ray backend, the number of actors (1: one per CPU of the Ray cluster).
+        unit_timeout_s: wall-clock limit per unit (None: no limit); a unit over it is recorded "wall_timeout",
+            an outcome of the unit (batch.supervision).
+        max_retries: a unit whose worker, actor or node is lost runs again on another or a fresh worker up to
+            this many times; after 1 + max_retries lost tries it is an infrastructure error (not journalled, so
+            a resumed run tries it again). A lost worker that was still starting is replaced up to this many
+            times in a row.
+        backend: "process" (spawned processes supervised here) or "ray".
+        ray_address: None: start a local Ray instance on all local cores; else HOST:PORT of a cluster's head.
+    """
+
+    workers: int = 1
+    unit_timeout_s: float | None = None
+    max_retries: int = 2
+    backend: str = "process"
+    ray_address: str | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise BatchError(f"workers={self.workers!r} must be an integer >= 1")
+        if self.unit_timeout_s is not None and not (isinstance(self.unit_timeout_s, (int, float))
+                                                    and 0.0 < self.unit_timeout_s < float("inf")):
+            raise BatchError(f"unit_timeout_s={self.unit_timeout_s!r} must be a positive number of seconds or None")
+        if isinstance(self.max_retries, bool) or not isinstance(self.max_retries, int) or self.max_retries < 0:
+            raise BatchError(f"max_retries={self.max_retries!r} must be an integer >= 0")
+        if self.backend not in BACKENDS:
+            raise BatchError(f"backend={self.backend!r} must be one of {', '.join(BACKENDS)}")
+        if self.ray_address is not None:
+            host, _, port = self.ray_address.rpartition(":")
+            if not host or not port.isdigit() or not 0 < int(port) < 65536:
+                raise BatchError(f"ray_address={self.ray_address!r} must be HOST:PORT (e.g. 127.0.0.1:6379)")
+            if self.backend != "ray":
+                raise BatchError("ray_address is set but the backend is not 'ray'")

@@ -1,0 +1,191 @@
+"""The process backend of `batch.runner.run_batch`: ``workers`` spawned processes, each fed one unit at a time
+over a pipe and watched through its sentinel, so a dead worker is seen at once (``multiprocessing.Pool``
+would wait forever for it).
+
+A worker that dies (SIGKILL, segfault, os._exit, out of memory) is replaced by a fresh one and the unit it
+ran goes back to the queue (`batch.supervision.Schedule`); a worker that dies while it starts is replaced
+up to max_retries times in a row, after which the batch goes on with the others. A unit over the wall-time
+limit has its worker killed and replaced.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import signal
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from typing import Any, Callable, Iterator, Sequence
+
+from batch.config import BatchConfig
+from batch.errors import BatchError
+from batch.supervision import Fault, Init, Schedule, Work, error_reason
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored in this process for the duration (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _worker_main(conn: Connection, setup: Any, init: Init, work: Work) -> None:
+    """A spawned worker: init once, then answer ("done", key, record) or ("error", key, reason) per unit
+    received until None. Ctrl-C is left to the supervisor (which kills the worker)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        context = init(setup)
+    except BaseException as err:  # noqa: BLE001 -- reported to the supervisor, which raises BatchError
+        conn.send(("init_error", "", f"{error_reason(err)}\n{traceback.format_exc()}"))
+        return
+    conn.send(("ready", "", None))
+    while True:
+        message = conn.recv()
+        if message is None:
+            return
+        key, unit = message
+        try:
+            conn.send(("done", key, work(context, unit)))
+        except Exception as err:  # noqa: BLE001
+            conn.send(("error", key, error_reason(err)))
+
+
+@dataclass
+class _Worker:
+    """A spawned worker process: its slot and number (in start order, from 1), its pipe, the unit it is
+    running (key, unit, start time) and whether it was asked to end."""
+
+    slot: int
+    number: int
+    process: Any
+    conn: Connection
+    ready: bool = False
+    unit: tuple[str, Any, float] | None = None
+    retired: bool = False
+
+    def where(self) -> dict[str, Any]:
+        """The worker in an infrastructure event."""
+        return {"worker": self.number, "pid": self.process.pid, "exit_code": self.process.exitcode}
+
+    def kill(self) -> None:
+        if self.process.is_alive():
+            self.process.kill()
+        self.process.join(5.0)
+        self.conn.close()
+
+    def retire(self) -> None:
+        """Ask an idle worker to return, so that its exit handlers release what it holds (e.g. the semaphores
+        of its locks); its interpreter then takes ~0.8 s to shut down, overlapping whatever still runs."""
+        if self.ready and self.unit is None and not self.retired and self.process.is_alive():
+            with contextlib.suppress(OSError, ValueError):
+                self.conn.send(None)
+            self.retired = True
+
+
+RETIRE_GRACE_S = 2.0
+"""How long the workers asked to return may take, together, before they are killed."""
+
+
+def _stop_all(workers: Sequence[_Worker]) -> None:
+    """Retire the idle workers (all at once, so their shutdowns overlap) and kill those that are busy or do not
+    end within RETIRE_GRACE_S (ended ones are only closed)."""
+    for w in workers:
+        w.retire()
+    deadline = time.monotonic() + RETIRE_GRACE_S
+    for w in workers:
+        if w.retired:
+            w.process.join(max(0.0, deadline - time.monotonic()))
+        w.kill()
+
+
+def run_in_processes(schedule: Schedule, setup: Any, init: Init, work: Work, config: BatchConfig) -> None:
+    """Run the units of ``schedule`` in spawned processes (module docstring).
+
+    Raises:
+        BatchError: ``init`` failing in a worker, or a worker answering for a unit it was not running.
+        Fault: every worker died while starting, with units left.
+    """
+    ctx = multiprocessing.get_context("spawn")
+    spawned: list[_Worker] = []  # all of them, so that none outlives the batch whatever ends it
+
+    def spawn(slot: int) -> _Worker:
+        ours, theirs = ctx.Pipe(duplex=True)
+        process = ctx.Process(target=_worker_main, args=(theirs, setup, init, work), daemon=True)
+        with _sigint_ignored():  # inherited through exec: a Ctrl-C while the worker starts up does not reach it
+            process.start()
+        theirs.close()
+        spawned.append(_Worker(slot, len(spawned) + 1, process, ours))
+        return spawned[-1]
+
+    workers = [spawn(slot) for slot in range(min(config.workers, schedule.remaining))]
+    try:
+        while schedule.remaining or any(w.unit is not None for w in workers):
+            if not workers:
+                raise Fault(f"every worker died while starting ({len(spawned)} starts); no unit can run")
+            for w in workers:
+                if w.ready and not w.retired and w.unit is None and schedule.remaining:
+                    key, unit = schedule.take()
+                    w.unit = (key, unit, time.monotonic())
+                    w.conn.send((key, unit))
+                elif not schedule.remaining:
+                    w.retire()  # nothing left for it: its shutdown overlaps the units still running
+            _wait_for_any(workers, config.unit_timeout_s)
+            workers = [kept for w in workers for kept in _serve(w, schedule, config.unit_timeout_s, spawn)]
+    finally:
+        _stop_all(spawned)
+
+
+def _wait_for_any(workers: Sequence[_Worker], unit_timeout_s: float | None) -> None:
+    """Wait until a worker answers or ends, or the earliest running unit reaches the wall-time limit."""
+    timeout = None
+    if unit_timeout_s is not None:
+        started = [w.unit[2] for w in workers if w.unit is not None]
+        if started:
+            timeout = max(0.0, min(started) + unit_timeout_s - time.monotonic())
+    wait([w.conn for w in workers] + [w.process.sentinel for w in workers], timeout)
+
+
+def _serve(w: _Worker, schedule: Schedule, unit_timeout_s: float | None,
+           spawn: Callable[[int], _Worker]) -> list[_Worker]:
+    """Read ``w``'s answers and check its health; returns what takes its place: itself, a fresh worker, or
+    nothing (a retired worker that ended, a lost one with no work left, a slot that gave up starting)."""
+    died = False
+    try:
+        while w.conn.poll():
+            kind, key, payload = w.conn.recv()
+            if kind == "init_error":
+                raise BatchError(f"a worker failed to start: {payload}")
+            if kind == "ready":
+                w.ready = True
+                schedule.worker_ready(w.slot)
+                continue
+            if w.unit is None or w.unit[0] != key:
+                raise BatchError(f"a worker answered for unit {key!r} it was not running")
+            unit = w.unit[1]
+            w.unit = None
+            schedule.finished(key, unit, kind, payload)
+    except (EOFError, OSError):
+        died = True
+    died = died or not w.process.is_alive()
+    if died:
+        w.kill()
+        if w.retired and w.unit is None:
+            return [spawn(w.slot)] if schedule.remaining else []
+        if not w.ready:
+            return [spawn(w.slot)] if schedule.start_lost(w.slot, w.where()) else []
+        running = None if w.unit is None else w.unit[:2]
+        return [spawn(w.slot)] if schedule.worker_lost(running, w.where()) else []
+    if w.unit is not None and unit_timeout_s is not None and time.monotonic() - w.unit[2] > unit_timeout_s:
+        w.kill()
+        schedule.timed_out(*w.unit[:2])
+        return [spawn(w.slot)] if schedule.remaining else []
+    return [w]
