@@ -52,6 +52,7 @@ from envs.poses import (
     resample_trajectory,
     rotate,
 )
+from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -172,10 +173,10 @@ def parse_tool_offset(text: str) -> Pose:
     if values.shape != (7,) or not np.all(np.isfinite(values)):
         raise EnvError(f"--tool-offset {text!r} must be 7 finite numbers X,Y,Z,QW,QX,QY,QZ (metres, quaternion "
                        f"w, x, y, z) or one of {', '.join(TOOL_OFFSETS)}")
-    norm = float(np.linalg.norm(values[3:]))
-    if norm < MIN_QUAT_NORM:
+    length = norm(values[3:])
+    if length < MIN_QUAT_NORM:
         raise EnvError(f"--tool-offset {text!r}: the quaternion {values[3:].tolist()} is zero and is no rotation")
-    return Pose(pos=values[:3], quat=values[3:] / norm)
+    return Pose(pos=values[:3], quat=values[3:] / length)
 
 
 def resolve_dt(file_dt: float | None, flag_dt: float | None, source: str) -> float:
