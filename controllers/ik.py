@@ -27,6 +27,7 @@ from controllers import ik_kernel
 from controllers.errors import ControllerError
 from controllers.mujoco_c import FUNCTIONS
 from controllers.validation import as_unit_quaternion, as_vector, site_id, site_name
+from rflow.small_linalg import norm
 
 @dataclass(frozen=True)
 class IKConfig:
@@ -78,7 +79,7 @@ def pose_residual(
     mujoco.mju_mat2Quat(quat, data.site_xmat[site_id])
     rotation = np.zeros(3)
     mujoco.mju_subQuat(rotation, target_quat, quat)
-    return float(np.linalg.norm(target_pos - data.site_xpos[site_id])), float(np.degrees(np.linalg.norm(rotation)))
+    return norm(target_pos - data.site_xpos[site_id]), float(np.degrees(norm(rotation)))
 
 
 class _DifferentialIK:

@@ -28,22 +28,10 @@ import numpy as np
 from controllers.impedance_kernel import mat_to_quat, cholesky_lower
 from controllers.mujoco_c import FN_COM_POS, FN_INTEGRATE_POS, FN_JAC_SITE, FN_KINEMATICS, call_integrate_pos, call_md, \
     call_mdppi
+from rflow.small_linalg import matmul_into
 
 _EPS = float(np.finfo(np.float64).eps)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-
-
-@_jit
-def _mm(a, b, out):
-    """out = a @ b for small C-contiguous matrices (explicit loops: no BLAS call, quick to compile)."""
-    rows, inner = a.shape
-    cols = b.shape[1]
-    for i in range(rows):
-        for j in range(cols):
-            s = 0.0
-            for k in range(inner):
-                s += a[i, k] * b[k, j]
-            out[i, j] = s
 
 
 @_jit
@@ -90,15 +78,15 @@ def _se3_q(rho, theta, m):
     v, w, vw, wv, wvw, vww, wvww, q = m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]
     _skew(rho, v)
     _skew(theta, w)
-    _mm(v, w, vw)
+    matmul_into(v, w, vw)
     for i in range(3):  # WV = (VW)^T for skew V, W
         for j in range(3):
             wv[i, j] = vw[j, i]
-    _mm(wv, w, wvw)
-    _mm(vw, w, vww)
-    _mm(wvw, w, wvww)
+    matmul_into(wv, w, wvw)
+    matmul_into(vw, w, vww)
+    matmul_into(wvw, w, wvww)
     wwvw = m[2]  # reuse: VW is not needed below (its transpose WV is)
-    _mm(w, wvw, wwvw)
+    matmul_into(w, wvw, wwvw)
     for i in range(3):
         for j in range(3):
             q[i, j] = (0.5 * v[i, j] + b * (wv[i, j] + wv[j, i] + wvw[i, j])
@@ -144,7 +132,7 @@ def frame_task(jac_world, site_pos, site_mat, target_pos, target_mat, error, jac
     t2 = theta[0] ** 2 + theta[1] ** 2 + theta[2] ** 2
     w, w2 = scratch[9], scratch[11]
     _skew(theta, w)
-    _mm(w, w, w2)
+    matmul_into(w, w, w2)
     if t2 < _EPS:
         k = 1.0 / 12.0
     else:
@@ -164,8 +152,8 @@ def frame_task(jac_world, site_pos, site_mat, target_pos, target_mat, error, jac
         block, tmp = scratch[10], scratch[9]
         _so3_left_jacobian_inverse(error[3:], block)
         _se3_q(error[:3], error[3:], scratch)
-        _mm(block, scratch[7], tmp)
-        _mm(tmp, block, scratch[11])
+        matmul_into(block, scratch[7], tmp)
+        matmul_into(tmp, block, scratch[11])
         for i in range(3):
             for j in range(3):
                 jl[i, j] = block[i, j]

@@ -38,6 +38,7 @@ from controllers import impedance_kernel as kernel
 from controllers.errors import ControllerError
 from controllers.mujoco_c import FUNCTIONS
 from controllers.validation import as_unit_quaternion, as_vector, site_id
+from rflow.small_linalg import eigh_sym, matvec, solve
 
 PANDA_TORQUE_LIMITS_NM: tuple[float, ...] = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 PANDA_TORQUE_RATE_LIMIT_NM_PER_S: float = 1000.0
@@ -123,7 +124,7 @@ def validate_stiffness(stiffness: npt.ArrayLike) -> npt.NDArray[np.float64]:
     scale = float(np.max(np.abs(k)))
     if float(np.max(np.abs(k - k.T))) > 1e-9 * max(scale, 1.0):
         raise ControllerError("stiffness is not symmetric (max |K - K^T| too large)")
-    smallest = float(np.linalg.eigvalsh(k)[0])
+    smallest = float(eigh_sym(k)[0][0])
     if smallest <= 0.0:
         raise ControllerError(f"stiffness is not positive definite (smallest eigenvalue {smallest:.3g})")
     return k
@@ -338,10 +339,10 @@ class CartesianImpedanceController:
         xi = as_vector(twist, 6, "twist")
         k = self.checked_stiffness(stiffness)
         p, w = self._modal(data, k)
-        force = p @ ((2.0 * self.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) * (p.T @ xi))
+        modal = (2.0 * self.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) * matvec(p.T, xi)
         if accel is not None:
-            force += p @ (p.T @ as_vector(accel, 6, "accel"))
-        return np.linalg.solve(k, force)
+            modal += matvec(p.T, as_vector(accel, 6, "accel"))
+        return solve(k, matvec(p, modal))
 
     def _modal(self, data: mujoco.MjData, stiffness: npt.NDArray[np.float64]) -> tuple[npt.NDArray, npt.NDArray]:
         """(P, w) of the double diagonalisation of this state's regularised Lambda and `stiffness` (copies)."""

@@ -25,12 +25,12 @@ import numba
 import numpy as np
 
 from controllers.mujoco_c import FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_jac, call_md, call_mdppi
+from rflow.small_linalg import symmetric_eig
 
 STATUS_OK = 0
 STATUS_NOT_POSITIVE_DEFINITE = 1
 """J M^-1 J^T + eps I failed its Cholesky factorisation."""
 
-_JACOBI_SWEEPS = 30  # 6x6 converges in ~6 sweeps; the cap only guards against NaN input
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
@@ -54,53 +54,6 @@ def cholesky_lower(a: np.ndarray, c: np.ndarray) -> bool:
         for i in range(j):
             c[i, j] = 0.0
     return True
-
-
-@_jit
-def symmetric_eig(a: np.ndarray, w: np.ndarray, v: np.ndarray) -> None:
-    """Eigenvalues w and eigenvectors (columns of v) of the symmetric matrix a by cyclic Jacobi rotations.
-
-    Each rotation J (c, s in rows/columns p, q) zeroes a_pq: a <- J^T a J, v <- v J, with t = tan(angle) the
-    smaller root of t^2 + 2 theta t - 1 = 0, theta = (a_qq - a_pp) / (2 a_pq). `a` is overwritten.
-    """
-    n = a.shape[0]
-    for i in range(n):
-        for j in range(n):
-            v[i, j] = 1.0 if i == j else 0.0
-    for _ in range(_JACOBI_SWEEPS):
-        off = 0.0
-        scale = 0.0
-        for i in range(n):
-            scale += a[i, i] * a[i, i]
-            for j in range(i + 1, n):
-                off += a[i, j] * a[i, j]
-        if not off > 1e-32 * scale:
-            break
-        for p in range(n - 1):
-            for q in range(p + 1, n):
-                apq = a[p, q]
-                if apq == 0.0:
-                    continue
-                theta = (a[q, q] - a[p, p]) / (2.0 * apq)
-                t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
-                if theta < 0.0:
-                    t = -t
-                c = 1.0 / math.sqrt(t * t + 1.0)
-                s = t * c
-                for k in range(n):
-                    akp, akq = a[k, p], a[k, q]
-                    a[k, p] = c * akp - s * akq
-                    a[k, q] = s * akp + c * akq
-                for k in range(n):
-                    apk, aqk = a[p, k], a[q, k]
-                    a[p, k] = c * apk - s * aqk
-                    a[q, k] = s * apk + c * aqk
-                for k in range(n):
-                    vkp, vkq = v[k, p], v[k, q]
-                    v[k, p] = c * vkp - s * vkq
-                    v[k, q] = s * vkp + c * vkq
-    for i in range(n):
-        w[i] = a[i, i]
 
 
 @_jit

@@ -7,6 +7,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controllers.errors import ControllerError
+from rflow.small_linalg import norm
 
 
 def as_vector(value: npt.ArrayLike, size: int, name: str) -> npt.NDArray[np.float64]:
@@ -31,10 +32,10 @@ def as_unit_quaternion(value: npt.ArrayLike, name: str) -> npt.NDArray[np.float6
         ControllerError: not four finite numbers, or far from unit norm.
     """
     quat = as_vector(value, 4, name)
-    norm = float(np.linalg.norm(quat))
-    if not 0.5 < norm < 1.5:
-        raise ControllerError(f"{name} must be a unit quaternion (w, x, y, z), got norm {norm:.3g}")
-    return quat / norm
+    length = norm(quat)
+    if not 0.5 < length < 1.5:
+        raise ControllerError(f"{name} must be a unit quaternion (w, x, y, z), got norm {length:.3g}")
+    return quat / length
 
 
 def site_id(model: mujoco.MjModel, site: int | str) -> int:

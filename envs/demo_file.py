@@ -36,6 +36,7 @@ import numpy.typing as npt
 from envs.errors import EnvError
 from envs.output import save_npz, strict_json
 from envs.poses import quat_angle_rad
+from rflow.small_linalg import eigh_sym, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -118,7 +119,7 @@ def validate_demos(demos: DemoSet, source: str = "demos") -> None:
     if abs(norms[worst] - 1.0) > UNIT_TOL:
         raise EnvError(f"{source}: 'quat' is not unit at demo {worst[0]}, sample {worst[1]} "
                        f"(norm {norms[worst]:.6g})")
-    if abs(np.linalg.norm(goal_quat) - 1.0) > UNIT_TOL:
+    if abs(norm(goal_quat) - 1.0) > UNIT_TOL:
         raise EnvError(f"{source}: 'goal_quat' {goal_quat.tolist()} is not unit")
     pos_err = np.linalg.norm(pos[:, -1] - goal_pos, axis=-1)
     rot_err = quat_angle_rad(quat[:, -1], goal_quat)
@@ -161,7 +162,7 @@ def validate_stiffness(demos: DemoSet, source: str = "demos") -> None:
             where = np.unravel_index(np.argmax(asym), asym.shape)
             at = f" at demo {where[0]}, sample {where[1]}" if asym.ndim else ""
             raise EnvError(f"{source}: '{name}' is not symmetric{at} (max |K - K^T| / max |K| = {asym.max():.3g})")
-        low = np.linalg.eigvalsh(0.5 * (arr + np.swapaxes(arr, -1, -2)))[..., 0]
+        low = eigh_sym(0.5 * (arr + np.swapaxes(arr, -1, -2)))[0][..., 0]
         if np.any(low <= 0.0):
             where = np.unravel_index(np.argmin(low), low.shape)
             at = f" at demo {where[0]}, sample {where[1]}" if low.ndim else ""

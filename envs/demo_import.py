@@ -58,6 +58,7 @@ from envs.poses import (
     resample_trajectory,
     rotate,
 )
+from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -186,11 +187,11 @@ def parse_tool_offset(text: str) -> Pose:
     if values.shape != (7,) or not np.all(np.isfinite(values)):
         raise EnvError(f"--tool-offset {text!r} must be 7 finite numbers X,Y,Z,QW,QX,QY,QZ (metres, quaternion "
                        f"w, x, y, z) or one of {', '.join(TOOL_OFFSETS)}")
-    norm = float(np.linalg.norm(values[3:]))
-    if abs(norm - 1.0) > TOOL_QUAT_UNIT_TOL:
-        raise EnvError(f"--tool-offset {text!r}: the quaternion {values[3:].tolist()} has norm {norm:.9g}, not 1 "
+    length = norm(values[3:])
+    if abs(length - 1.0) > TOOL_QUAT_UNIT_TOL:
+        raise EnvError(f"--tool-offset {text!r}: the quaternion {values[3:].tolist()} has norm {length:.9g}, not 1 "
                        f"(within {TOOL_QUAT_UNIT_TOL:g}); give a unit quaternion w, x, y, z")
-    return Pose(pos=values[:3], quat=values[3:] / norm)
+    return Pose(pos=values[:3], quat=values[3:] / length)
 
 
 def resolve_dt(file_dt: float | None, flag_dt: float | None, source: str) -> float:

@@ -53,7 +53,7 @@ import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -82,6 +82,7 @@ from envs.poses import (
 )
 from envs.scene import SceneConfig
 from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
+from rflow.small_linalg import dot, norm
 from rflow.stiffness import log_euclidean_resample
 
 FloatArray = npt.NDArray[np.float64]
@@ -184,12 +185,12 @@ def plan_expert_path(start: Pose, opening_pos: npt.ArrayLike, hole_axis: npt.Arr
     """
     t = np.asarray(times, dtype=float)
     axis = np.asarray(hole_axis, dtype=float)
-    axis = axis / np.linalg.norm(axis)
+    axis = axis / norm(axis)
     opening = np.asarray(opening_pos, dtype=float)
     offset = start.pos - opening
-    h0 = float(offset @ axis)
+    h0 = dot(offset, axis)
     lateral0 = offset - h0 * axis
-    depth = float((opening - goal.pos) @ axis)
+    depth = dot(opening - goal.pos, axis)
     h_e, d_e, v_e = config.entry_height_m, config.entry_depth_m, config.entry_speed_m_s
     t_a, t_e, t_i = config.approach_duration_s, config.entry_duration_s, config.insertion_duration_s
     if h0 <= h_e:
@@ -308,7 +309,7 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
             stiffness = full_stiffness(commanded[-1], k_rot)
         lead = env.controller.pose_lead(env.data, twist[k], accel[k], stiffness)
         lead_quat = quat_mul(quat_from_rotvec(lead[3:]), cmd_quat[k])
-        result = env.step((cmd_pos[k] + lead[:3], lead_quat / np.linalg.norm(lead_quat)), stiffness)
+        result = env.step((cmd_pos[k] + lead[:3], lead_quat / norm(lead_quat)), stiffness)
         if on_step is not None:
             on_step(result)
         times.append(result.obs.time_s)
@@ -328,7 +329,7 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
         return failed(f"not inserted (depth {ins.depth_m * 1e3:.1f} mm, lateral {ins.lateral_m * 1e3:.2f} mm, "
                       f"tilt {ins.tilt_deg:.2f} deg, hole {env.observation.hole})", t_arr, p_arr, q_arr)
     settled = settled_pose(t_arr, p_arr, q_arr, config.settle_window_s)
-    res_pos = float(np.linalg.norm(settled.pos - goal.pos))
+    res_pos = norm(settled.pos - goal.pos)
     res_rot = float(np.rad2deg(quat_angle_rad(settled.quat, goal.quat)))
     ok = res_pos <= config.goal_tol_m and res_rot <= config.goal_tol_deg
     reason = "ok" if ok else (f"settled {res_pos * 1e3:.2f} mm / {res_rot:.2f} deg from the goal "

@@ -57,7 +57,7 @@ from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
 from envs import sensing_kernel
 from envs.sensing import PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
-from envs.geometry import all_finite, as_vector, quat_to_mat, vector_norm
+from envs.geometry import all_finite, as_vector, quat_to_mat
 from envs.success import (
     MIN_ENTRY_DEPTH_M,
     Assessment,
@@ -69,6 +69,7 @@ from envs.success import (
     frame_assessment,
     frame_state,
 )
+from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -609,7 +610,7 @@ class PegInHoleEnv:
         """Linear speed of the peg's peg_tip (m/s), from the simulated state."""
         mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self.peg_tip_site,
                                  self._velocity, 0)
-        return float(np.linalg.norm(self._velocity[3:]))
+        return norm(self._velocity[3:])
 
     def assess(self, peg_tip: Pose | None = None, speed_m_s: float | None = None) -> Assessment:
         """Score a peg_tip pose and speed (default: the simulated peg's) against the real holes (envs.success).
@@ -645,7 +646,7 @@ class PegInHoleEnv:
         flange = _site_pose(data, self.flange_site)
         tcp = _site_pose(data, self.tcp_site)
         peg_tip = _site_pose(data, self.peg_tip_site)
-        if all_finite(peg_tip.pos) and all_finite(peg_tip.quat) and vector_norm(peg_tip.quat) > 0.5:
+        if all_finite(peg_tip.pos) and all_finite(peg_tip.quat) and norm(peg_tip.quat) > 0.5:
             assessment = self._assess(peg_tip.pos, quat_to_mat(peg_tip.quat), None)
         else:
             nan_state = InsertionState(np.nan, np.nan, np.nan, np.nan, False)
@@ -653,8 +654,8 @@ class PegInHoleEnv:
         success = self.tracker.update(time_s, assessment.inserted and track)
         wrench = self.wrist.wrench(data)
         if self._steps > 0:
-            self.stats.wrist_force_samples.append(vector_norm(wrench[:3]))
-            self.stats.wrist_torque_samples.append(vector_norm(wrench[3:]))
+            self.stats.wrist_force_samples.append(norm(wrench[:3]))
+            self.stats.wrist_torque_samples.append(norm(wrench[3:]))
         width = float(np.add.reduce(data.qpos[self._finger_qpos])) if self.grasped else 0.0
         return Observation(
             time_s=time_s,

@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from rflow.small_linalg import dot, matmul, norm, solve
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -23,11 +24,6 @@ def all_finite(values: FloatArray) -> bool:
     """Every entry is finite: a finite sum proves it in one reduction; a non-finite one (or an overflow) is
     checked entry by entry."""
     return math.isfinite(values.sum()) or bool(np.all(np.isfinite(values)))
-
-
-def vector_norm(vector: FloatArray) -> float:
-    """|v| of a float vector, as np.linalg.norm computes it (sqrt of v . v), without its Python overhead."""
-    return math.sqrt(vector.dot(vector))
 
 
 def as_vector(value: npt.ArrayLike, size: int, name: str) -> FloatArray:
@@ -52,10 +48,10 @@ def normalize_quat(quat: npt.ArrayLike, name: str = "quat") -> FloatArray:
         EnvError: if ``quat`` is not 4 finite numbers of non-negligible norm.
     """
     q = as_vector(quat, 4, name)
-    norm = vector_norm(q)
-    if norm < 1e-9:
+    length = norm(q)
+    if length < 1e-9:
         raise EnvError(f"{name}={quat!r} has zero norm and is no rotation")
-    return q / norm
+    return q / length
 
 
 def quat_to_mat(quat: npt.ArrayLike) -> FloatArray:
@@ -87,7 +83,7 @@ def mat_to_quat(rot: npt.ArrayLike) -> FloatArray:
         s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
         q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
     quat = np.asarray(q)
-    quat /= np.linalg.norm(quat)
+    quat /= norm(quat)
     return quat if quat[0] >= 0.0 else -quat
 
 
@@ -99,7 +95,7 @@ def rot_z(angle_rad: float) -> FloatArray:
 
 def z_down_rotation(yaw_deg: float) -> FloatArray:
     """R = Rz(yaw) Rx(pi): the frame whose z axis points straight down and whose x axis has heading yaw."""
-    return rot_z(np.deg2rad(yaw_deg)) @ R_FLIP_X
+    return matmul(rot_z(np.deg2rad(yaw_deg)), R_FLIP_X)
 
 
 def z_down_yaw_deg(quat: npt.ArrayLike) -> float:
@@ -147,13 +143,13 @@ def look_at_xyaxes(position: npt.ArrayLike, target: npt.ArrayLike, up: npt.Array
         EnvError: if the camera sits on its target or ``up`` is parallel to the viewing direction.
     """
     forward = np.asarray(target, dtype=np.float64) - np.asarray(position, dtype=np.float64)
-    if np.linalg.norm(forward) < 1e-9:
+    if norm(forward) < 1e-9:
         raise EnvError(f"camera position {position!r} coincides with its target")
-    forward /= np.linalg.norm(forward)
+    forward /= norm(forward)
     right = np.cross(forward, np.asarray(up, dtype=np.float64))
-    if np.linalg.norm(right) < 1e-9:
+    if norm(right) < 1e-9:
         raise EnvError(f"camera up {up!r} is parallel to its viewing direction")
-    right /= np.linalg.norm(right)
+    right /= norm(right)
     return np.concatenate([right, np.cross(right, forward)])
 
 
@@ -174,7 +170,7 @@ def polygon_area(vertices: npt.ArrayLike) -> float:
     """Signed area (positive for counter-clockwise) by the shoelace formula."""
     v = np.asarray(vertices, dtype=np.float64)
     x, y = v[:, 0], v[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return 0.5 * (dot(x, np.roll(y, -1)) - dot(np.roll(x, -1), y))
 
 
 def edge_lines(vertices: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -200,7 +196,7 @@ def offset_convex_polygon(vertices: npt.ArrayLike, distance_m: float) -> FloatAr
     out = np.empty((len(normals), 2))
     for i in range(len(normals)):
         a = np.stack([normals[i - 1], normals[i]])
-        out[i] = np.linalg.solve(a, np.array([shifted[i - 1], shifted[i]]))
+        out[i] = solve(a, np.array([shifted[i - 1], shifted[i]]))
     return out
 
 
@@ -217,7 +213,7 @@ def clip_polygon(vertices: npt.ArrayLike, normal: npt.ArrayLike, offset: float) 
     out: list[FloatArray] = []
     for i in range(len(v)):
         p, q = v[i], v[(i + 1) % len(v)]
-        sp, sq = float(n @ p) - offset, float(n @ q) - offset
+        sp, sq = dot(n, p) - offset, dot(n, q) - offset
         if sp <= 0.0:
             out.append(p)
         if sp * sq < 0.0:

@@ -71,6 +71,7 @@ from envs.env import REASON_TIME_LIMIT, EpisodeConfig, Observation, PegInHoleEnv
 from envs.errors import EnvError
 from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
 from envs.scene import SceneConfig
+from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -271,7 +272,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
             raise EnvError(f"{ENV_ID}: action {a.tolist()} contains NaN or inf")
         a = np.clip(a, self.action_space.low, self.action_space.high)
         quat = quat_mul(quat_from_rotvec(a[3:6]), self.nominal_goal.quat)
-        pose = Pose(pos=a[:3], quat=quat / np.linalg.norm(quat))
+        pose = Pose(pos=a[:3], quat=quat / norm(quat))
         if not self.stiffness_action:
             return pose, None
         return pose, np.diag(np.concatenate([a[6:9], np.full(3, self._rot_stiffness)]))
@@ -280,7 +281,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         """-(w_d |p - g_p| + w_r angle(q, g_q)) + bonus on success, g the true goal (module docstring)."""
         cfg = self.reward_config
         goal = self.sim.goal
-        distance = float(np.linalg.norm(obs.peg_tip.pos - goal.pos))
+        distance = norm(obs.peg_tip.pos - goal.pos)
         angle = float(quat_angle_rad(obs.peg_tip.quat, goal.quat))
         return -cfg.distance_weight * (distance + cfg.rot_weight_m_per_rad * angle) + (
             cfg.success_bonus if obs.success else 0.0)

@@ -21,6 +21,7 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.geometry import FloatArray, mat_to_quat, quat_to_mat
+from rflow.small_linalg import matmul, matvec
 
 MAX_HOLE_ERROR_M: float = 0.01
 MAX_HOLE_ERROR_DEG: float = 10.0
@@ -90,9 +91,9 @@ class Perturbation:
         phi, tilt, yaw = np.deg2rad([self.hole_tilt_dir_deg, self.hole_tilt_deg, self.hole_yaw_deg])
         axis = np.array([np.cos(phi), np.sin(phi), 0.0])
         k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-        r_tilt = np.eye(3) + np.sin(tilt) * k + (1.0 - np.cos(tilt)) * (k @ k)  # Rodrigues
+        r_tilt = np.eye(3) + np.sin(tilt) * k + (1.0 - np.cos(tilt)) * matmul(k, k)  # Rodrigues
         r_yaw = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
-        return np.array([self.hole_dx_m, self.hole_dy_m, 0.0]), r_tilt @ r_yaw
+        return np.array([self.hole_dx_m, self.hole_dy_m, 0.0]), matmul(r_tilt, r_yaw)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields plus the horizontal offset magnitude, in mm and deg."""
@@ -137,6 +138,6 @@ def perturbed_frame(frame_pos: npt.ArrayLike, frame_quat: npt.ArrayLike, hole_po
     t_err, r_err = perturbation.hole_transform()
     r_f = quat_to_mat(frame_quat)
     p_f = np.asarray(frame_pos, dtype=np.float64)
-    rot = r_h @ r_err @ r_h.T
-    pos = p_h + r_h @ t_err + rot @ (p_f - p_h)
-    return pos, mat_to_quat(rot @ r_f)
+    rot = matmul(matmul(r_h, r_err), r_h.T)
+    pos = p_h + matvec(r_h, t_err) + matvec(rot, p_f - p_h)
+    return pos, mat_to_quat(matmul(rot, r_f))

@@ -14,8 +14,9 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.geometry import all_finite, vector_norm
+from envs.geometry import all_finite
 from rflow.manifolds import sphere
+from rflow.small_linalg import matvec, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -140,9 +141,9 @@ def make_continuous(quat: npt.ArrayLike, reference: npt.ArrayLike | None = None)
 def mean_quat(quat: npt.ArrayLike) -> FloatArray:
     """Mean orientation of nearby quaternions (M, 4): normalised sum after sign alignment to the first."""
     q = np.asarray(quat, dtype=float)
-    signs = np.where(q @ q[0] < 0.0, -1.0, 1.0)
+    signs = np.where(matvec(q, q[0]) < 0.0, -1.0, 1.0)
     total = np.sum(signs[:, None] * q, axis=0)
-    return total / np.linalg.norm(total)
+    return total / norm(total)
 
 
 def rotate(quat: npt.ArrayLike, vec: npt.ArrayLike) -> FloatArray:
@@ -170,10 +171,10 @@ def validate_pose(pos: npt.ArrayLike, quat: npt.ArrayLike, what: str = "pose") -
         raise EnvError(f"{what}: quaternion must have shape (4,) (w, x, y, z), got {q.shape}")
     if not (all_finite(p) and all_finite(q)):
         raise EnvError(f"{what}: position {p.tolist()} / quaternion {q.tolist()} contain NaN or inf")
-    norm = vector_norm(q)
-    if abs(norm - 1.0) > QUAT_NORM_TOL:
-        raise EnvError(f"{what}: quaternion {q.tolist()} is not unit (norm {norm:.6g})")
-    return Pose(pos=p.copy(), quat=q / norm)
+    length = norm(q)
+    if abs(length - 1.0) > QUAT_NORM_TOL:
+        raise EnvError(f"{what}: quaternion {q.tolist()} is not unit (norm {length:.6g})")
+    return Pose(pos=p.copy(), quat=q / length)
 
 
 def format_pose(pose: Pose) -> str:
@@ -228,11 +229,11 @@ def nominal_start(opening_pos: npt.ArrayLike, hole_axis: npt.ArrayLike, goal_qua
     robot base), in the horizontal plane.
     """
     axis = np.asarray(hole_axis, dtype=float)
-    axis = axis / np.linalg.norm(axis)
+    axis = axis / norm(axis)
     opening = np.asarray(opening_pos, dtype=float)
     toward = np.array([-opening[0], -opening[1], 0.0])
-    norm = np.linalg.norm(toward)
-    toward = toward / norm if norm > 1e-9 else np.zeros(3)
+    length = norm(toward)
+    toward = toward / length if length > 1e-9 else np.zeros(3)
     pos = opening + region.height_above_opening_m * axis + region.toward_base_m * toward
     return Pose(pos=pos, quat=np.asarray(goal_quat, dtype=float).copy())
 
@@ -255,10 +256,10 @@ def sample_start_poses(nominal: Pose, region: StartRegion, rng: np.random.Genera
     for _ in range(num):
         offset = rng.uniform(-1.0, 1.0, size=3) * widths
         direction = rng.normal(size=3)
-        direction /= np.linalg.norm(direction)
+        direction /= norm(direction)
         angle = np.deg2rad(region.max_angle_deg) * rng.uniform() ** (1.0 / 3.0)
         quat = quat_mul(quat_from_rotvec(angle * direction), nominal.quat)
-        poses.append(Pose(pos=nominal.pos + offset, quat=quat / np.linalg.norm(quat)))
+        poses.append(Pose(pos=nominal.pos + offset, quat=quat / norm(quat)))
     return poses
 
 

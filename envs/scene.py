@@ -62,6 +62,7 @@ from envs.sorter import (
     symmetry_order,
 )
 from envs.success import HoleSpec
+from rflow.small_linalg import matmul, matvec, norm
 
 PAPER_GOAL_POS_M: tuple[float, float, float] = (0.675, -0.051, 0.203)
 """g_p of the paper's peg-in-hole experiment, robot base frame."""
@@ -119,8 +120,8 @@ def nominal_flange_to_peg_tip(shape: str) -> tuple[FloatArray, FloatArray]:
     if min(ids) < 0:
         raise EnvError(f"{assets.PANDA_XML} lacks the flange or peg_mount site")
     rot_flange, rot_mount = (data.site_xmat[i].reshape(3, 3) for i in ids)
-    rot = rot_flange.T @ rot_mount
-    pos = rot_flange.T @ (data.site_xpos[ids[1]] - data.site_xpos[ids[0]]) + rot[:, 2] * PEG_LENGTH_M
+    rot = matmul(rot_flange.T, rot_mount)
+    pos = matvec(rot_flange.T, data.site_xpos[ids[1]] - data.site_xpos[ids[0]]) + rot[:, 2] * PEG_LENGTH_M
     return pos, mat_to_quat(rot)
 
 
@@ -130,14 +131,14 @@ def goal_from_hole(
     """Goal peg_tip pose inside a hole: p = p_hole - depth z_hole, R = R_hole Rx(pi)."""
     rot_hole = quat_to_mat(hole_quat)
     pos = np.asarray(hole_pos, dtype=np.float64) - insertion_depth_m * rot_hole[:, 2]
-    return pos, mat_to_quat(rot_hole @ R_FLIP_X)
+    return pos, mat_to_quat(matmul(rot_hole, R_FLIP_X))
 
 
 def hole_from_goal(
     goal_pos: npt.ArrayLike, goal_quat: npt.ArrayLike, insertion_depth_m: float
 ) -> tuple[FloatArray, FloatArray]:
     """Inverse of ``goal_from_hole``: R_hole = R_goal Rx(pi), p_hole = p_goal + depth z_hole."""
-    rot_hole = quat_to_mat(goal_quat) @ R_FLIP_X
+    rot_hole = matmul(quat_to_mat(goal_quat), R_FLIP_X)
     pos = np.asarray(goal_pos, dtype=np.float64) + insertion_depth_m * rot_hole[:, 2]
     return pos, mat_to_quat(rot_hole)
 
@@ -304,7 +305,7 @@ class Scene:
         """
         check_shape(shape)
         rot_sorter = quat_to_mat(self.sorter_quat)
-        return self.sorter_pos + rot_sorter @ self.layout.hole_position(shape), self.sorter_quat.copy()
+        return self.sorter_pos + matvec(rot_sorter, self.layout.hole_position(shape)), self.sorter_quat.copy()
 
     def goal_pose(self) -> tuple[FloatArray, FloatArray]:
         """Goal peg_tip pose (position m, quaternion w, x, y, z) in the hole of ``config.shape``."""
@@ -339,7 +340,7 @@ def _sorter_placement(config: SceneConfig, layout: SorterLayout) -> tuple[FloatA
     goal_rot = config.goal_rotation()
     hole_pos, hole_quat = hole_from_goal(config.goal_position(), mat_to_quat(goal_rot), config.insertion_depth_m)
     rot = quat_to_mat(hole_quat)
-    return hole_pos - rot @ layout.hole_position(config.shape), hole_quat
+    return hole_pos - matvec(rot, layout.hole_position(config.shape)), hole_quat
 
 
 def _add_environment(root: mjcf.RootElement, layout: SorterLayout, sorter_pos: FloatArray, sorter_quat: FloatArray,
@@ -362,8 +363,8 @@ def _add_environment(root: mjcf.RootElement, layout: SorterLayout, sorter_pos: F
             f"{MIN_TABLE_HEIGHT_M} m"
         )
     yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
-    base_in_table = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]]) @ -sorter_pos[:2]
-    if np.linalg.norm(base_in_table - np.clip(base_in_table, -half, half)) < ROBOT_KEEP_OUT_RADIUS_M:
+    base_in_table = matvec(np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]]), -sorter_pos[:2])
+    if norm(base_in_table - np.clip(base_in_table, -half, half)) < ROBOT_KEEP_OUT_RADIUS_M:
         raise EnvError(
             f"the sorter table at {np.round(sorter_pos[:2], 3).tolist()} m comes within "
             f"{ROBOT_KEEP_OUT_RADIUS_M} m of the robot base"
@@ -518,7 +519,7 @@ def _place_grasped_peg(model: mujoco.MjModel, ids: SceneIds) -> None:
         data.qpos[:] = model.key_qpos[key]
         mujoco.mj_kinematics(model, data)
         rot = data.site_xmat[ids.tcp_site].reshape(3, 3)
-        model.key_qpos[key, adr:adr + 3] = data.site_xpos[ids.tcp_site] - rot @ tip_in_peg
+        model.key_qpos[key, adr:adr + 3] = data.site_xpos[ids.tcp_site] - matvec(rot, tip_in_peg)
         model.key_qpos[key, adr + 3:adr + 7] = mat_to_quat(rot)
     if ids.home_key is not None:  # only the free joint: hinge and slide joints measure from their qpos0
         model.qpos0[adr:adr + 7] = model.key_qpos[ids.home_key, adr:adr + 7]
@@ -565,7 +566,7 @@ def build_scene(config: SceneConfig = SceneConfig()) -> Scene:
     frame.pos, frame.quat = sorter_pos, sorter_quat
     frame.mocap = True
     goal_rot = config.goal_rotation()
-    hole_pos = sorter_pos + quat_to_mat(sorter_quat) @ layout.hole_position(config.shape)
+    hole_pos = sorter_pos + matvec(quat_to_mat(sorter_quat), layout.hole_position(config.shape))
     peg_frame = _attach_peg(root, config, hole_pos, goal_rot)
     _add_cameras(root, config.goal_position())
     peg_qpos = np.concatenate([np.asarray(peg_frame.pos if peg_frame.pos is not None else np.zeros(3), dtype=float),

@@ -42,6 +42,7 @@ from envs.contact import ContactConfig
 from envs.errors import EnvError
 from envs.geometry import FloatArray, clip_polygon, edge_lines, polygon_area, rectangle
 from envs.shapes import SHAPES, hole_polygon, peg_cross_section
+from rflow.small_linalg import dot, matmul, matvec
 
 if TYPE_CHECKING:  # loads MuJoCo: imported where the model is built, so the limits here stay light
     from dm_control import mjcf
@@ -89,7 +90,7 @@ class WallBox:
         c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
         hx, hy = self.half_size_xy
         local = np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy]])
-        return local @ np.array([[c, s], [-s, c]]) + np.asarray(self.centre_xy)
+        return matmul(local, np.array([[c, s], [-s, c]])) + np.asarray(self.centre_xy)
 
 
 @dataclass(frozen=True)
@@ -161,8 +162,8 @@ def edge_box(piece: FloatArray, normal: FloatArray, offset: float) -> WallBox:
     t = (-n_y, n_x).
     """
     tangent = np.array([-normal[1], normal[0]])
-    s = piece @ normal - offset
-    u = piece @ tangent
+    s = matvec(piece, normal) - offset
+    u = matvec(piece, tangent)
     depth, u_min, u_max = float(np.max(s)), float(np.min(u)), float(np.max(u))
     centre = (offset + depth / 2.0) * normal + (u_min + u_max) / 2.0 * tangent
     return WallBox(
@@ -218,7 +219,7 @@ def chamfer_vertices(piece: FloatArray, normal: FloatArray, offset: float, chamf
         EnvError: if the bevel would cut the piece down to its outer boundary (chamfer too wide).
     """
     z0 = z_top - chamfer_m
-    rise = np.minimum(piece @ normal - offset, chamfer_m)
+    rise = np.minimum(matvec(piece, normal) - offset, chamfer_m)
     top = clip_polygon(piece, -normal, -(offset + chamfer_m))
     if len(top) < 3 or polygon_area(top) < MIN_PIECE_AREA_M2:
         raise EnvError(f"chamfer_m={chamfer_m} is too wide for the hole's opening (a wall piece is cut away)")
@@ -323,7 +324,7 @@ def sorter_layout(clearance_m: float, hole_depth_m: float, chamfer_m: float = 0.
     }
     wall_pieces = {shape: tuple(p + np.asarray(hole_xy[shape]) for p in walls[shape][1]) for shape in LAYOUT_ORDER}
     wall_edges = {  # edge lines moved with their hole: d' = d + n . c_hole
-        shape: tuple((n, d + float(n @ np.asarray(hole_xy[shape]))) for n, d in walls[shape][2]) for shape in LAYOUT_ORDER
+        shape: tuple((n, d + dot(n, np.asarray(hole_xy[shape]))) for n, d in walls[shape][2]) for shape in LAYOUT_ORDER
     }
     plate = tuple(
         box for shape in LAYOUT_ORDER for box in cell_plate_boxes(hole_xy[shape], opening_half[shape], cell_half)

@@ -24,6 +24,7 @@ import numpy.typing as npt
 from controllers.impedance import ImpedanceConfig
 from envs.errors import EnvError
 from envs.poses import minimum_jerk
+from rflow.small_linalg import matmul, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -70,7 +71,7 @@ class StiffnessSchedule:
 
 def _unit_axis(hole_axis: npt.ArrayLike) -> FloatArray:
     a = np.asarray(hole_axis, dtype=float)
-    n = float(np.linalg.norm(a)) if a.shape == (3,) else float("nan")
+    n = norm(a) if a.shape == (3,) else float("nan")
     if not (np.isfinite(n) and n > 0.0):
         raise EnvError(f"hole axis {np.asarray(hole_axis).tolist()} must be a non-zero finite 3-vector")
     return a / n
@@ -98,7 +99,7 @@ def expert_stiffness(peg_tip_pos: npt.ArrayLike, hole_pos: npt.ArrayLike, hole_a
         raise EnvError(f"expert_stiffness needs finite positions (..., 3) and a hole position (3,), got shapes "
                        f"{p.shape} and {o.shape}")
     axis = _unit_axis(hole_axis)
-    height = (p - o) @ axis
+    height = matmul(p - o, axis)
     s = minimum_jerk((config.free_height_m - height) / (config.free_height_m - config.hole_height_m))
     lateral = config.free_n_m ** (1.0 - s) * config.lateral_hole_n_m ** s
     axial = config.free_n_m ** (1.0 - s) * config.axial_hole_n_m ** s

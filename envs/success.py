@@ -31,6 +31,7 @@ import numpy.typing as npt
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, as_vector, edge_lines, quat_to_mat, twist_angle_deg
 from envs.shapes import CrossSection
+from rflow.small_linalg import matmul, matvec
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -208,7 +209,7 @@ def insertion_state(peg_tip_pos: npt.ArrayLike, peg_tip_quat: npt.ArrayLike, hol
 
 def _hole_offset(pos: FloatArray, frame: HoleFrame) -> FloatArray:
     """r = R_H^T (p_P - p_H): the peg_tip in the hole frame."""
-    return frame.rot.T @ (pos - frame.pos)
+    return matvec(frame.rot.T, pos - frame.pos)
 
 
 def _inside(offset: FloatArray, hole: HoleSpec) -> tuple[float, float, bool]:
@@ -223,8 +224,8 @@ def frame_state(pos: FloatArray, rot: FloatArray, frame: HoleFrame, peg: PegFoot
     """`insertion_state` of a checked peg_tip pose: position ``pos`` (3,) and rotation matrix ``rot`` (3, 3) in
     the world, against a precomputed hole frame (no validation: the caller's inputs are finite)."""
     hole = frame.spec
-    rot_peg = frame.rot.T @ rot
-    rot_rel = rot_peg @ R_FLIP_X
+    rot_peg = matmul(frame.rot.T, rot)
+    rot_rel = matmul(rot_peg, R_FLIP_X)
     offset = _hole_offset(pos, frame)
     depth, lateral, in_hole = _inside(offset, hole)
     tilt = float(np.rad2deg(np.arccos(min(max(float(rot_rel[2, 2]), -1.0), 1.0))))  # = np.clip, without its overhead
@@ -260,10 +261,10 @@ def _wall_penetration(tip: FloatArray, rot_peg: FloatArray, frame: HoleFrame, pe
         cos_tilt = up[2]
         radial = max(float(np.hypot(*tip[:2])), float(np.hypot(*crossing[:2])))
         return radial + section.radius_m / cos_tilt - hole.inradius_m
-    corners = tip + peg.corners @ rot_peg.T
+    corners = tip + matmul(peg.corners, rot_peg.T)
     rise = np.maximum(level - corners[:, 2], 0.0) / up[2]
     points = np.vstack([corners, corners + rise[:, None] * up])[:, :2]
-    return float(np.max(points @ frame.wall_normals.T - frame.wall_offsets))
+    return float(np.max(matmul(points, frame.wall_normals.T) - frame.wall_offsets))
 
 
 def criteria_hold(state: InsertionState, target_depth_m: float, config: SuccessConfig) -> bool:

@@ -15,11 +15,11 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-import scipy.linalg
 
 from rflow import flow_kernel
 from rflow.errors import RFlowError
 from rflow.flow_kernel import PackedFlow
+from rflow.small_linalg import eigh_sym, expm, matmul, matvec
 
 
 class NumpyImitationFlow:
@@ -113,7 +113,7 @@ class NumpyImitationFlow:
         if phi_t is None:
             if not (math.isfinite(key) and key > 0):
                 raise RFlowError(f"step dt={dt} must be > 0")
-            phi_t = np.ascontiguousarray(scipy.linalg.expm(self.drift * key).T)
+            phi_t = np.ascontiguousarray(expm(self.drift * key).T)
             if len(self._steps) >= self._MAX_CACHED_STEPS:  # a jittering measured dt must not grow it forever
                 self._steps.clear()
             self._steps[key] = phi_t
@@ -148,7 +148,7 @@ class NumpyImitationFlow:
     def step(self, p: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
         """One exact latent step in normalised tangent space: b(Phi(dt) b^-1(p)), (N, D)."""
         phi_t = self.step_matrix(self.dt if dt is None else dt)
-        return self.forward(self.inverse(p) @ phi_t)
+        return self.forward(matmul(self.inverse(p), phi_t))
 
     def latent_path(self, q0: npt.ArrayLike, steps: int, dt: float | None = None) -> np.ndarray:
         """Latent states q_k = Phi^k q_0 for k = 0..steps, (N, steps+1, D), by doubling (log2(steps) products)."""
@@ -163,9 +163,9 @@ class NumpyImitationFlow:
         n = 1
         while n <= steps:
             take = min(n, steps + 1 - n)
-            np.matmul(out[:, :take], power_t, out=out[:, n : n + take])
+            out[:, n : n + take] = matmul(out[:, :take], power_t)
             n += take
-            power_t = power_t @ power_t  # (Phi^n)^T for the doubled n (unused after a partial block)
+            power_t = matmul(power_t, power_t)  # (Phi^n)^T for the doubled n (unused after a partial block)
         return out
 
     # ---- one point, no allocations ------------------------------------------------------------------
@@ -199,9 +199,9 @@ class TangentChart:
             self._right_conj_goal = np.ascontiguousarray(sphere.quat_mul(eye, sphere.quat_conj(self.goal)[None]).T)
             self._right_goal = np.ascontiguousarray(sphere.quat_mul(eye, self.goal[None]).T)
         elif self.name == "spd":
-            lam, u = np.linalg.eigh(self.goal)
-            self._half = (u * np.sqrt(lam)) @ u.T
-            self._inv_half = (u / np.sqrt(lam)) @ u.T
+            lam, u = eigh_sym(self.goal)
+            self._half = matmul(u * np.sqrt(lam), u.T)
+            self._inv_half = matmul(u / np.sqrt(lam), u.T)
             self._d = self.goal.shape[-1]
             self._rows, self._cols = np.triu_indices(self._d, k=1)
 
@@ -217,7 +217,7 @@ class TangentChart:
             n2 = w0 * w0 + x0 * x0 + y0 * y0 + z0 * z0
             if not abs(n2 - 1.0) <= 2e-6:  # also catches NaN
                 raise RFlowError(f"point is not a unit quaternion: ||q||^2 = {n2:.9g}")
-            w, x, y, z = (self._right_conj_goal @ point).tolist()
+            w, x, y, z = matvec(self._right_conj_goal, point).tolist()
             s = math.sqrt(x * x + y * y + z * z)
             if s < 1e-4 and w > 0:
                 f = 1.0 + s * s / 6.0
@@ -238,7 +238,7 @@ class TangentChart:
             x, y, z = v.tolist()
             t = math.sqrt(x * x + y * y + z * z)
             f = 1.0 - t * t / 6.0 if t < 1e-4 else math.sin(t) / t
-            return self._right_goal @ np.array([math.cos(t), f * x, f * y, f * z])
+            return matvec(self._right_goal, np.array([math.cos(t), f * x, f * y, f * z]))
         if self.name == "spd":
             return self._spd_exp(v)
         return np.asarray(self.manifold.exp(v, self.goal))
@@ -250,10 +250,10 @@ class TangentChart:
         asym = np.abs(p - np.swapaxes(p, -1, -2)).max()
         if not asym <= 1e-8 * max(1.0, float(np.abs(p).max())):  # also catches NaN
             raise RFlowError(f"point is not a symmetric finite matrix: max |P - P^T| = {asym:.3g}")
-        lam, u = np.linalg.eigh(self._inv_half @ p @ self._inv_half)
+        lam, u = eigh_sym(matmul(matmul(self._inv_half, p), self._inv_half))
         if not lam.min() > 0:
             raise RFlowError(f"point is not positive definite: smallest eigenvalue {lam.min():.3g} (relative to G)")
-        v = self._half @ ((u * np.log(lam)[..., None, :]) @ np.swapaxes(u, -1, -2)) @ self._half
+        v = matmul(matmul(self._half, matmul(u * np.log(lam)[..., None, :], np.swapaxes(u, -1, -2))), self._half)
         d = self._d
         return np.concatenate([v[..., np.arange(d), np.arange(d)], math.sqrt(2.0) * v[..., self._rows, self._cols]], -1)
 
@@ -267,8 +267,8 @@ class TangentChart:
         off = x[..., d:] / math.sqrt(2.0)
         v[..., self._rows, self._cols] = off
         v[..., self._cols, self._rows] = off
-        lam, u = np.linalg.eigh(self._inv_half @ v @ self._inv_half)
-        out = self._half @ ((u * np.exp(lam)[..., None, :]) @ np.swapaxes(u, -1, -2)) @ self._half
+        lam, u = eigh_sym(matmul(matmul(self._inv_half, v), self._inv_half))
+        out = matmul(matmul(self._half, matmul(u * np.exp(lam)[..., None, :], np.swapaxes(u, -1, -2))), self._half)
         return 0.5 * (out + np.swapaxes(out, -1, -2))
 
     @staticmethod

@@ -41,6 +41,7 @@ import numpy.typing as npt
 from rflow.errors import RFlowError
 from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
 from rflow.model import RiemannianFlow
+from rflow.small_linalg import eigh_sym
 from rflow.stiffness import StiffnessBounds, clip_eigenvalues, log_euclidean_mean
 
 SKILL_FILE = "skill.json"
@@ -434,7 +435,7 @@ def _check_demo_stiffness(stiffness: npt.ArrayLike, lead: tuple[int, ...], layou
     k = np.asarray(POSE_STIFFNESS.factors[2][0].check_points(np.asarray(stiffness, dtype=np.float64), "stiffness"))
     if k.shape != tuple(lead) + (3, 3):
         raise RFlowError(f"stiffness has shape {k.shape}, expected {tuple(lead) + (3, 3)} to match the poses")
-    lam = np.linalg.eigvalsh(k)
+    lam = eigh_sym(k)[0]
     if not limits.contains(k):
         raise RFlowError(f"demonstrated stiffness has eigenvalues in [{lam.min():.4g}, {lam.max():.4g}] N/m, outside "
                          f"the bounds [{limits.k_min_n_m:g}, {limits.k_max_n_m:g}] N/m")
@@ -472,6 +473,6 @@ def stiffness_reproduction(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.Array
     generated = skill.split_point(rollout(model, starts, p.shape[1] - 1, xi=1e-12).points)[2]
     bounded, clipped = skill.bound_stiffness(generated)
     per_demo = profile_distance(k, bounded)
-    change = np.abs(np.log(np.linalg.eigvalsh(bounded) / np.linalg.eigvalsh(generated)))
+    change = np.abs(np.log(eigh_sym(bounded)[0] / eigh_sym(generated)[0]))
     return {"log_euclidean_mean": float(per_demo.mean()), "log_euclidean_per_demo": per_demo.tolist(),
             "clip_fraction": float(clipped.mean()), "clip_max_log_change": float(change.max())}

@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 from rflow.errors import RFlowError
 from rflow.manifolds import spd
+from rflow.small_linalg import eigh_sym, matmul
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -52,7 +53,7 @@ class StiffnessBounds:
 
     def contains(self, stiffness: npt.ArrayLike, rtol: float = 1e-9) -> bool:
         """True when every eigenvalue of every matrix lies in [k_min, k_max] (relative tolerance ``rtol``)."""
-        lam = np.linalg.eigvalsh(np.asarray(stiffness, dtype=np.float64))
+        lam = eigh_sym(np.asarray(stiffness, dtype=np.float64))[0]
         return bool(np.all(lam >= self.k_min_n_m * (1 - rtol)) and np.all(lam <= self.k_max_n_m * (1 + rtol)))
 
 
@@ -66,10 +67,10 @@ def clip_eigenvalues(stiffness: npt.ArrayLike, bounds: StiffnessBounds) -> tuple
         RFlowError: not square symmetric matrices, NaN.
     """
     k = spd.check_symmetric(np.asarray(stiffness, dtype=np.float64), "stiffness")
-    lam, u = np.linalg.eigh(k)
+    lam, u = eigh_sym(k)
     low, high = bounds.k_min_n_m, bounds.k_max_n_m
     acted = np.any((lam < low) | (lam > high), axis=-1)
-    out = (u * np.clip(lam, low, high)[..., None, :]) @ np.swapaxes(u, -1, -2)
+    out = matmul(u * np.clip(lam, low, high)[..., None, :], np.swapaxes(u, -1, -2))
     out = 0.5 * (out + np.swapaxes(out, -1, -2))
     return np.where(acted[..., None, None], out, k), acted
 
@@ -120,8 +121,8 @@ def variability_stiffness(pos: npt.ArrayLike, config: VariabilityConfig = Variab
     Raises:
         RFlowError: see `position_covariance`.
     """
-    sigma = position_covariance(pos) + config.regularisation_m2 * np.eye(3)
-    precision = np.linalg.inv(sigma)
+    lam, u = eigh_sym(position_covariance(pos) + config.regularisation_m2 * np.eye(3))
+    precision = matmul(u / lam[..., None, :], np.swapaxes(u, -1, -2))  # (Sigma + eps I)^-1 = U diag(1/lam) U^T
     return clip_eigenvalues(config.alpha_n_m * 0.5 * (precision + np.swapaxes(precision, -1, -2)), config.bounds)[0]
 
 

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from batch import BACKENDS, Journal, describe_event  # noqa: E402
+from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
 from envs.execution.config import AROUND, DEFAULT_LOOKAHEAD_S, MODES, EvaluationConfig  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402

@@ -75,19 +75,6 @@ def test_kernel_reports_a_singular_inertia_and_writes_nothing():
     assert np.all(ctrl == 7.0)
 
 
-@pytest.mark.parametrize("seed", range(10))
-def test_jacobi_eigendecomposition_reconstructs_the_matrix(seed):
-    rng = np.random.default_rng(seed)
-    a = _spd(rng, 6, 100.0) - 30.0 * np.eye(6)  # indefinite too
-    if seed == 0:
-        a = np.diag([3.0, 3.0, 3.0, 1.0, 1.0, 1.0])  # repeated eigenvalues
-    w, v = np.zeros(6), np.zeros((6, 6))
-    kernel.symmetric_eig(a.copy(), w, v)
-    np.testing.assert_allclose(v @ np.diag(w) @ v.T, a, atol=1e-11)
-    np.testing.assert_allclose(v.T @ v, np.eye(6), atol=1e-12)
-    np.testing.assert_allclose(np.sort(w), np.linalg.eigvalsh(a), atol=1e-11)
-
-
 def test_cholesky_rejects_an_indefinite_matrix():
     c = np.zeros((6, 6))
     assert kernel.cholesky_lower(np.eye(6), c)

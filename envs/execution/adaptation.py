@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from rflow.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -91,7 +92,7 @@ class ContactAdapter:
         self.config = config
         self.goal_pos = np.asarray(goal_pos, dtype=np.float64).copy()
         a = np.asarray(axis, dtype=np.float64)
-        self.axis = a / np.linalg.norm(a)
+        self.axis = a / norm(a)
         self.push = np.zeros(3)
         self.frame = np.zeros(3)
         self._previous: FloatArray | None = None
@@ -104,7 +105,7 @@ class ContactAdapter:
 
     def near_goal(self, pos: npt.ArrayLike) -> bool:
         """Whether ``pos`` is within ``radius_m`` of the goal."""
-        return float(np.linalg.norm(np.asarray(pos, dtype=np.float64) - self.goal_pos)) < self.config.radius_m
+        return norm(np.asarray(pos, dtype=np.float64) - self.goal_pos) < self.config.radius_m
 
     def rotational_stiffness(self, pos: npt.ArrayLike) -> float | None:
         """The rotational stiffness to command at measured position ``pos`` (None: the controller's)."""
@@ -121,7 +122,7 @@ class ContactAdapter:
             return
         error = (np.asarray(velocity_d, dtype=np.float64) - (here - previous) / period_s) * period_s
         a = self.axis
-        axial = float(a @ error)
+        axial = dot(a, error)
         lateral = error - axial * a
         self.push = _saturate(max(0.0, 1.0 - period_s / cfg.push_leak_s) * self.push + axial * a, cfg.push_limit_m)
         if cfg.frame_limit_m > 0.0 and self.near_goal(here):
@@ -130,8 +131,8 @@ class ContactAdapter:
 
 def _saturate(vector: FloatArray, limit: float) -> FloatArray:
     """``vector`` scaled down to norm ``limit`` if longer."""
-    norm = float(np.linalg.norm(vector))
-    return vector * (limit / norm) if norm > limit else vector
+    length = norm(vector)
+    return vector * (limit / length) if length > limit else vector
 
 
 __all__ = ["ContactAdaptation", "ContactAdapter"]

@@ -21,6 +21,7 @@ from envs.errors import EnvError
 from envs.execution.policy import command_stiffness, led_pose
 from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
+from rflow.small_linalg import eigh_sym, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -211,18 +212,18 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
                           f"speed {ins.speed_m_s * 1e3:.1f} mm/s, hole {obs.hole})")
         rec.final_pos = obs.peg_tip.pos.tolist()
         rec.final_quat = obs.peg_tip.quat.tolist()
-        rec.final_pos_error_mm = float(np.linalg.norm(obs.peg_tip.pos - env.goal.pos) * 1e3)
+        rec.final_pos_error_mm = norm(obs.peg_tip.pos - env.goal.pos) * 1e3
         rec.final_angle_error_deg = float(np.rad2deg(quat_angle_rad(obs.peg_tip.quat, env.goal.quat)))
         rec.insertion_depth_mm = float(ins.depth_m * 1e3)
         rec.lateral_error_mm = float(ins.lateral_m * 1e3)
         rec.tilt_deg = float(ins.tilt_deg)
         rec.wall_penetration_mm = float(ins.wall_penetration_m * 1e3)
-        rec.grasp_shift_mm = float(np.linalg.norm(obs.peg_tip.pos - obs.tcp.pos) * 1e3)
+        rec.grasp_shift_mm = norm(obs.peg_tip.pos - obs.tcp.pos) * 1e3
         for key, value in env.stats.summary().items():
             setattr(rec, key, float("nan") if value is None else float(value))
         rec.touched = bool(rec.peak_contact_force_n > CONTACT_THRESHOLD_N)
         if commanded:
-            eig = np.linalg.eigvalsh(np.stack(commanded))
+            eig = eigh_sym(np.stack(commanded))[0]
             rec.min_stiffness_n_m, rec.max_stiffness_n_m = float(eig.min()), float(eig.max())
             rec.start_stiffness_eig_n_m, rec.final_stiffness_eig_n_m = eig[0].tolist(), eig[-1].tolist()
     except Exception as err:  # an episode must never abort the batch

@@ -50,9 +50,9 @@ from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose, run_e
 from envs.execution.statistics import wilson_interval
 from envs.execution.config import AROUND, EvaluationConfig, StiffnessSetting
 from envs.execution.policy import make_policy
+from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
-
 
 
 def finite_median(values: Iterable[float | None]) -> float | None:
@@ -119,7 +119,7 @@ def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike,
     starts = []
     for k in range(num):
         n = int(rng.integers(p.shape[0])) if around == "demo" else -1
-        centre = Pose(pos=p[n], quat=q[n] / np.linalg.norm(q[n])) if n >= 0 else mean
+        centre = Pose(pos=p[n], quat=q[n] / norm(q[n])) if n >= 0 else mean
         starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0],
                                 sample_perturbation(perturbations, task_rng)))
     return starts
@@ -471,7 +471,7 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
 
     wall = time.perf_counter()
     skill, env, policy = build_setup(model_dir, config)  # validates everything in this process first
-    goal_mismatch_mm = float(np.linalg.norm(skill.goal_pos - env.goal.pos) * 1e3)
+    goal_mismatch_mm = norm(skill.goal_pos - env.goal.pos) * 1e3
     env_scene = env.scene.config
     if starts is None:
         meta_starts = skill.metadata.get("demo_starts")

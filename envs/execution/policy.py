@@ -49,7 +49,6 @@ import numpy.typing as npt
 
 from controllers.impedance import full_stiffness
 from envs.errors import EnvError
-from envs.geometry import vector_norm
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
 from envs.execution.config import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.poses import (Pose, quat_conj, quat_from_rotvec_one, quat_mul, quat_mul_one, quat_to_rotvec,
@@ -57,6 +56,7 @@ from envs.poses import (Pose, quat_conj, quat_from_rotvec_one, quat_mul, quat_mu
 from rflow.errors import RFlowError
 from rflow.generate import next_point, rollout
 from rflow.skill_io import PoseSkill
+from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -294,7 +294,7 @@ class ClosedLoopPolicy:
         query = np.asarray(measured.pos, dtype=np.float64) - delta
         p1, q1, k1 = skill_state_step(self.skill, query, measured.quat, k, step_s)
         p2, q2 = skill_step(self.skill, p1, q1, step_s, k1)
-        q1 = q1 / np.linalg.norm(q1)
+        q1 = q1 / norm(q1)
         here = Pose(pos=query, quat=on_goal_hemisphere(measured.quat, q1))
         xi1 = pose_twist(here.pos, here.quat, p1, q1, step_s)
         xi2 = pose_twist(p1, q1, p2, on_goal_hemisphere(q2, q1), step_s)
@@ -411,7 +411,7 @@ def limit_twist(twist: npt.ArrayLike, max_speed_m_s: float = MAX_SPEED_M_S,
     """The twist scaled by one factor <= 1 so that |v| <= max_speed and |omega| <= max_angular_speed."""
     xi = np.asarray(twist, dtype=np.float64)
     v, w = xi[:3], xi[3:]
-    speed, spin = vector_norm(v), vector_norm(w)
+    speed, spin = norm(v), norm(w)
     factor = min(1.0, max_speed_m_s / speed if speed > 0 else 1.0, max_angular_speed_rad_s / spin if spin > 0 else 1.0)
     return xi * factor
 
@@ -443,10 +443,10 @@ def led_pose(env: Any, command: Command, gain: float, stiffness: FloatArray | No
         return command.pose
     twist = limit_twist(command.twist)
     raw = np.asarray(command.twist, dtype=np.float64)
-    scale = vector_norm(twist) / vector_norm(raw) if raw.any() else 1.0  # ratio of the norms
+    scale = norm(twist) / norm(raw) if raw.any() else 1.0  # ratio of the norms
     accel = limit_accel(scale * command.accel)
     lead = (gain * impedance_damping_lead(env, twist, accel, stiffness) + command.push).tolist()
     anchor = command.anchor
     quat = np.array(quat_mul_one(quat_from_rotvec_one(lead[3:]),
                                      np.asarray(anchor.quat, dtype=np.float64).tolist()))
-    return Pose(pos=anchor.pos + np.array(lead[:3]), quat=quat / vector_norm(quat))
+    return Pose(pos=anchor.pos + np.array(lead[:3]), quat=quat / norm(quat))

@@ -8,6 +8,8 @@ from typing import Any
 import numpy as np
 
 from rflow.errors import RFlowError
+from rflow.small_linalg import eigh_sym
+from rflow.small_linalg import matmul as small_matmul
 
 Array = Any  # numpy.ndarray or torch.Tensor
 
@@ -82,8 +84,13 @@ def swap_last(x: Array) -> Array:
 
 
 def eigh(x: Array) -> tuple[Array, Array]:
-    """Symmetric eigendecomposition, batched over leading axes."""
-    return _torch().linalg.eigh(x) if is_torch(x) else np.linalg.eigh(x)
+    """Symmetric eigendecomposition, batched over leading axes (numpy: `rflow.small_linalg.eigh_sym`, no LAPACK)."""
+    return _torch().linalg.eigh(x) if is_torch(x) else eigh_sym(x)
+
+
+def matmul(a: Array, b: Array) -> Array:
+    """a @ b, batched over leading axes (numpy: `rflow.small_linalg.matmul`, no BLAS)."""
+    return a @ b if is_torch(a) or is_torch(b) else small_matmul(a, b)  # blas-ok: torch (pinned), numpy in small_linalg
 
 
 def max_abs(x: Array) -> float:

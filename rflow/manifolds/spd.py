@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from rflow.errors import RFlowError
-from rflow.manifolds._backend import Array, as_array, eigh, is_torch, max_abs, swap_last, xp
+from rflow.manifolds._backend import Array, as_array, eigh, is_torch, matmul, max_abs, swap_last, xp
 
 SYMMETRY_TOLERANCE = 1e-8  # |P - P^T| allowed, relative to max |P|
 
@@ -24,7 +24,7 @@ SYMMETRY_TOLERANCE = 1e-8  # |P - P^T| allowed, relative to max |P|
 def _sym_fn(p: Array, fn) -> Array:
     """U fn(lambda) U^T of symmetric matrices (..., d, d)."""
     lam, u = eigh(p)
-    return (u * fn(lam)[..., None, :]) @ swap_last(u)
+    return matmul(u * fn(lam)[..., None, :], swap_last(u))
 
 
 def check_symmetric(p: Array, name: str = "matrix") -> Array:
@@ -79,7 +79,7 @@ def _half_powers(g: Array) -> tuple[Array, Array]:
     lam, u = eigh(g)
     root = m.sqrt(lam)
     ut = swap_last(u)
-    return (u * root[..., None, :]) @ ut, (u * (1.0 / root)[..., None, :]) @ ut
+    return matmul(u * root[..., None, :], ut), matmul(u * (1.0 / root)[..., None, :], ut)
 
 
 def _checked_pair(matrix: Array, base: Array, what: str) -> tuple[Array, Array]:
@@ -103,8 +103,8 @@ def log_map(p: Array, base: Array) -> Array:
     """
     p, base = _checked_pair(check_spd(p, "SPD matrix"), base, "SPD matrix")
     half, inv_half = _half_powers(base)
-    inner = inv_half @ p @ inv_half
-    return half @ logm(0.5 * (inner + swap_last(inner))) @ half
+    inner = matmul(matmul(inv_half, p), inv_half)
+    return matmul(matmul(half, logm(0.5 * (inner + swap_last(inner)))), half)
 
 
 def exp_map(v: Array, base: Array) -> Array:
@@ -115,8 +115,8 @@ def exp_map(v: Array, base: Array) -> Array:
     """
     v, base = _checked_pair(check_symmetric(v, "tangent matrix"), base, "tangent matrix")
     half, inv_half = _half_powers(base)
-    inner = inv_half @ v @ inv_half
-    out = half @ expm_sym(0.5 * (inner + swap_last(inner))) @ half
+    inner = matmul(matmul(inv_half, v), inv_half)
+    out = matmul(matmul(half, expm_sym(0.5 * (inner + swap_last(inner)))), half)
     return 0.5 * (out + swap_last(out))
 
 
@@ -132,7 +132,7 @@ def normal_log_map(p: Array, base: Array) -> Array:
     """
     p, base = _checked_pair(check_spd(p, "SPD matrix"), base, "SPD matrix")
     _, inv_half = _half_powers(base)
-    inner = inv_half @ p @ inv_half
+    inner = matmul(matmul(inv_half, p), inv_half)
     return logm(0.5 * (inner + swap_last(inner)))
 
 
@@ -146,7 +146,7 @@ def normal_exp_map(v: Array, base: Array) -> Array:
     """
     v, base = _checked_pair(check_symmetric(v, "tangent matrix"), base, "tangent matrix")
     half, _ = _half_powers(base)
-    out = half @ expm_sym(v) @ half
+    out = matmul(matmul(half, expm_sym(v)), half)
     return 0.5 * (out + swap_last(out))
 
 
@@ -228,7 +228,7 @@ def nearest_spd(a: Array, min_eigenvalue: float = 1e-9) -> Array:
     lam, u = eigh(b)
     floor = min_eigenvalue * max(max_abs(lam), 1.0)
     lam = xp(b).clip(lam, floor, None) if not is_torch(b) else lam.clamp(min=floor)
-    out = (u * lam[..., None, :]) @ swap_last(u)
+    out = matmul(u * lam[..., None, :], swap_last(u))
     return 0.5 * (out + swap_last(out))
 
 
