@@ -1,14 +1,17 @@
 """Arithmetic that does not depend on the x86-64 CPU it runs on.
 
 Torch picks its vectorised kernels (ATen: DEFAULT, AVX2 or AVX512) and MKL its BLAS code path by the instruction set
-of the host, and each choice rounds differently: the same demos trained on an AVX2 and an AVX-512 machine give other
-weights, and so other episode records. `pin_cpu_dispatch` fixes both choices to the code path every x86-64 CPU
-runs before torch is loaded:
+of the host, and each choice rounds differently: the same demos trained with the ATen DEFAULT and the AVX2 kernels
+(or MKL's default and its COMPATIBLE path) give weights that differ by up to 1e-4, and so other episode records.
+numpy's exp, log, sin, ... have AVX-512 versions of their own. `pin_cpu_dispatch` fixes these choices to code paths
+that every x86-64 CPU runs the same way, before torch is loaded (numpy: before it is imported, as `pih` does):
 
-    ATEN_CPU_CAPABILITY=default   (ATen's scalar/SSE kernels)
-    MKL_CBWR=COMPATIBLE           (MKL's conditional numerical reproducibility, the SSE2 branch)
+    ATEN_CPU_CAPABILITY=default                           (ATen's scalar/SSE kernels)
+    MKL_CBWR=COMPATIBLE                                   (MKL's conditional numerical reproducibility, SSE2)
+    NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" (numpy's AVX-512 loops; its AVX2 loops round as its
+                                                           baseline: records equal with X86_V3 disabled too)
 
-Set by the user, either variable is left as it is. The compiled kernels need no pin: numba code is built without
+Set by the user, a variable is left as it is. The compiled kernels need no pin: numba code is built without
 fast-math (no fused multiply-add, no reassociation), so it rounds the same on every x86-64 CPU. OpenBLAS (numpy,
 scipy) is not pinned: ``OPENBLAS_CORETYPE`` is the host's own setting, so what feeds an episode record avoids BLAS
 (`rflow.small_linalg`).
@@ -20,14 +23,16 @@ import os
 import warnings
 from typing import MutableMapping
 
-PINNED_ENVIRONMENT: dict[str, str] = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE"}
+PINNED_ENVIRONMENT: dict[str, str] = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE",
+                                      "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}
 """The dispatch settings every process of this project runs with (module docstring)."""
 
 
 def pin_cpu_dispatch(environ: MutableMapping[str, str] = os.environ) -> None:
     """Set ``PINNED_ENVIRONMENT`` in ``environ`` where the user has not set the variable (spawned workers inherit it).
 
-    Must run before torch runs its first kernel; `rflow` calls it on import.
+    Must run before torch runs its first kernel and before numpy is imported; `rflow` calls it on import, and
+    `pih` imports rflow first.
     """
     for key, value in PINNED_ENVIRONMENT.items():
         environ.setdefault(key, value)

@@ -13,6 +13,7 @@ import importlib
 import sys
 from typing import NoReturn, Sequence
 
+import rflow  # noqa: F401  first: pins the CPU dispatch of torch, MKL and numpy (rflow.cpu_dispatch) before they load
 from batch.errors import BatchError
 from controllers.errors import ControllerError
 from envs.errors import EnvError
