@@ -6,7 +6,7 @@
   generated plans dashed black, executed (measured) trajectories thick red.
 - `plot_stiffness`: eigenvalues of the translational stiffness against time, demonstrated (thin grey) beside
   commanded in executed episodes (thick red), one panel per eigenvalue (smallest to largest).
-- `plot_outcomes`: final position / angle errors of every episode, successes and failures apart.
+- `plot_outcomes`: every episode's outcome by reason over its hole-pose error and over where it ended.
 - `plot_success_map`: success rate over two sweep axes (`pih sweep`).
 """
 
@@ -178,27 +178,50 @@ def plot_stiffness(demos: Sequence[StiffnessCurve], executed: Sequence[Stiffness
     return _save(fig, path)
 
 
+def outcome_kind(record: Mapping[str, Any]) -> str:
+    """"seated" or the failure's kind: its reason up to the first ':' or ' (' ("time_limit", "force_limit", ...)."""
+    if record.get("success"):
+        return "seated"
+    return str(record.get("reason", "error")).split(":")[0].split(" (")[0]
+
+
 def plot_outcomes(records: Sequence[Mapping[str, Any]], path: str | os.PathLike[str], title: str = "") -> Path:
-    """Scatter of final position error (mm) against final angle error (deg) of every episode.
+    """Every episode's outcome by reason (seated, time limit, force limit, error, ...) over what perturbed it and
+    where it ended. Left: the hole-pose error drawn for the episode (offset mm, tilt deg; the yaw as the marker's
+    size). Right: the peg's state at the end (depth below the opening mm, tilt against the hole axis deg), which
+    tells a jam on the chamfer (~1 mm deep) from one in the hole or a peg that never arrived.
 
     Args:
-        records: per-episode dicts with "success", "final_pos_error_mm", "final_angle_error_deg".
+        records: per-episode dicts (EpisodeRecord.to_dict): "success", "reason", "perturbation",
+            "insertion_depth_mm", "tilt_deg".
         path: PNG to write.
     """
-    fig, ax = plt.subplots(figsize=(5, 4))
-    for ok, colour, label in ((True, "tab:green", "success"), (False, "tab:red", "failure")):
-        pts = [(r["final_pos_error_mm"], r["final_angle_error_deg"]) for r in records
-               if bool(r.get("success")) == ok and r.get("final_pos_error_mm") is not None
-               and r.get("final_angle_error_deg") is not None]
-        if pts:
-            x, y = zip(*pts)
-            ax.scatter(x, y, s=14, color=colour, label=f"{label} ({len(pts)})")
-    ax.set_xlabel("final position error (mm)")
-    ax.set_ylabel("final angle error (deg)")
-    ax.grid(alpha=0.3)
-    ax.legend()
+    kinds = sorted({outcome_kind(r) for r in records}, key=lambda k: (k != "seated", k))
+    colours = {kind: ("tab:green" if kind == "seated" else f"C{3 + i}") for i, kind in enumerate(kinds)}
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    for kind in kinds:
+        chosen = [r for r in records if outcome_kind(r) == kind]
+        per = [r.get("perturbation") or {} for r in chosen]
+        label = f"{kind} ({len(chosen)})"
+        left.scatter([p.get("hole_offset_mm", 0.0) for p in per], [p.get("hole_tilt_deg", 0.0) for p in per],
+                     s=[10.0 + 30.0 * abs(p.get("hole_yaw_deg", 0.0)) for p in per], color=colours[kind],
+                     alpha=0.7, label=label)
+        ended = [(r["insertion_depth_mm"], r["tilt_deg"]) for r in chosen
+                 if r.get("insertion_depth_mm") is not None and r.get("tilt_deg") is not None]
+        if ended:
+            x, y = zip(*ended)
+            right.scatter(x, y, s=14, color=colours[kind], alpha=0.7, label=label)
+    left.set_xlabel("hole-pose error: offset (mm)")
+    left.set_ylabel("hole-pose error: tilt (deg); marker size: |yaw|")
+    left.set_title("outcome over the perturbation", fontsize=10)
+    right.set_xlabel("depth below the opening at the end (mm)")
+    right.set_ylabel("peg tilt against the hole axis at the end (deg)")
+    right.set_title("where each episode ended", fontsize=10)
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
     if title:
-        ax.set_title(title)
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 

@@ -1,0 +1,35 @@
+"""Figures a researcher reads: the outcomes by reason and the protocol's per-seed rates."""
+
+import pytest
+
+from envs.execution.figures import outcome_kind, plot_outcomes, plot_protocol
+from envs.execution.protocol import ReplicateOutcome, summarise
+
+
+def _record(success, reason, depth_mm, **perturbation):
+    return {"success": success, "reason": reason, "insertion_depth_mm": depth_mm, "tilt_deg": 0.5,
+            "perturbation": perturbation}
+
+
+@pytest.mark.parametrize("record, kind", [
+    (_record(True, "success", 30.0), "seated"),
+    (_record(False, "time_limit (depth 1.0 mm, lateral 0.2 mm)", 1.0), "time_limit"),
+    (_record(False, "force_limit (wrist 45.0 N held 5 ms)", 12.0), "force_limit"),
+    (_record(False, "error: boom", None), "error"),
+])
+def test_every_outcome_has_its_kind(record, kind):
+    assert outcome_kind(record) == kind
+
+
+def test_the_outcome_figure_shows_each_reason_in_its_own_colour(tmp_path):
+    records = [_record(True, "success", 29.9, hole_offset_mm=0.5, hole_tilt_deg=0.2, hole_yaw_deg=0.1),
+               _record(False, "time_limit (...)", 1.0, hole_offset_mm=0.9, hole_tilt_deg=0.9, hole_yaw_deg=-0.8),
+               _record(False, "error: no episode", None)]  # no final state: drawn on the left only
+    path = plot_outcomes(records, tmp_path / "o.png", "t")
+    assert path.stat().st_size > 10_000
+
+
+def test_the_protocol_figure_draws_seeds_that_ran_and_skips_those_that_did_not(tmp_path):
+    summary = summarise([ReplicateOutcome(0, 1000, 190, 200, {"time_limit": 10}),
+                         ReplicateOutcome(1, 1001, 200, 200), ReplicateOutcome(2, 1002, error="expert gave up")])
+    assert plot_protocol(summary, tmp_path / "p.png", "square").stat().st_size > 10_000
