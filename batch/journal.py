@@ -19,6 +19,7 @@ a JSON round trip, so tuples and lists compare equal).
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 import time
@@ -34,14 +35,25 @@ UNIT = "unit"
 EVENT = "event"
 
 
+def _finite(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, inf) replaced by None, so the journal is strict JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
 def as_json(value: Any, what: str) -> Any:
-    """``value`` after a JSON round trip (tuples become lists, keys strings).
+    """``value`` after a strict JSON round trip (tuples become lists, keys strings, NaN and inf None).
 
     Raises:
         BatchError: ``value`` is not JSON-serialisable.
     """
     try:
-        return json.loads(json.dumps(value))
+        return json.loads(json.dumps(_finite(value), allow_nan=False))
     except (TypeError, ValueError) as err:
         raise BatchError(f"{what} is not JSON-serialisable: {err}") from None
 
@@ -160,7 +172,7 @@ class Journal:
         if self._handle is None:
             raise BatchError(f"journal {self.path} is closed")
         entry = {**entry, "segment": self._segment, "elapsed_s": round(time.monotonic() - self._opened, 3)}
-        self._handle.write(json.dumps(entry) + "\n")
+        self._handle.write(json.dumps(entry, allow_nan=False) + "\n")
         self._handle.flush()
         os.fsync(self._handle.fileno())
         return entry
@@ -188,7 +200,7 @@ def _create(out: Path, header: dict[str, Any]) -> TextIO:
         os.umask(umask)
         os.fchmod(fd, 0o666 & ~umask)
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(json.dumps({"kind": HEADER, "run": header}) + "\n")
+            handle.write(json.dumps({"kind": HEADER, "run": header}, allow_nan=False) + "\n")
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, out)
