@@ -20,8 +20,8 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.geometry import FloatArray, mat_to_quat, quat_to_mat
-from rflow.small_linalg import matmul, matvec
+
+FloatArray = npt.NDArray[np.float64]
 
 MAX_HOLE_ERROR_M: float = 0.01
 MAX_HOLE_ERROR_DEG: float = 10.0
@@ -88,6 +88,8 @@ class Perturbation:
 
     def hole_transform(self) -> tuple[FloatArray, FloatArray]:
         """(t (3,), R_err (3, 3)) of T_err in the hole frame."""
+        from rflow.small_linalg import matmul  # imported here: the configs import this module, and `--help` must
+        #                                        not wait for numba
         phi, tilt, yaw = np.deg2rad([self.hole_tilt_dir_deg, self.hole_tilt_deg, self.hole_yaw_deg])
         axis = np.array([np.cos(phi), np.sin(phi), 0.0])
         k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
@@ -133,6 +135,9 @@ def perturbed_frame(frame_pos: npt.ArrayLike, frame_quat: npt.ArrayLike, hole_po
     Returns:
         (position (3,), quaternion w, x, y, z (4,)).
     """
+    from envs.geometry import mat_to_quat, quat_to_mat
+    from rflow.small_linalg import matmul, matvec
+
     r_h = quat_to_mat(hole_quat)
     p_h = np.asarray(hole_pos, dtype=np.float64)
     t_err, r_err = perturbation.hole_transform()
