@@ -76,6 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--stiffness-figure", type=Path,
                      help="write the eigenvalues of the stiffness commanded in the chosen episodes against time, "
                           "beside the demos' (PNG)")
+    out.add_argument("--force-figure", type=Path,
+                     help="write the wrist force against time of the chosen episodes (--video-episodes; 'auto' "
+                          "includes the first failure) with the force limit (PNG)")
     out.add_argument("--overwrite", action="store_true",
                      help="replace outputs (--json, --video, --figure, --stiffness-figure, the journal) that an "
                           "earlier pih run wrote; a file pih did not write is never replaced")
@@ -232,14 +235,14 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
     shown = 4 if args.video_episodes == "auto" else len(args.video_episodes.split(","))
     records = 64 * 1024 + RECORD_BYTES * config.episodes
     outputs = {"--json": args.json, "--video": args.video, "--figure": args.figure,
-               "--stiffness-figure": args.stiffness_figure, "--journal": journal}
+               "--stiffness-figure": args.stiffness_figure, "--force-figure": args.force_figure, "--journal": journal}
     check_distinct(outputs)
     inputs = [args.model]
     check_output("--json", args.json, args.overwrite or args.resume, suffix=".json", inputs=inputs,
                  estimate_bytes=records)
     check_output("--video", args.video, args.overwrite, suffix=".mp4", inputs=inputs,
                  estimate_bytes=VIDEO_EPISODE_BYTES * shown)
-    for option in ("--figure", "--stiffness-figure"):
+    for option in ("--figure", "--stiffness-figure", "--force-figure"):
         check_output(option, outputs[option], args.overwrite, suffix=".png", inputs=inputs,
                      estimate_bytes=FIGURE_BYTES)
     if journal is not None:
@@ -249,7 +252,7 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
             raise EnvError(f"journal {journal} already exists: use --resume to continue that run, "
                            "--overwrite to start again, or another --journal")
         check_output("--journal", journal, args.overwrite or args.resume, inputs=inputs, estimate_bytes=records)
-    if args.video is not None or args.figure is not None or args.stiffness_figure is not None:
+    if any(p is not None for p in (args.video, args.figure, args.stiffness_figure, args.force_figure)):
         check_video_episodes(args.video_episodes, config.episodes)
     if args.figure is not None or args.stiffness_figure is not None:
         load_preview(args.model)
@@ -305,9 +308,11 @@ def choose_episodes(result: EvaluationResult, spec: str, failures: int = 1) -> l
 def render_and_plot(model_dir: Path, config: EvaluationConfig, result: EvaluationResult, episodes: Sequence[int],
                     video: Path | None, figure: Path | None, camera: str = "front",
                     stiffness_figure: Path | None = None,
-                    figure_episodes: Sequence[int] | None = None) -> dict[str, Any]:
+                    figure_episodes: Sequence[int] | None = None,
+                    force_figure: Path | None = None) -> dict[str, Any]:
     """Replay ``episodes`` once (deterministic physics) to render an MP4 of them and/or draw the skill and
-    stiffness figures of those among them in ``figure_episodes`` (default: all of them).
+    stiffness figures of those among them in ``figure_episodes`` (default: all of them), and/or the wrist force
+    of all of them (``force_figure``).
 
     Returns:
         {"video": path or None, "figure": path or None, "stiffness_figure": path or None, "replayed": [...]}
@@ -318,8 +323,9 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     from envs.video import EpisodeVideo, VideoConfig
     from rflow.skill_io import load_skill
 
-    out: dict[str, Any] = {"video": None, "figure": None, "stiffness_figure": None, "replayed": list(episodes)}
-    if not episodes or (video is None and figure is None and stiffness_figure is None):
+    out: dict[str, Any] = {"video": None, "figure": None, "stiffness_figure": None, "force_figure": None,
+                           "replayed": list(episodes)}
+    if not episodes or all(p is None for p in (video, figure, stiffness_figure, force_figure)):
         return out
     skill = load_skill(model_dir)
     meta = skill.metadata["demo_starts"]
@@ -348,6 +354,8 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         raise
     if "video" in holder:
         out["video"] = str(holder["video"].close())
+    if force_figure is not None and replays:
+        out["force_figure"] = str(plot_episode_forces(replays, starts, force_figure, config))
     shown = [i for i, episode in enumerate(episodes) if figure_episodes is None or episode in figure_episodes]
     replays, starts = [replays[i] for i in shown], [starts[i] for i in shown]
     if figure is not None and replays:
@@ -355,6 +363,19 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     if stiffness_figure is not None and replays:
         out["stiffness_figure"] = str(plot_episode_stiffness(model_dir, replays, starts, stiffness_figure, config))
     return out
+
+
+def plot_episode_forces(replays: Sequence[Any], starts: Sequence[StartPose], path: Path,
+                        config: EvaluationConfig) -> Path:
+    """The force figure: the wrist force |F| of each replayed episode against time, with the force limit."""
+    import numpy as np
+
+    from envs.execution.figures import plot_force_traces
+
+    traces = [(f"episode {start.index}: {record.reason.split(' (')[0]}", record.success, trace.times_s,
+               np.sqrt((trace.wrist_wrench[:, :3] ** 2).sum(axis=1)))
+              for (record, trace), start in zip(replays, starts) if trace is not None]
+    return plot_force_traces(traces, config.force_limit_n, path, "wrist force of the chosen episodes")
 
 
 def plot_episode_stiffness(model_dir: Path, replays: Sequence[Any], starts: Sequence[StartPose], path: Path,
@@ -432,9 +453,12 @@ def main(args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
     figure_episodes = choose_episodes(result, args.video_episodes, failures=0)  # 'auto': successes only
     chosen = choose_episodes(result, args.video_episodes) if args.video else figure_episodes
+    if args.force_figure is not None and not args.video:
+        chosen = choose_episodes(result, args.video_episodes)  # 'auto': the successes and the first failure
     extras = render_and_plot(args.model, config, result, chosen, args.video, args.figure, args.camera,
-                             args.stiffness_figure, figure_episodes=figure_episodes)
-    for key, episodes in (("video", chosen), ("figure", figure_episodes), ("stiffness_figure", figure_episodes)):
+                             args.stiffness_figure, figure_episodes=figure_episodes, force_figure=args.force_figure)
+    for key, episodes in (("video", chosen), ("figure", figure_episodes), ("stiffness_figure", figure_episodes),
+                          ("force_figure", chosen)):
         if extras[key]:
             print(f"wrote {extras[key]} (episodes {episodes})")
     if not args.quiet:

@@ -6,7 +6,8 @@ The task is the default "contact" preset (envs/task.py: grasped peg, 0.2 mm clea
 on the hole floor, hole-pose error up to 1 mm / 1 deg, 40 N force limit) unless --preset or a task option says
 otherwise. Writes runs/<name>/: demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png),
 eval.json (closed-loop evaluation, 50 perturbed starts), skill.png (demos / generated / executed, as the
-paper's peg-in-hole figure), outcomes.png (final errors), episodes.mp4 (three successes and the first
+paper's peg-in-hole figure), outcomes.png (outcomes by reason over the hole-pose error and where each episode
+ended), forces.png (wrist force of the video's episodes, with the limit), episodes.mp4 (three successes and the first
 failure, if any) and summary.json (timings and the success rate). Prints a summary. Running it again on the
 same folder needs --overwrite, and replaces only what an earlier `pih run` wrote (envs/output.py).
 """
@@ -26,7 +27,8 @@ from envs.output import MiB, check_output, check_output_folder, write_json  # no
 from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed  # noqa: E402
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
-RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "episodes.mp4", "summary.json")
+RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "forces.png", "episodes.mp4",
+               "summary.json")
 """What `pih run` writes into runs/<name>/ (an earlier run's are replaced only with --overwrite, envs/output.py)."""
 RUN_BYTES = 200 * MiB
 """Generous size of a run folder (a checkpoint, the demos, the record and a video of four episodes)."""
@@ -131,11 +133,10 @@ def main(args: argparse.Namespace) -> int:
 
     _step("4/4 figures and video")
     t0 = time.perf_counter()
-    figure_episodes = choose_episodes(result, "auto", failures=0)  # the figure shows successes, the video also a failure
-    extras = render_and_plot(model_dir, config, result,
-                             figure_episodes if args.no_video else choose_episodes(result, "auto"),
+    figure_episodes = choose_episodes(result, "auto", failures=0)  # the figure shows successes, video and forces also a failure
+    extras = render_and_plot(model_dir, config, result, choose_episodes(result, "auto"),
                              None if args.no_video else out / "episodes.mp4", out / "skill.png",
-                             figure_episodes=figure_episodes)
+                             figure_episodes=figure_episodes, force_figure=out / "forces.png")
     plot_outcomes([r.to_dict() for r in result.records], out / "outcomes.png",
                   f"{result.num_success}/{len(result.records)} inserted")
     timings["figures_video_s"] = time.perf_counter() - t0
@@ -149,7 +150,7 @@ def main(args: argparse.Namespace) -> int:
     write_json(out / "summary.json", summary)
     print()
     print(result.summary_table())
-    print(f"{'files':<30}  {out}/ (demos.npz, model/, eval.json, skill.png, outcomes.png"
+    print(f"{'files':<30}  {out}/ (demos.npz, model/, eval.json, skill.png, outcomes.png, forces.png"
           f"{', episodes.mp4' if extras['video'] else ''}, summary.json)")
     print("timings (s)".ljust(30) + "  " + ", ".join(f"{k[:-2]} {v:.0f}" for k, v in timings.items()))
     return 0

@@ -33,3 +33,14 @@ def test_the_protocol_figure_draws_seeds_that_ran_and_skips_those_that_did_not(t
     summary = summarise([ReplicateOutcome(0, 1000, 190, 200, {"time_limit": 10}),
                          ReplicateOutcome(1, 1001, 200, 200), ReplicateOutcome(2, 1002, error="expert gave up")])
     assert plot_protocol(summary, tmp_path / "p.png", "square").stat().st_size > 10_000
+
+
+def test_the_force_figure_draws_each_episode_and_the_limit(tmp_path):
+    import numpy as np
+
+    from envs.execution.figures import plot_force_traces
+
+    t = np.linspace(0.0, 2.0, 201)
+    traces = [("episode 0: success", True, t, 5.0 * t), ("episode 3: time_limit", False, t, 20.0 + 0.0 * t)]
+    assert plot_force_traces(traces, 40.0, tmp_path / "f.png", "t").stat().st_size > 10_000
+    assert plot_force_traces(traces, float("inf"), tmp_path / "g.png").stat().st_size > 10_000  # no limit drawn

@@ -6,6 +6,7 @@
   generated plans dashed black, executed (measured) trajectories thick red.
 - `plot_stiffness`: eigenvalues of the translational stiffness against time, demonstrated (thin grey) beside
   commanded in executed episodes (thick red), one panel per eigenvalue (smallest to largest).
+- `plot_force_traces`: the wrist force of chosen episodes against time, with the force limit.
 - `plot_outcomes`: every episode's outcome by reason over its hole-pose error and over where it ended.
 - `plot_success_map`: success rate over two sweep axes (`pih sweep`).
 """
@@ -265,6 +266,32 @@ def plot_protocol(summary: dict[str, Any], path: str | os.PathLike[str], title: 
     bx.set_ylabel("episodes")
     bx.set_title("outcomes by reason", fontsize=10)
     bx.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_force_traces(traces: Sequence[tuple[str, bool, npt.ArrayLike, npt.ArrayLike]], force_limit_n: float,
+                      path: str | os.PathLike[str], title: str = "") -> Path:
+    """The wrist force |F| (N) of chosen episodes against time, failures in red and successes in green, with the
+    force limit (on the force held for its 5 ms window, so single 1 ms peaks may pass it).
+
+    Args:
+        traces: (label, success, times (K,) s, wrist force |F| (K,) N) per episode.
+        force_limit_n: the task's limit (not drawn when infinite).
+        path: PNG to write.
+    """
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for label, success, times, force in traces:
+        ax.plot(np.asarray(times, dtype=float), np.asarray(force, dtype=float), lw=1.0, alpha=0.85,
+                color="tab:green" if success else "tab:red", label=label)
+    if np.isfinite(force_limit_n):
+        ax.axhline(force_limit_n, color="k", ls="--", lw=1.0, label=f"limit {force_limit_n:g} N (held 5 ms)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("wrist force |F| (N)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 
