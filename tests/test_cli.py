@@ -20,7 +20,7 @@ def imported_after(code: str) -> dict[str, object]:
     probe = (f"import sys, json\n{code}\n"
              "print(json.dumps({'scripts': sorted(m for m in sys.modules if m.startswith('scripts.')),"
              " 'torch': 'torch' in sys.modules, 'optuna': 'optuna' in sys.modules,"
-             " 'mujoco': 'mujoco' in sys.modules}))")
+             " 'mujoco': 'mujoco' in sys.modules, 'numba': 'numba' in sys.modules}))")
     out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -37,6 +37,8 @@ def test_building_the_parser_for_one_command_imports_only_that_command():
 def test_the_help_of_the_simulator_commands_loads_neither_torch_nor_mujoco(command):
     loaded = imported_after(f"from scripts.cli import build_parser\nbuild_parser({command!r}).format_help()")
     assert not loaded["torch"] and not loaded["mujoco"]
+    if command in ("evaluate", "sweep"):  # nor numba's 0.4 s: `pih evaluate --help` within 1 s
+        assert not loaded["numba"]
 
 
 def test_help_is_grouped_and_shows_units_and_defaults(capsys):
