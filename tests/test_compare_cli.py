@@ -113,7 +113,7 @@ def test_sequential_mode_runs_paired_episodes_until_a_decision_independent_of_th
     for chunk in ("4", "7"):
         out = tmp_path / f"seq{chunk}.json"
         args = ["compare", "--sequential", "--base-model", model, "--cand-model", model, "--margin", "0.9",
-                "--max-episodes", "20", "--chunk", chunk, "--time-limit", "0.05", "--quiet", "--json", str(out)]
+                "--max-episodes", "20", "--chunk", chunk, "--time-limit-s", "0.05", "--quiet", "--json", str(out)]
         assert pih(args) == 0
         data = strict_json(out)
         assert data["sequential"]["decision"] == "no regression"

@@ -152,6 +152,7 @@ def test_sigkill_of_a_worker_changes_no_episode_and_is_listed(model, tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, stderr
     data = without_wall_times(json.loads(out.read_text()))
+    assert data.pop("pih")["command"] == "evaluate"  # the file's marker (envs/output.py), not in to_dict
     undisturbed = without_wall_times(evaluate(model, EvaluationConfig(episodes=8, time_limit_s=1.0, workers=2),
                                               progress=False).to_dict())
     (event,) = data.pop("infrastructure_events")
