@@ -22,7 +22,8 @@ Statistics (k_i successes of n_i scored episodes for replicate i = 1..m):
     beta-binomial      k_i ~ BetaBinomial(n_i, a, b) fitted by maximum likelihood (scipy.stats.betabinom): the
                        replicates' spread as a Beta(a, b) over the rate of a new replicate, its mean a / (a + b),
                        the intra-seed correlation rho = 1 / (a + b + 1) and the 2.5-97.5 % range of a new seed's
-                       rate (what one more `pih demos && pih train && pih evaluate` would likely give).
+                       rate (what one more `pih demos && pih train && pih evaluate` would likely give; a plug-in range that
+                       ignores the fit's own uncertainty, too narrow with few seeds).
 
 Each replicate lives in its own folder (``seed-<s>/``: demos.npz, model/, eval.json and its journal); a stage whose
 output is there is not run again, and an interrupted evaluation resumes from its journal, so the protocol can be
