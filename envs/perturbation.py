@@ -88,8 +88,7 @@ class Perturbation:
 
     def hole_transform(self) -> tuple[FloatArray, FloatArray]:
         """(t (3,), R_err (3, 3)) of T_err in the hole frame."""
-        from rflow.small_linalg import matmul  # imported here: the configs import this module, and `--help` must
-        #                                        not wait for numba
+        from rflow.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
         phi, tilt, yaw = np.deg2rad([self.hole_tilt_dir_deg, self.hole_tilt_deg, self.hole_yaw_deg])
         axis = np.array([np.cos(phi), np.sin(phi), 0.0])
         k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
