@@ -89,7 +89,7 @@ def test_bad_adaptation_settings_are_rejected(kwargs) -> None:
 def test_policy_queries_the_flow_in_the_shifted_frame() -> None:
     skill = tiny_skill()
     policy = ClosedLoopPolicy(skill, 0.05)
-    policy.reset(Pose(GOAL_POS, GOAL_QUAT), PERIOD_S)
+    policy.reset_at(Pose(GOAL_POS, GOAL_QUAT), PERIOD_S)
     delta = np.array([0.0008, -0.0005, 0.0])
     policy.adapter.frame = delta.copy()
     measured = Pose(GOAL_POS + np.array([0.003, 0.001, 0.02]), GOAL_QUAT)

@@ -87,10 +87,10 @@ def test_unreachable_start_is_recorded_not_raised(skill, env):
 
 
 class _Exploding:
-    def reset(self, start: Pose, period_s: float) -> None:
+    def reset(self, observation, period_s: float) -> None:
         pass
 
-    def command(self, step: int, measured: Pose) -> None:
+    def act(self, observation) -> None:
         raise ValueError("boom")
 
 

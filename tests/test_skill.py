@@ -8,17 +8,16 @@ import pytest
 from envs.env import PegInHoleEnv
 from envs.errors import EnvError
 from envs.poses import Pose
+from envs.execution.feedforward import feedforward_pose, impedance_damping_lead
 from envs.execution.policy import (
     ClosedLoopPolicy,
-    Command,
     OpenLoopPolicy,
-    feedforward_pose,
     generate_plan,
-    impedance_damping_lead,
     make_policy,
     on_goal_hemisphere,
     skill_step,
 )
+from envs.execution.policy_protocol import Action
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 
 
@@ -82,7 +81,7 @@ def test_open_loop_command_before_reset_is_an_error(skill):
 
 def test_open_loop_holds_the_last_sample_after_the_plan(skill):
     policy = OpenLoopPolicy(skill, 0.5)
-    policy.reset(START, 0.01)
+    policy.reset_at(START, 0.01)
     command = policy.command(1000, START)
     assert np.allclose(command.pose.pos, policy.plan.pos[-1]) and not np.any(command.twist)
 
@@ -94,7 +93,7 @@ def test_unknown_mode_is_an_error(skill):
 
 def test_feedforward_gain_zero_sends_the_pose(env):
     env.reset(seed=0)
-    command = Command(START, np.ones(6), Pose(GOAL_POS, GOAL_QUAT))
+    command = Action(START, twist=np.ones(6), anchor=Pose(GOAL_POS, GOAL_QUAT))
     assert feedforward_pose(env, command, 0.0) is START
 
 
@@ -111,6 +110,6 @@ def test_feedforward_moves_the_arm_straight(env):
     v = np.array([0.0, 0.0, -0.05, 0.0, 0.0, 0.0])
     for _ in range(100):
         here = env.observation.peg_tip
-        env.step(feedforward_pose(env, Command(here, v, Pose(here.pos, start.quat))))
+        env.step(feedforward_pose(env, Action(here, twist=v, anchor=Pose(here.pos, start.quat))))
     moved = env.observation.peg_tip.pos - start.pos
     assert moved[2] < -0.03 and np.linalg.norm(moved[:2]) < 1e-3

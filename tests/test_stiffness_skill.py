@@ -108,7 +108,7 @@ def test_open_loop_plan_carries_bounded_stiffness_ending_at_the_goal(trained):
     assert np.allclose(plan.stiffness[0], skill.start_stiffness)
     assert np.allclose(plan.stiffness[-1], skill.goal_stiffness, rtol=1e-3)
     policy = OpenLoopPolicy(skill, duration_s=2.0, stiffness=StiffnessSetting.parse("learned"))
-    policy.reset(start, 0.01)
+    policy.reset_at(start, 0.01)
     assert np.allclose(policy.command(0, start).stiffness, policy.plan.stiffness[1])
 
 
@@ -116,7 +116,7 @@ def test_closed_loop_integrates_the_stiffness_state_instead_of_measuring_it(trai
     skill, demos = trained
     policy = ClosedLoopPolicy(skill, stiffness=StiffnessSetting.parse("learned"))
     start = Pose(pos=demos.pos[0, 0], quat=demos.quat[0, 0])
-    policy.reset(start, 0.05)
+    policy.reset_at(start, 0.05)
     first = policy.command(0, start).stiffness
     assert np.allclose(first, skill.start_stiffness)
     plan = generate_plan(skill, start, 0.5, 0.05)
@@ -189,16 +189,17 @@ class _FakeEnv:
 
 
 def test_feedforward_lead_uses_the_commanded_stiffness():
-    from envs.execution.policy import Command, command_stiffness, feedforward_pose
+    from envs.execution.feedforward import command_stiffness, feedforward_pose
+    from envs.execution.policy_protocol import Action
 
     pose = Pose(pos=np.zeros(3), quat=np.array([1.0, 0.0, 0.0, 0.0]))
     env = _FakeEnv()
     k = np.diag([300.0, 300.0, 1000.0])
-    command = Command(pose, np.full(6, 0.01), pose, stiffness=k)
+    command = Action(pose, stiffness=k, twist=np.full(6, 0.01), anchor=pose)
     feedforward_pose(env, command)
     assert np.allclose(env.controller.stiffness, np.diag([300.0, 300.0, 1000.0, 80.0, 80.0, 80.0]))
     assert np.allclose(command_stiffness(env, command), env.controller.stiffness)
-    feedforward_pose(env, Command(pose, np.full(6, 0.01), pose))
+    feedforward_pose(env, Action(pose, twist=np.full(6, 0.01), anchor=pose))
     assert env.controller.stiffness is None  # no stiffness: the controller's default
 
 

@@ -1,5 +1,11 @@
-"""One physics episode of a pose skill: reset at a start pose, command the policy, record what the
-simulated peg did (the success check of envs.success on the MEASURED peg, never the plan).
+"""One physics episode of any policy (envs.execution.policy_protocol.Policy): reset at a start pose, ask the policy
+for an action every control period, record what the simulated peg did (the success check of envs.success on the
+MEASURED peg, never the command).
+
+The policy sees `policy_protocol.Observation` (what a real cell measures, the nominal hole) and nothing else; the
+true hole only with ``privileged=True`` (a teacher such as the scripted expert). Each `Action` becomes the impedance
+controller's target and stiffness for one period (envs.execution.feedforward: the 6x6 stiffness, the velocity
+feed-forward lead).
 
 An unreachable or colliding start is recorded as a failure with its reason, and any exception inside an
 episode is recorded as "error: ..."; an episode never raises.
@@ -18,7 +24,8 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.execution.policy import command_stiffness, led_pose
+from envs.execution.feedforward import command_stiffness, led_pose, translational_stiffness
+from envs.execution.policy_protocol import Action, observe
 from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
 from rflow.small_linalg import eigh_sym, norm
@@ -154,16 +161,19 @@ class EpisodeTrace:
 
 
 def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = False,
-                on_step: Callable[[Any], None] | None = None, feedforward_gain: float = 1.0) -> tuple[EpisodeRecord, EpisodeTrace | None]:
-    """Run one episode from ``start`` with ``policy`` and score it (never raises for a failed episode).
+                on_step: Callable[[Any], None] | None = None, feedforward_gain: float = 1.0,
+                privileged: bool = False) -> tuple[EpisodeRecord, EpisodeTrace | None]:
+    """Run one episode from ``start`` with ``policy`` and score it (never raises for a failed episode: an action
+    that is not an `Action`, or one the controller rejects, ends it as "error: ...").
 
     Args:
         env: a PegInHoleEnv (stop_on_success=True).
-        policy: an envs.execution.policy policy.
+        policy: any `Policy` (``reset(observation, period_s)``, ``act(observation) -> Action``).
         start: the start pose.
         record_trace: also return the executed trajectory.
         on_step: called with the env after reset and after every step (e.g. video capture).
-        feedforward_gain: scale of the velocity feed-forward (envs.execution.policy.feedforward_pose); 0 disables it.
+        feedforward_gain: scale of the velocity feed-forward (envs.execution.feedforward); 0 disables it.
+        privileged: hand the policy the true hole and goal (``Observation.privileged``), for a teacher only.
 
     Returns:
         (EpisodeRecord, EpisodeTrace or None).
@@ -180,7 +190,7 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
             rec.reason = f"unreachable start: {err}"
             return rec, None
         period = env.control_period_s
-        policy.reset(obs.tcp, period)
+        policy.reset(observe(env, privileged), period)
         rows.append((obs, obs.tcp))
         if on_step is not None:
             on_step(env)
@@ -188,11 +198,13 @@ def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = Fa
         result = None
         default_k = env.controller.config.translational_stiffness * np.eye(3)
         while not env.done:
-            command = policy.command(step, env.observation.tcp)
-            stiffness = command_stiffness(env, command)
-            target = led_pose(env, command, feedforward_gain, stiffness)  # = feedforward_pose, stiffness made once
+            action = policy.act(observe(env, privileged))
+            if not isinstance(action, Action):
+                raise EnvError(f"{type(policy).__name__}.act returned a {type(action).__name__}, not an Action")
+            stiffness = command_stiffness(env, action)
+            target = led_pose(env, action, feedforward_gain, stiffness)  # = feedforward_pose, stiffness made once
             result = env.step(target, stiffness)
-            commanded.append(default_k if command.stiffness is None else np.asarray(command.stiffness, dtype=float))
+            commanded.append(translational_stiffness(action, default_k))
             step += 1
             if record_trace:
                 rows.append((result.obs, target))

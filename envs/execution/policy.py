@@ -16,14 +16,13 @@ Open loop (`OpenLoopPolicy`, the paper's robot experiment): the whole trajectory
 the measured start pose (rflow.generate.rollout, one point per control period, holding the goal after
 convergence) and tracked in time.
 
-Velocity feed-forward. The impedance controller (controllers.impedance) pulls toward an equilibrium pose
-with F = K e - D v, so to move at the flow's twist xi_d in quasi-steady state (F ~ 0) the commanded pose
-must lead the intended pose by K^-1 D xi_d. Without it the compliant arm lags and, D being anisotropic
-(it follows the Cartesian inertia), it also drifts sideways (~6 % of the distance travelled here), which
-is larger than the hole's clearance. `feedforward_pose` adds
-    delta = K^-1 D(q) xi_d,    D = P diag(2 zeta sqrt(w)) P^T   (controllers.impedance.modal_factors)
-to the commanded pose (position + world rotation vector), with xi_d the flow's twist from finite
-differences over the step (v = dp/dt, omega = rotvec(q1 conj(q0))/dt).
+Velocity feed-forward. Each action carries the flow's twist xi_d (finite differences over the step:
+v = dp/dt, omega = rotvec(q1 conj(q0))/dt) and acceleration, and an anchor (closed loop: the measured pose); the
+episode loop leads the anchor by K^-1 (D xi_d + Lambda a_d) so that the compliant arm moves at the flow's velocity
+(envs.execution.feedforward).
+
+Both policies implement the `Policy` protocol (envs.execution.policy_protocol): ``reset(observation, period_s)``
+and ``act(observation)`` read the measured tcp pose only (`reset_at` and `command` take that pose directly).
 
 Measured quaternions are put on the goal's hemisphere first (q and -q are the same orientation).
 
@@ -35,23 +34,22 @@ the skill's start stiffness and is integrated alongside, one exact flow step of 
 way the commanded K is the generated one with its eigenvalues clipped to the skill's [k_min, k_max]
 (`PoseSkill.bound_stiffness`, counted in ``stiffness_clipped_steps``). `StiffnessSetting` chooses between
 that learned stiffness, a constant isotropic K, or none (the controller's default);
-`controllers.impedance.full_stiffness` makes the 6x6 matrix for env.step.
+`envs.execution.feedforward.command_stiffness` makes the 6x6 matrix for env.step.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from controllers.impedance import full_stiffness
 from envs.errors import EnvError
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
 from envs.execution.config import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
-from envs.poses import (Pose, quat_conj, quat_from_rotvec_one, quat_mul, quat_mul_one, quat_to_rotvec,
+from envs.execution.policy_protocol import Action, Observation
+from envs.poses import (Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec,
                          quat_to_rotvec_one, rotate)
 from rflow.errors import RFlowError
 from rflow.generate import next_point, rollout
@@ -59,33 +57,6 @@ from rflow.skill_io import PoseSkill
 from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
-
-@dataclass(frozen=True)
-class Command:
-    """A commanded peg_tip pose and the twist the skill moves with there.
-
-    Attributes:
-        pose: the target pose without feed-forward.
-        twist: (6,) [v (m/s); omega (rad/s)] in the world frame, for velocity feed-forward.
-        anchor: the pose the feed-forward lead is added to (closed loop: the measured pose, so the arm
-            moves at the flow's twist from where it is; open loop: the plan's pose).
-        accel: (6,) [a (m/s^2); alpha (rad/s^2)] of the skill there, for inertia feed-forward.
-        stiffness: (3, 3) translational stiffness to command (N/m, world frame, SPD), or None for the
-            controller's default; pass ``full_stiffness(stiffness, k_rot)`` to env.step.
-        rotational_stiffness: rotational stiffness to command (N m/rad; closed loop near the hole, see
-            envs.execution.adaptation), or None for the controller's default.
-        push: (6,) [m; rad] world-frame offset added to the anchor (closed loop: the axial integral of the velocity
-            error, see `ClosedLoopPolicy`), zero otherwise.
-    """
-
-    pose: Pose
-    twist: FloatArray
-    anchor: Pose
-    accel: FloatArray = field(default_factory=lambda: np.zeros(6))
-    stiffness: FloatArray | None = None
-    push: FloatArray = field(default_factory=lambda: np.zeros(6))
-    rotational_stiffness: float | None = None
-
 
 def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.ArrayLike, dt: float) -> FloatArray:
     """Finite-difference twist [(p1 - p0)/dt; rotvec(q1 conj(q0))/dt] (6,) or (..., 6), world frame."""
@@ -272,18 +243,29 @@ class ClosedLoopPolicy:
         self.stiffness_clipped_steps = 0
         self._period_s = 0.0
         self._flow_period_s = 0.0
+        self._step = 0
 
-    def reset(self, start: Pose, period_s: float) -> None:
+    def reset(self, observation: Observation, period_s: float) -> None:
+        """`Policy.reset`: start an episode at the observation's measured tcp pose (`reset_at`)."""
+        self.reset_at(observation.tcp, period_s)
+
+    def act(self, observation: Observation) -> Action:
+        """`Policy.act`: the action at the observation's measured tcp pose (`command`)."""
+        self._step += 1
+        return self.command(self._step - 1, observation.tcp)
+
+    def reset_at(self, start: Pose, period_s: float) -> None:
         """Start an episode: no push or frame shift; the stiffness state (stiffness skills) starts at the
         skill's start stiffness."""
+        self._step = 0
         self._flow_period_s = float(period_s) * self.speed
         self._period_s = float(period_s)
         self.adapter.reset()
         self.stiffness_state = self.skill.start_stiffness if self.skill.has_stiffness else None
         self.stiffness_clipped_steps = 0
 
-    def command(self, step: int, measured: Pose) -> Command:
-        """Target for control step ``step`` (from 0) given the measured peg_tip pose x: the flow's pose
+    def command(self, step: int, measured: Pose) -> Action:
+        """Action for control step ``step`` (from 0; unused) given the measured peg_tip pose x: the flow's pose
         x_1 = Phi(L) x, L = ``lookahead_s``; the twist and acceleration at x from the flow poses x, x_1 and
         x_2 = Phi(2L) x (xi_1 = (x_1 - x)/L, xi_2 = (x_2 - x_1)/L, a = (xi_2 - xi_1)/L, xi = xi_1 - a L/2),
         both time-scaled by ``speed`` (xi * s, a * s^2). The flow is queried in the frame shifted by the
@@ -308,9 +290,9 @@ class ClosedLoopPolicy:
         self.adapter.update(measured.pos, self.speed * twist[:3], self._period_s)
         push = np.concatenate([self.adapter.push, np.zeros(3)])
         anchor = Pose(pos=here.pos + delta, quat=here.quat)
-        return Command(Pose(pos=p1 + delta, quat=q1), self.speed * twist, anchor, self.speed**2 * accel,
-                       _commanded_stiffness(self.stiffness, learned), push,
-                       self.adapter.rotational_stiffness(measured.pos))
+        return Action(Pose(pos=p1 + delta, quat=q1), _commanded_stiffness(self.stiffness, learned),
+                      self.adapter.rotational_stiffness(measured.pos), self.speed * twist, self.speed**2 * accel,
+                      anchor, push)
 
 
 class OpenLoopPolicy:
@@ -332,13 +314,24 @@ class OpenLoopPolicy:
         self.speed = float(speed)
         self.period_s = 0.0
         self.plan: Plan | None = None
+        self._step = 0
 
-    def reset(self, start: Pose, period_s: float) -> None:
+    def reset(self, observation: Observation, period_s: float) -> None:
+        """`Policy.reset`: generate the plan from the observation's measured tcp pose (`reset_at`)."""
+        self.reset_at(observation.tcp, period_s)
+
+    def act(self, observation: Observation) -> Action:
+        """`Policy.act`: the plan's next sample (`command`; the measured pose is not used)."""
+        self._step += 1
+        return self.command(self._step - 1, observation.tcp)
+
+    def reset_at(self, start: Pose, period_s: float) -> None:
         """Generate the plan from the measured start pose."""
+        self._step = 0
         self.period_s = float(period_s)
         self.plan = generate_plan(self.skill, start, self.duration_s * self.speed, period_s * self.speed)
 
-    def command(self, step: int, measured: Pose) -> Command:
+    def command(self, step: int, measured: Pose) -> Action:
         """The plan's sample ``step + 1`` (one period after the current time; the goal after the plan's
         end) with the plan's twist there (backward difference)."""
         plan = self.plan
@@ -349,11 +342,11 @@ class OpenLoopPolicy:
         pose = Pose(pos=plan.pos[k].copy(), quat=plan.quat[k].copy())
         stiffness = _commanded_stiffness(self.stiffness, None if plan.stiffness is None else plan.stiffness[k])
         if k >= last:
-            return Command(pose, np.zeros(6), pose, stiffness=stiffness)
+            return Action(pose, stiffness, twist=np.zeros(6), anchor=pose)
         dt = self.period_s
         back = pose_twist(plan.pos[k - 1], plan.quat[k - 1], plan.pos[k], plan.quat[k], dt)
         ahead = pose_twist(plan.pos[k], plan.quat[k], plan.pos[k + 1], plan.quat[k + 1], dt)
-        return Command(pose, 0.5 * (back + ahead), pose, (ahead - back) / dt, stiffness)
+        return Action(pose, stiffness, twist=0.5 * (back + ahead), accel=(ahead - back) / dt, anchor=pose)
 
     @property
     def stiffness_clipped_steps(self) -> int:
@@ -376,77 +369,3 @@ def make_policy(skill: PoseSkill, mode: str, lookahead_s: float = DEFAULT_LOOKAH
     if mode == "open-loop":
         return OpenLoopPolicy(skill, duration_s, speed, stiffness)
     raise EnvError(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
-
-
-def impedance_damping_lead(env: Any, twist: npt.ArrayLike, accel: npt.ArrayLike | None = None,
-                           stiffness: npt.ArrayLike | None = None) -> FloatArray:
-    """delta = K^-1 (D(q) twist + Lambda(q) accel) (6,): the pose lead that makes the impedance controller
-    of ``env`` (Lambda x'' + D x' + K (x - x_cmd) = 0 in free space) follow ``twist`` and ``accel``
-    (module docstring), computed by the controller itself from the current state of ``env`` (not changed),
-    with the 6x6 ``stiffness`` to be commanded (None: the controller's default; D follows K).
-    """
-    return env.controller.pose_lead(env.data, twist, accel, stiffness)
-
-
-def command_stiffness(env: Any, command: Command) -> FloatArray | None:
-    """The 6x6 stiffness to pass to ``env.step`` with ``command``: `full_stiffness` of the command's translational
-    stiffness and rotational stiffness, each the controller's default where the command has none; None (the
-    default) when it has neither."""
-    if command.stiffness is None and command.rotational_stiffness is None:
-        return None
-    config = env.controller.config
-    k_trans = config.translational_stiffness * np.eye(3) if command.stiffness is None else command.stiffness
-    k_rot = config.rotational_stiffness if command.rotational_stiffness is None else command.rotational_stiffness
-    return full_stiffness(k_trans, k_rot)
-
-
-MAX_SPEED_M_S: float = 0.5
-"""The feed-forward twist is scaled down to at most this linear speed (the demos peak near 0.15 m/s)."""
-MAX_ANGULAR_SPEED_RAD_S: float = 2.0
-"""... and at most this angular speed."""
-
-
-def limit_twist(twist: npt.ArrayLike, max_speed_m_s: float = MAX_SPEED_M_S,
-                max_angular_speed_rad_s: float = MAX_ANGULAR_SPEED_RAD_S) -> FloatArray:
-    """The twist scaled by one factor <= 1 so that |v| <= max_speed and |omega| <= max_angular_speed."""
-    xi = np.asarray(twist, dtype=np.float64)
-    v, w = xi[:3], xi[3:]
-    speed, spin = norm(v), norm(w)
-    factor = min(1.0, max_speed_m_s / speed if speed > 0 else 1.0, max_angular_speed_rad_s / spin if spin > 0 else 1.0)
-    return xi * factor
-
-
-MAX_ACCEL_M_S2: float = 2.0
-"""The feed-forward acceleration is scaled down to at most this linear acceleration ..."""
-MAX_ANGULAR_ACCEL_RAD_S2: float = 10.0
-"""... and at most this angular acceleration."""
-
-
-def limit_accel(accel: npt.ArrayLike) -> FloatArray:
-    """The acceleration scaled by one factor <= 1 to |a| <= MAX_ACCEL_M_S2, |alpha| <= MAX_ANGULAR_ACCEL_RAD_S2."""
-    return limit_twist(accel, MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2)
-
-
-def feedforward_pose(env: Any, command: Command, gain: float = 1.0) -> Pose:
-    """The pose to send to ``env.step``: with gain > 0 the command's anchor led by gain * K^-1 D(q) twist
-    (position + world-frame rotation vector: q' = exp(delta_r) q), the twist limited by `limit_twist`, K the
-    stiffness commanded with it (`command_stiffness`); with gain 0 the command's pose."""
-    if gain == 0.0:
-        return command.pose
-    return led_pose(env, command, gain, command_stiffness(env, command))
-
-
-def led_pose(env: Any, command: Command, gain: float, stiffness: FloatArray | None) -> Pose:
-    """`feedforward_pose` given the command's 6x6 stiffness as made by `command_stiffness(env, command)` (the
-    episode loop makes it once and passes the same matrix to ``env.step``)."""
-    if gain == 0.0:
-        return command.pose
-    twist = limit_twist(command.twist)
-    raw = np.asarray(command.twist, dtype=np.float64)
-    scale = norm(twist) / norm(raw) if raw.any() else 1.0  # ratio of the norms
-    accel = limit_accel(scale * command.accel)
-    lead = (gain * impedance_damping_lead(env, twist, accel, stiffness) + command.push).tolist()
-    anchor = command.anchor
-    quat = np.array(quat_mul_one(quat_from_rotvec_one(lead[3:]),
-                                     np.asarray(anchor.quat, dtype=np.float64).tolist()))
-    return Pose(pos=anchor.pos + np.array(lead[:3]), quat=quat / norm(quat))

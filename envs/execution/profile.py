@@ -3,9 +3,9 @@
 The parts are timed by wrapping, for the duration of the profile only, the instance methods that do them (the
 environment's and the policy's own objects, nothing global): the controlled physics steps with the per-step sensing
 (``controller.step``), the observation and success check (``env._observe``), the policy with its flow queries
-(``policy.command``), the feed-forward lead (``controller.pose_lead``), the nullspace IK (``nullspace.update``) and
+(``policy.act``), the feed-forward lead (``controller.pose_lead``), the nullspace IK (``nullspace.update``) and
 the instability check (``env._instability``). "other" is the rest of the loop (validation, the command's stiffness,
-bookkeeping). The episode's reset (start pose, grasp settling) is timed apart and left out of the periods. A wrapper
+bookkeeping, the policy's observation). The episode's reset (start pose, grasp settling) is timed apart and left out of the periods. A wrapper
 adds ~0.3 us per call, a few us per period.
 """
 
@@ -19,7 +19,7 @@ from envs.execution.episode import run_episode
 PARTS: tuple[tuple[str, str, str], ...] = (
     ("control_and_sensing", "controller", "step"),
     ("observation_and_success", "env", "_observe"),
-    ("policy", "policy", "command"),
+    ("policy", "policy", "act"),
     ("feedforward_lead", "controller", "pose_lead"),
     ("nullspace_ik", "nullspace", "update"),
     ("instability_check", "env", "_instability"),

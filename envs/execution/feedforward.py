@@ -1,0 +1,123 @@
+"""What the cell's controller side does with a policy's `Action`: the 6x6 stiffness and the feed-forward lead.
+
+Velocity feed-forward. The impedance controller (controllers.impedance) pulls toward an equilibrium pose
+with F = K e - D v, so to move at a twist xi_d in quasi-steady state (F ~ 0) the commanded pose must lead the
+intended pose by K^-1 D xi_d. Without it the compliant arm lags and, D being anisotropic (it follows the
+Cartesian inertia), it also drifts sideways (~6 % of the distance travelled here), which is larger than the hole's
+clearance. For an action with a twist the episode loop therefore sends
+    x_cmd = anchor (+) (gain K^-1 (D(q) xi_d + Lambda(q) a_d) + push),   D = P diag(2 zeta sqrt(w)) P^T
+(controllers.impedance.pose_lead, modal_factors; position + world rotation vector, q' = exp(delta_r) q), with
+the twist and acceleration scaled down by `limit_twist` / `limit_accel`. The lead is computed by the controller
+from the simulator's state, which a policy never sees: a policy only says how it wants to move.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from controllers.impedance import full_stiffness
+from envs.errors import EnvError
+from envs.execution.policy_protocol import Action
+from envs.poses import Pose, quat_from_rotvec_one, quat_mul_one
+from rflow.small_linalg import norm
+
+FloatArray = npt.NDArray[np.float64]
+
+MAX_SPEED_M_S: float = 0.5
+"""The feed-forward twist is scaled down to at most this linear speed (the demos peak near 0.15 m/s)."""
+MAX_ANGULAR_SPEED_RAD_S: float = 2.0
+"""... and at most this angular speed."""
+MAX_ACCEL_M_S2: float = 2.0
+"""The feed-forward acceleration is scaled down to at most this linear acceleration ..."""
+MAX_ANGULAR_ACCEL_RAD_S2: float = 10.0
+"""... and at most this angular acceleration."""
+
+_ZERO6 = np.zeros(6)
+_ZERO6.setflags(write=False)
+
+
+def limit_twist(twist: npt.ArrayLike, max_speed_m_s: float = MAX_SPEED_M_S,
+                max_angular_speed_rad_s: float = MAX_ANGULAR_SPEED_RAD_S) -> FloatArray:
+    """The twist scaled by one factor <= 1 so that |v| <= max_speed and |omega| <= max_angular_speed."""
+    xi = np.asarray(twist, dtype=np.float64)
+    v, w = xi[:3], xi[3:]
+    speed, spin = norm(v), norm(w)
+    factor = min(1.0, max_speed_m_s / speed if speed > 0 else 1.0, max_angular_speed_rad_s / spin if spin > 0 else 1.0)
+    return xi * factor
+
+
+def limit_accel(accel: npt.ArrayLike) -> FloatArray:
+    """The acceleration scaled by one factor <= 1 to |a| <= MAX_ACCEL_M_S2, |alpha| <= MAX_ANGULAR_ACCEL_RAD_S2."""
+    return limit_twist(accel, MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2)
+
+
+def impedance_damping_lead(env: Any, twist: npt.ArrayLike, accel: npt.ArrayLike | None = None,
+                           stiffness: npt.ArrayLike | None = None) -> FloatArray:
+    """delta = K^-1 (D(q) twist + Lambda(q) accel) (6,): the pose lead that makes the impedance controller
+    of ``env`` (Lambda x'' + D x' + K (x - x_cmd) = 0 in free space) follow ``twist`` and ``accel``
+    (module docstring), computed by the controller itself from the current state of ``env`` (not changed),
+    with the 6x6 ``stiffness`` to be commanded (None: the controller's default; D follows K).
+    """
+    return env.controller.pose_lead(env.data, twist, accel, stiffness)
+
+
+def command_stiffness(env: Any, action: Action) -> FloatArray | None:
+    """The 6x6 stiffness to pass to ``env.step`` with ``action``: a (6, 6) stiffness as it is; else `full_stiffness`
+    of the translational and rotational stiffness, each the controller's default where the action has none; None
+    (the default) when it has neither.
+
+    Raises:
+        EnvError: a stiffness that is not (3, 3) or (6, 6), or a (6, 6) one with a rotational stiffness beside it.
+    """
+    k = action.stiffness
+    if k is None and action.rotational_stiffness is None:
+        return None
+    if k is not None:
+        shape = np.shape(k)
+        if shape == (6, 6):
+            if action.rotational_stiffness is not None:
+                raise EnvError("an action with a (6, 6) stiffness must leave rotational_stiffness None")
+            return np.asarray(k, dtype=np.float64)
+        if shape != (3, 3):
+            raise EnvError(f"action stiffness must be (3, 3) or (6, 6), got shape {shape}")
+    config = env.controller.config
+    k_trans = config.translational_stiffness * np.eye(3) if k is None else k
+    k_rot = config.rotational_stiffness if action.rotational_stiffness is None else action.rotational_stiffness
+    return full_stiffness(k_trans, k_rot)
+
+
+def translational_stiffness(action: Action, default: FloatArray) -> FloatArray:
+    """The (3, 3) translational stiffness ``action`` commands (``default``: the controller's, when it has none)."""
+    k = action.stiffness
+    if k is None:
+        return default
+    k = np.asarray(k, dtype=float)
+    return k[:3, :3] if k.shape == (6, 6) else k
+
+
+def feedforward_pose(env: Any, action: Action, gain: float = 1.0) -> Pose:
+    """The pose to send to ``env.step``: with gain > 0 and a twist, the action's anchor led by gain * K^-1 D(q)
+    twist (module docstring), K the stiffness commanded with it (`command_stiffness`); else the action's pose."""
+    if gain == 0.0 or action.twist is None:
+        return action.pose
+    return led_pose(env, action, gain, command_stiffness(env, action))
+
+
+def led_pose(env: Any, action: Action, gain: float, stiffness: FloatArray | None) -> Pose:
+    """`feedforward_pose` given the action's 6x6 stiffness as made by `command_stiffness(env, action)` (the
+    episode loop makes it once and passes the same matrix to ``env.step``)."""
+    if gain == 0.0 or action.twist is None:
+        return action.pose
+    raw = np.asarray(action.twist, dtype=np.float64)
+    twist = limit_twist(raw)
+    scale = norm(twist) / norm(raw) if raw.any() else 1.0  # ratio of the norms
+    accel = limit_accel(scale * (_ZERO6 if action.accel is None else action.accel))
+    push = _ZERO6 if action.push is None else action.push
+    lead = (gain * impedance_damping_lead(env, twist, accel, stiffness) + push).tolist()
+    anchor = action.pose if action.anchor is None else action.anchor
+    quat = np.array(quat_mul_one(quat_from_rotvec_one(lead[3:]),
+                                 np.asarray(anchor.quat, dtype=np.float64).tolist()))
+    return Pose(pos=anchor.pos + np.array(lead[:3]), quat=quat / norm(quat))
