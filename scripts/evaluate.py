@@ -1,8 +1,14 @@
-"""`pih evaluate`: execute a trained skill from seeded perturbed starts in physics and score it.
+"""`pih evaluate`: execute a trained skill, or any policy, from seeded perturbed starts in physics and score it.
 
     pih evaluate --model runs/default/model --episodes 100 --seed 0 --json runs/eval.json \\
         [--mode closed-loop|open-loop] [--workers 2] [--video runs/eval.mp4] [--figure runs/eval.png] \\
         [--stiffness learned|constant:K] [--stiffness-figure runs/stiffness.png]
+    pih evaluate --policy mypkg.mymodule:make --demos demos.npz [--policy-option KEY=VALUE ...] [--privileged] \\
+        --episodes 100 --seed 0 --json runs/mine.json
+
+--policy scores a user policy (envs/execution/policy_protocol.py; the factory is called as
+factory(task, **options), envs/execution/evaluate_policy.py) in the demos' scene, from the starts and
+perturbations the skill trained on those demos meets, with the same success check (scripts/evaluate_policy.py).
 
 Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range-mm (box)
 and +-rot-range-deg (ball) -- see envs/execution/evaluate.py. Success is the physics check on the measured
@@ -35,6 +41,7 @@ from envs.errors import EnvError  # noqa: E402
 from envs.execution.config import AROUND, DEFAULT_LOOKAHEAD_S, MODES, EvaluationConfig  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, seed  # noqa: E402
+from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
 from scripts.task_options import add_task_arguments, scene_given, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
@@ -55,7 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih evaluate`, in groups: skill, starts and run, output, task."""
     d = EvaluationConfig()
     skill = parser.add_argument_group("skill")
-    skill.add_argument("--model", required=True, type=Path, help="checkpoint directory from `pih train`")
+    skill.add_argument("--model", type=Path, help="checkpoint directory from `pih train` (or give --policy)")
+    add_policy_arguments(parser)
     run = parser.add_argument_group("starts and run")
     run.add_argument("--episodes", type=count(MAX_EPISODES), default=d.episodes,
                      help=f"perturbed starts, 1..{MAX_EPISODES:,}")
@@ -219,7 +227,18 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
         EnvError: naming the offending option.
     """
     config = checked_config(args)
-    if not args.model.is_dir():
+    if args.policy is not None:
+        check_policy_args(args)
+        inputs = [args.demos]
+    else:
+        if args.model is None:
+            raise EnvError("give --model DIR (a `pih train` checkpoint) or --policy MODULE:FACTORY with --demos FILE")
+        given = [o for o, v in (("--demos", args.demos), ("--privileged", args.privileged),
+                                ("--policy-option", args.policy_option)) if v]
+        if given:
+            raise EnvError(f"{', '.join(given)} go(es) with --policy, not with --model")
+        inputs = [args.model]
+    if args.model is not None and not args.model.is_dir():
         raise EnvError(f"--model {args.model}: checkpoint folder not found")
     if config.stiffness == "learned":
         from rflow.skill_io import load_skill
@@ -237,7 +256,6 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
     outputs = {"--json": args.json, "--video": args.video, "--figure": args.figure,
                "--stiffness-figure": args.stiffness_figure, "--force-figure": args.force_figure, "--journal": journal}
     check_distinct(outputs)
-    inputs = [args.model]
     check_output("--json", args.json, args.overwrite or args.resume, suffix=".json", inputs=inputs,
                  estimate_bytes=records)
     check_output("--video", args.video, args.overwrite, suffix=".mp4", inputs=inputs,
@@ -267,12 +285,25 @@ def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> Evalua
     from batch import Journal
     from envs.execution.evaluate import evaluate, journal_run
 
+    if args.policy is not None:
+        from envs.execution.evaluate_policy import demo_metadata, evaluate_policy, policy_journal_run
+
+        spec, metadata = policy_spec(args), demo_metadata(args.demos)
+        run = policy_journal_run(spec, metadata, config)
+
+        def evaluate_it(journal: Journal | None = None) -> EvaluationResult:
+            return evaluate_policy(spec, metadata, config, progress=not args.quiet, journal=journal)
+    else:
+        run = journal_run(args.model, config)
+
+        def evaluate_it(journal: Journal | None = None) -> EvaluationResult:
+            return evaluate(args.model, config, progress=not args.quiet, journal=journal)
     path = journal_path(args)
     if path is None:
-        return evaluate(args.model, config, progress=not args.quiet)
-    journal = Journal.open(path, journal_run(args.model, config), resume=args.resume, overwrite=args.overwrite)
+        return evaluate_it()
+    journal = Journal.open(path, run, resume=args.resume, overwrite=args.overwrite)
     try:
-        return evaluate(args.model, config, progress=not args.quiet, journal=journal)
+        return evaluate_it(journal)
     except BaseException:
         journal.close()
         if not args.resume and not journal.done():
@@ -430,7 +461,7 @@ def main(args: argparse.Namespace) -> int:
     config = check_args(args)
     result = run_evaluation(args, config)
     if result.goal_mismatch_mm > GOAL_MISMATCH_WARN_MM:
-        print(f"pih evaluate: warning: the skill's goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
+        print(f"pih evaluate: warning: the {'demos' if args.policy else 'skill'}'s goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
               "for demos recorded elsewhere use --hole-at-goal", file=sys.stderr)
     print(result.summary_table())
     for event in result.infrastructure_events:
@@ -451,6 +482,10 @@ def main(args: argparse.Namespace) -> int:
         if result.fault is not None:
             return EXIT_FAULT
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
+    if args.policy is not None:  # no video or figures for a policy (check_policy_args refuses them)
+        if not args.quiet:
+            print(f"total {time.perf_counter() - wall:.1f} s")
+        return 0
     figure_episodes = choose_episodes(result, args.video_episodes, failures=0)  # 'auto': successes only
     chosen = choose_episodes(result, args.video_episodes) if args.video else figure_episodes
     if args.force_figure is not None and not args.video:

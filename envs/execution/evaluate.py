@@ -197,6 +197,7 @@ class EvaluationResult:
         infrastructure_events: lost workers, actors, nodes and retried episodes (batch.supervision).
         workers: processes or actors the episodes ran on (0: all were in the journal already).
         fault: what stopped the whole evaluation (e.g. the Ray head lost), else None.
+        policy: a user policy's spec, options and privilege (`pih evaluate --policy`); None for the skill.
     """
 
     config: EvaluationConfig
@@ -212,6 +213,7 @@ class EvaluationResult:
     infrastructure_events: list[dict[str, Any]] = field(default_factory=list)
     workers: int = 1
     fault: str | None = None
+    policy: dict[str, Any] | None = None
 
     @property
     def num_success(self) -> int:
@@ -269,7 +271,8 @@ class EvaluationResult:
     def to_dict(self) -> dict[str, Any]:
         """The JSON record: config, success rate with its Wilson interval over the scored episodes, statistics,
         the learned stiffness's reproduction of the demos' (`stiffness_reproduction`), the scored episodes, the
-        infrastructure errors and events, the workers that ran and the fault that stopped the run (if any)."""
+        infrastructure errors and events, the workers that ran and the fault that stopped the run (if any), and for a
+        user policy its spec ("policy")."""
         low, high = self.interval
         return {
             "model": self.model_dir,
@@ -291,6 +294,7 @@ class EvaluationResult:
             "per_episode": [r.to_dict() for r in self.records],
             "infrastructure_errors": [r.to_dict() for r in self.infrastructure_errors],
             "infrastructure_events": self.infrastructure_events,
+            **({} if self.policy is None else {"policy": self.policy}),
         }
 
     def save_json(self, path: str | os.PathLike[str]) -> Path:
@@ -312,7 +316,7 @@ class EvaluationResult:
             return "-" if v is None else f"{v:.{digits}f} {unit}"
 
         rows = [
-            ("mode", self.config.mode),
+            ("policy", self.policy["spec"]) if self.policy is not None else ("mode", self.config.mode),
             ("episodes", str(len(self.records))),
             ("success rate", f"{100 * self.success_rate:.1f} % ({self.num_success}/{len(self.records)}), "
                              f"95 % CI [{100 * low:.1f}, {100 * high:.1f}] %"),
@@ -364,6 +368,22 @@ class _Setup:
     config: EvaluationConfig
 
 
+def build_env(metadata: dict[str, Any], goal: Pose, config: EvaluationConfig) -> Any:
+    """The evaluation's PegInHoleEnv: the demos' scene (`scene_config_for` of the checkpoint's or demo file's
+    metadata), the config's time and force limits; with ``hole_at_goal`` the goal must be reachable.
+
+    Raises:
+        EnvError: shape mismatch, invalid scene, unreachable goal.
+    """
+    from envs.env import EpisodeConfig, PegInHoleEnv
+
+    env = PegInHoleEnv(scene_config_for(metadata, config, goal),
+                       episode_config=EpisodeConfig(time_limit_s=config.time_limit_s, force_limit_n=config.force_limit_n))
+    if config.hole_at_goal:
+        check_goal_reachable(env)
+    return env
+
+
 def build_setup(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> tuple[Any, Any, Any]:
     """Load the skill, build the evaluation environment and the policy.
 
@@ -373,16 +393,10 @@ def build_setup(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
     Raises:
         RFlowError: missing or corrupt checkpoint. EnvError: shape mismatch, invalid scene, unreachable goal.
     """
-    from envs.env import EpisodeConfig, PegInHoleEnv
     from rflow.skill_io import load_skill
 
     skill = load_skill(model_dir)
-    goal = Pose(pos=skill.goal_pos, quat=skill.goal_quat)
-    scene_config = scene_config_for(skill.metadata, config, goal)
-    env = PegInHoleEnv(scene_config, episode_config=EpisodeConfig(time_limit_s=config.time_limit_s,
-                                                                  force_limit_n=config.force_limit_n))
-    if config.hole_at_goal:
-        check_goal_reachable(env)
+    env = build_env(skill.metadata, Pose(pos=skill.goal_pos, quat=skill.goal_quat), config)
     stiffness = None if config.stiffness is None else StiffnessSetting.parse(config.stiffness)
     adaptation = ContactAdaptation() if config.contact_adaptation else ContactAdaptation.off()
     policy = make_policy(skill, config.mode, config.lookahead_s, config.time_limit_s, config.speed, stiffness,
@@ -400,8 +414,9 @@ def _init_worker(setup: _Setup) -> dict[str, Any]:
 
 
 def _run_unit(context: dict[str, Any], start: StartPose) -> dict[str, Any]:
-    """The record (as a dict) of one episode."""
-    return run_episode(context["env"], context["policy"], start, feedforward_gain=context["gain"])[0].to_dict()
+    """The record (as a dict) of one episode (the policy privileged where the context says so)."""
+    return run_episode(context["env"], context["policy"], start, feedforward_gain=context["gain"],
+                       privileged=context.get("privileged", False))[0].to_dict()
 
 
 def _failed_unit(key: str, start: StartPose, reason: str) -> dict[str, Any]:
@@ -467,23 +482,49 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
         RFlowError / EnvError: bad checkpoint, shape mismatch, unreachable goal with hole_at_goal.
         BatchError: Ray unreachable, or workers that cannot build the environment.
     """
-    from tqdm import tqdm
-
     wall = time.perf_counter()
     skill, env, policy = build_setup(model_dir, config)  # validates everything in this process first
     goal_mismatch_mm = norm(skill.goal_pos - env.goal.pos) * 1e3
     env_scene = env.scene.config
     if starts is None:
-        meta_starts = skill.metadata.get("demo_starts")
-        if not isinstance(meta_starts, dict) or "pos" not in meta_starts or "quat" not in meta_starts:
-            raise EnvError(f"checkpoint {model_dir} has no demo start poses (metadata 'demo_starts')")
-        starts = evaluation_starts(meta_starts, config)
-    batch = config.batch_config()
-    in_process = batch.backend == "process" and batch.workers == 1
+        starts = evaluation_starts(metadata_starts(skill.metadata, f"checkpoint {model_dir}"), config)
     here = {"env": env, "policy": policy, "gain": config.feedforward_gain}
     del env, policy  # workers build their own
+    outcome, records, earlier_s = run_episodes(starts, _Setup(str(model_dir), config), _init_worker, here, config,
+                                               progress, journal, f"evaluate ({config.mode})")
+    return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, str(model_dir), skill.metadata,
+                            to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted,
+                            [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
+                            outcome.workers, outcome.fault)
+
+
+def metadata_starts(metadata: dict[str, Any], source: str) -> dict[str, Any]:
+    """The demos' start poses of a checkpoint's (or demo file's) metadata, {"pos": (N, 3), "quat": (N, 4)}.
+
+    Raises:
+        EnvError: naming ``source`` when there are none.
+    """
+    meta_starts = metadata.get("demo_starts")
+    if not isinstance(meta_starts, dict) or "pos" not in meta_starts or "quat" not in meta_starts:
+        raise EnvError(f"{source} has no demo start poses (metadata 'demo_starts')")
+    return meta_starts
+
+
+def run_episodes(starts: Sequence[StartPose], setup: Any, init_worker: Callable[[Any], dict[str, Any]],
+                 here: dict[str, Any], config: EvaluationConfig, progress: bool, journal: Journal | None,
+                 desc: str) -> tuple[Any, list[EpisodeRecord], float]:
+    """The batch of an evaluation: each start an episode (`_run_unit`) in this process on ``here`` (the context of
+    env, policy and gain built already) or in workers that build theirs with ``init_worker(setup)``.
+
+    Returns:
+        (the batch outcome, the records sorted by episode index, the wall time of the journal's earlier parts).
+    """
+    from tqdm import tqdm
+
+    batch = config.batch_config()
+    in_process = batch.backend == "process" and batch.workers == 1
     done = journal.done() if journal is not None else {}
-    bar = tqdm(total=len(starts), initial=sum(str(s.index) in done for s in starts), desc=f"evaluate ({config.mode})",
+    bar = tqdm(total=len(starts), initial=sum(str(s.index) in done for s in starts), desc=desc,
                unit="ep", disable=not progress, leave=False)
     successes = [sum(bool(done[str(s.index)].get("success")) for s in starts if str(s.index) in done)]
 
@@ -498,18 +539,13 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     if in_process:
         torch.set_num_threads(1)
     try:
-        outcome = run_batch([(str(s.index), s) for s in starts], _Setup(str(model_dir), config),
-                            (lambda _: here) if in_process else _init_worker, _run_unit, _failed_unit, batch,
-                            journal, on_record)
+        outcome = run_batch([(str(s.index), s) for s in starts], setup, (lambda _: here) if in_process else init_worker,
+                            _run_unit, _failed_unit, batch, journal, on_record)
     finally:
         torch.set_num_threads(threads)
         bar.close()
     records = sorted((record_from_dict(r) for r in outcome.records.values()), key=lambda r: r.index)
-    earlier_s = journal.earlier_wall_s if journal is not None else 0.0
-    return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, str(model_dir), skill.metadata,
-                            to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted,
-                            [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
-                            outcome.workers, outcome.fault)
+    return outcome, records, journal.earlier_wall_s if journal is not None else 0.0
 
 
 def iter_replays(model_dir: str | os.PathLike[str], config: EvaluationConfig, starts: Sequence[StartPose],
@@ -555,15 +591,18 @@ __all__ = [
     "EvaluationConfig",
     "EvaluationResult",
     "StartPose",
+    "build_env",
     "build_setup",
     "check_goal_reachable",
     "evaluate",
     "finite_min",
     "iter_replays",
     "journal_run",
+    "metadata_starts",
     "record_from_dict",
     "replay_episodes",
     "run_episode",
+    "run_episodes",
     "evaluation_starts",
     "sample_starts",
     "scene_config_for",

@@ -117,6 +117,41 @@ class Policy(Protocol):
         """The command for the next control period, given the latest observation."""
 
 
+@dataclass(frozen=True)
+class PolicyTask:
+    """What a policy factory is told about the task before the first episode (`pih evaluate --policy
+    MODULE:FACTORY` calls ``FACTORY(task, **options)``): the nominal cell, as a real cell's programmer knows it.
+
+    Attributes:
+        shape: the peg's cross-section and its target hole ("square", "triangle", ...).
+        clearance_m: nominal gap between peg and hole walls (hole width minus peg width), m.
+        control_period_s: seconds between two ``act`` calls (the action is held that long).
+        time_limit_s: an episode ends unsuccessful after this much simulated time.
+        force_limit_n: an episode ends ("force_limit") when the wrist force stays above this for 5 ms.
+        nominal_hole, nominal_goal: as in `Observation` (not the episode's true, perturbed hole).
+        translational_stiffness_n_m, rotational_stiffness_nm_rad: the controller's default stiffness, used where
+            an `Action` commands none.
+    """
+
+    shape: str
+    clearance_m: float
+    control_period_s: float
+    time_limit_s: float
+    force_limit_n: float
+    nominal_hole: Pose
+    nominal_goal: Pose
+    translational_stiffness_n_m: float
+    rotational_stiffness_nm_rad: float
+
+
+def policy_task(env: Any) -> PolicyTask:
+    """The `PolicyTask` of a simulator (envs.env.PegInHoleEnv)."""
+    config = env.controller.config
+    return PolicyTask(env.shape, float(env.scene.config.clearance_m), env.control_period_s,
+                      float(env.config.time_limit_s), float(env.config.force_limit_n), env.nominal_hole,
+                      env.nominal_goal, float(config.translational_stiffness), float(config.rotational_stiffness))
+
+
 def is_policy(value: Any) -> bool:
     """Whether ``value`` has callable ``reset`` and ``act`` methods (an instance, not a class)."""
     return (not isinstance(value, type) and isinstance(value, Policy)

@@ -4,9 +4,9 @@ The parts are timed by wrapping, for the duration of the profile only, the insta
 environment's and the policy's own objects, nothing global): the controlled physics steps with the per-step sensing
 (``controller.step``), the observation and success check (``env._observe``), the policy with its flow queries
 (``policy.act``), the feed-forward lead (``controller.pose_lead``), the nullspace IK (``nullspace.update``) and
-the instability check (``env._instability``). "other" is the rest of the loop (validation, the command's stiffness,
-bookkeeping, the policy's observation). The episode's reset (start pose, grasp settling) is timed apart and left out of the periods. A wrapper
-adds ~0.3 us per call, a few us per period.
+the instability check (``env._instability``). "other" is the rest of the loop (validation, the action's stiffness,
+the policy's observation, bookkeeping). The episode's reset (start pose, grasp settling) is timed apart and left out
+of the periods. A wrapper adds ~0.3 us per call, a few us per period.
 """
 
 from __future__ import annotations
