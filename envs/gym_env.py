@@ -10,38 +10,40 @@ third-party environment by importing the module named before the ':' of the id, 
 Options (keyword arguments of ``gymnasium.make``): any field of SceneConfig, EpisodeConfig or
 ImpedanceConfig, or of a config nested in them (EpisodeConfig.perturbations, .start_region, .success, ...),
 by its name; a field ending in ``_m`` may also be given in millimetres as ``..._mm`` (``clearance_mm=0.2``
-sets ``clearance_m=0.0002``, ``hole_error_mm=1`` the perturbations' ``hole_error_m``). Besides: ``stiffness_action`` (bool), ``reward``
-(a RewardConfig), ``render_mode`` ("rgb_array" or None), ``camera``, ``width``, ``height`` (of the frames).
-An unknown option is an EnvError naming it.
+sets ``clearance_m=0.0002``, ``hole_error_mm=1`` the perturbations' ``hole_error_m``). Besides: ``stiffness_action``
+(bool), ``privileged`` (bool, default False: see Observation), ``reward`` (a RewardConfig), ``render_mode``
+("rgb_array" or None), ``camera``, ``width``, ``height`` (of the frames). An unknown option is an EnvError naming it.
 
-Action (Box, float32), the commanded peg_tip pose under the nominal grasp (the simulator's ``tcp``, which
-the robot controls; the peg's own pose differs by the grasp offset and any slip), held for one control
-period (10 ms by default):
-    a[0:3]  position p_cmd, metres, world (robot base) frame, within the box spanned by the start region
-            and the nominal goal widened by ACTION_POS_MARGIN_M;
-    a[3:6]  rotation vector r (radians, world frame) of the commanded orientation relative to the nominal
-            goal orientation: q_cmd = exp(r) q_goal, each component within +-(max start angle +
-            ACTION_ANGLE_MARGIN_DEG); relative, so the task's z-down orientation is r = 0, far from the pi
-            wrap-around of an absolute rotation vector;
-    a[6:9]  (only with ``stiffness_action=True``) the translational stiffness diagonal k_x, k_y, k_z in N/m
-            within STIFFNESS_RANGE_N_M; the commanded 6x6 world-frame stiffness is
+Action (Box [-1, 1]^n, float32; stable-baselines3's convention): a normalised action a is mapped affinely onto the
+physical command u = c + a h, with c and h the centre and half-width of the physical range below (``physical_low``,
+``physical_high``; ``to_physical`` and ``to_action`` convert), after clipping a to [-1, 1]. The physical command is
+the tcp pose under the nominal grasp (the simulator's ``tcp``, which the robot controls; the peg's own pose differs
+by the grasp offset and any slip), held for one control period (10 ms by default):
+    u[0:3]  position p_cmd, metres, world (robot base) frame, within the box spanned by the start region and the
+            nominal goal widened by ACTION_POS_MARGIN_M (c: the box's centre, h: its half-widths, 0.15-0.175 m by
+            default);
+    u[3:6]  rotation vector r (radians, world frame) of the commanded orientation relative to the nominal goal
+            orientation, q_cmd = exp(r) q_goal, each component within +-(max start angle + ACTION_ANGLE_MARGIN_DEG)
+            (c = 0, h = 45 deg = 0.785 rad by default); relative, so the task's z-down orientation is r = 0 (a = 0), far
+            from the pi wrap-around of an absolute rotation vector;
+    u[6:9]  (only with ``stiffness_action=True``) the translational stiffness diagonal k_x, k_y, k_z in N/m within
+            STIFFNESS_RANGE_N_M (c = 1550, h = 1450); the commanded 6x6 world-frame stiffness is
             K = diag(k_x, k_y, k_z, k_r, k_r, k_r) with k_r the controller's rotational stiffness.
-Actions are clipped to the Box before use.
 
-Observation (Dict; every value float32 unless noted), read from the simulator's Observation:
-    tcp_pos (3,) m, tcp_quat (4,) (w, x, y, z): the nominal peg_tip from the arm's kinematics (what the
-        robot knows), positions within +-WORKSPACE_HALF_WIDTH_M;
-    peg_tip_pos (3,), peg_tip_quat (4,): the peg's own peg_tip (simulator truth; a real robot would not
-        measure it; drop it with gymnasium.wrappers.FilterObservation for a robot-side policy);
-    qpos, qvel: the simulator's joint vectors, sizes read from a first observation at construction; qpos
-        bounded by the joint ranges widened by JOINT_RANGE_MARGIN where a joint is limited;
+Observation (Dict; every value float32): what a real cell measures, as the Policy protocol's observation
+(envs.execution.policy_protocol):
+    tcp_pos (3,) m, tcp_quat (4,) (w, x, y, z): the nominal peg_tip from the arm's kinematics, positions within
+        +-WORKSPACE_HALF_WIDTH_M;
+    qpos, qvel (7,): arm joint positions (bounded by the joint ranges widened by JOINT_RANGE_MARGIN) and velocities;
     wrist_wrench (6,) [N; N m] from the wrist F/T sensor, sensor frame, tool load removed;
-    contact_force_n (1,) sum of contact normal-force magnitudes on the peg, N;
     gripper_width_m (1,) opening between the finger pads, m;
-    insertion (4,) depth m, lateral m, tilt deg, yaw error deg of the peg relative to the (true) target hole;
-    in_hole, inserted: Discrete(2); time_s (1,) seconds since the reset.
-    Bounds are infinite only where nothing physical bounds a value (velocities, wrenches); the action keeps
-    physical units, so normalising it is left to the user (gymnasium.wrappers.RescaleAction).
+    nominal_hole_pos (3,), nominal_hole_quat (4,): where the cell believes the target hole is (not the true one);
+    time_s (1,) seconds since the reset.
+The simulator's truth -- the peg's own pose (peg_tip_pos, peg_tip_quat), the contact force on it (contact_force_n),
+its state against the TRUE, perturbed hole (insertion: depth m, lateral m, tilt deg, yaw error deg; in_hole,
+inserted: 0 or 1) -- is in ``info`` after every reset and step, never in the observation, unless the env is made
+with ``privileged=True`` (a teacher or an ablation), which adds those keys to the observation (in_hole and
+inserted as Discrete(2)). Bounds are infinite only where nothing physical bounds a value (velocities, wrenches).
 
 Reward, dense: r_t = -(|p - g_p| + ROT_WEIGHT_M_PER_RAD angle(q, g_q)) (metres; 0.1 m per rad makes 10 deg
 cost like 17 mm) for the peg's own peg_tip (p, q) and the true goal g inside the (possibly displaced) hole,
@@ -89,6 +91,8 @@ INSERTION_HIGH = np.array([2.0 * WORKSPACE_HALF_WIDTH_M, 2.0 * WORKSPACE_HALF_WI
 MAX_GRIPPER_WIDTH_M: float = 0.1
 """Bound of the finger opening (the Franka hand opens 80 mm)."""
 RENDER_OPTIONS: tuple[str, ...] = ("render_mode", "camera", "width", "height")
+PRIVILEGED_KEYS: tuple[str, ...] = ("peg_tip_pos", "peg_tip_quat", "contact_force_n", "insertion", "in_hole", "inserted")
+"""The simulator's truth: in ``info`` always, in the observation only with ``privileged=True`` (module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -136,7 +140,7 @@ def configs_from_kwargs(options: dict[str, Any]) -> tuple[SceneConfig, Impedance
             except (TypeError, ValueError):
                 raise EnvError(f"{ENV_ID}: option {name}={value!r} must be a number (millimetres)") from None
         if field_name not in owners:
-            raise EnvError(f"{ENV_ID}: unknown option {name!r}; options are stiffness_action, reward, "
+            raise EnvError(f"{ENV_ID}: unknown option {name!r}; options are stiffness_action, privileged, reward, "
                            f"{', '.join(RENDER_OPTIONS)}, and the config fields {', '.join(sorted(owners))} "
                            f"(any *_m also as *_mm)")
         if len(owners[field_name]) > 1:
@@ -183,7 +187,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, render_mode: str | None = None, stiffness_action: bool = False,
+    def __init__(self, render_mode: str | None = None, stiffness_action: bool = False, privileged: bool = False,
                  reward: RewardConfig = RewardConfig(), camera: str = "front", width: int = 640, height: int = 480,
                  **options: Any):
         """Args: see the module docstring. Raises: EnvError on an unknown or invalid option."""
@@ -195,6 +199,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         self.render_mode = render_mode
         self.reward_config = reward
         self.stiffness_action = bool(stiffness_action)
+        self.privileged = bool(privileged)
         self._camera, self._size = camera, (int(width), int(height))
         self._renderer: Any = None
         self.sim = PegInHoleEnv(scene_config, controller_config, episode_config)
@@ -202,13 +207,15 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
             raise EnvError(f"{ENV_ID}: camera={camera!r} is not a camera of the scene")
         self._rot_stiffness = controller_config.rotational_stiffness
         self.nominal_goal: Pose = self.sim.nominal_goal
-        self.action_space = self._action_space()
+        self.physical_low, self.physical_high = self._physical_bounds()
+        self.action_space = _box(-np.ones(self.physical_low.size), np.ones(self.physical_low.size))
         first = self.sim.reset(start_pose=self.sim.nominal_start())
         self.observation_space = self._observation_space(first)
 
     # ------------------------------------------------------------------------------------------- spaces
 
-    def _action_space(self) -> spaces.Box:
+    def _physical_bounds(self) -> tuple[FloatArray, FloatArray]:
+        """The physical command's range (module docstring): position box, rotation vector, stiffness diagonal."""
         region = self.sim.config.start_region
         nominal = self.sim.nominal_start()
         half = np.asarray(region.pos_half_width_m)
@@ -219,58 +226,102 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         if self.stiffness_action:
             low = np.concatenate([low, np.full(3, STIFFNESS_RANGE_N_M[0])])
             high = np.concatenate([high, np.full(3, STIFFNESS_RANGE_N_M[1])])
-        return _box(low, high)
+        return low, high
 
-    def _observation_space(self, first: Observation) -> spaces.Dict:
-        nq, nv = np.asarray(first.qpos).size, np.asarray(first.qvel).size
-        q_low, q_high = joint_position_bounds(self.sim.model, nq)
-        workspace = (np.full(3, -WORKSPACE_HALF_WIDTH_M), np.full(3, WORKSPACE_HALF_WIDTH_M))
-        return spaces.Dict({
-            "tcp_pos": _box(*workspace),
-            "tcp_quat": _box(-np.ones(4), np.ones(4)),
-            "peg_tip_pos": _box(*workspace),
-            "peg_tip_quat": _box(-np.ones(4), np.ones(4)),
-            "qpos": _box(q_low, q_high),
-            "qvel": _box(np.full(nv, -np.inf), np.full(nv, np.inf)),
-            "wrist_wrench": _box(np.full(6, -np.inf), np.full(6, np.inf)),
-            "contact_force_n": _box([0.0], [np.inf]),
-            "gripper_width_m": _box([0.0], [MAX_GRIPPER_WIDTH_M]),
-            "insertion": _box(INSERTION_LOW, INSERTION_HIGH),
-            "in_hole": spaces.Discrete(2),
-            "inserted": spaces.Discrete(2),
-            "time_s": _box([0.0], [self.sim.config.time_limit_s + self.sim.control_period_s]),
-        })
+    def to_physical(self, action: npt.ArrayLike) -> FloatArray:
+        """The physical command u = c + a h of a normalised action a, clipped to [-1, 1] first (module docstring).
 
-    def _observe(self, obs: Observation) -> dict[str, Any]:
-        ins = obs.insertion
-        values: dict[str, Any] = {
-            "tcp_pos": obs.tcp.pos,
-            "tcp_quat": obs.tcp.quat,
-            "peg_tip_pos": obs.peg_tip.pos,
-            "peg_tip_quat": obs.peg_tip.quat,
-            "qpos": obs.qpos,
-            "qvel": obs.qvel,
-            "wrist_wrench": obs.wrist_wrench,
-            "contact_force_n": [obs.contact_force_n],
-            "gripper_width_m": [obs.gripper_width_m],
-            "insertion": [ins.depth_m, ins.lateral_m, ins.tilt_deg, ins.yaw_error_deg],
-            "in_hole": int(ins.in_hole),
-            "inserted": int(obs.inserted),
-            "time_s": [obs.time_s],
-        }
-        return {key: value if isinstance(value, int) else np.asarray(value, dtype=np.float32)
-                for key, value in values.items()}
-
-    # ------------------------------------------------------------------------------------------- episode
-
-    def command(self, action: npt.ArrayLike) -> tuple[Pose, np.ndarray | None]:
-        """The peg_tip pose (and 6x6 stiffness, or None) an action commands, after clipping to the Box."""
+        Raises:
+            EnvError: a wrong shape, NaN or inf.
+        """
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         if a.shape != self.action_space.shape:
             raise EnvError(f"{ENV_ID}: action must have shape {self.action_space.shape}, got {a.shape}")
         if not np.all(np.isfinite(a)):
             raise EnvError(f"{ENV_ID}: action {a.tolist()} contains NaN or inf")
-        a = np.clip(a, self.action_space.low, self.action_space.high)
+        centre, half = 0.5 * (self.physical_high + self.physical_low), 0.5 * (self.physical_high - self.physical_low)
+        return centre + np.clip(a, -1.0, 1.0) * half
+
+    def to_action(self, physical: npt.ArrayLike) -> np.ndarray:
+        """The normalised action (float32) of a physical command u (module docstring): a = (u - c) / h, not clipped.
+
+        Raises:
+            EnvError: a wrong shape.
+        """
+        u = np.asarray(physical, dtype=np.float64).reshape(-1)
+        if u.shape != self.physical_low.shape:
+            raise EnvError(f"{ENV_ID}: a physical command must have shape {self.physical_low.shape}, got {u.shape}")
+        centre, half = 0.5 * (self.physical_high + self.physical_low), 0.5 * (self.physical_high - self.physical_low)
+        return ((u - centre) / half).astype(np.float32)
+
+    def _observation_space(self, first: Observation) -> spaces.Dict:
+        nq, nv = np.asarray(first.qpos).size, np.asarray(first.qvel).size
+        q_low, q_high = joint_position_bounds(self.sim.model, nq)
+        workspace = (np.full(3, -WORKSPACE_HALF_WIDTH_M), np.full(3, WORKSPACE_HALF_WIDTH_M))
+        measured: dict[str, spaces.Space] = {
+            "tcp_pos": _box(*workspace),
+            "tcp_quat": _box(-np.ones(4), np.ones(4)),
+            "qpos": _box(q_low, q_high),
+            "qvel": _box(np.full(nv, -np.inf), np.full(nv, np.inf)),
+            "wrist_wrench": _box(np.full(6, -np.inf), np.full(6, np.inf)),
+            "gripper_width_m": _box([0.0], [MAX_GRIPPER_WIDTH_M]),
+            "nominal_hole_pos": _box(*workspace),
+            "nominal_hole_quat": _box(-np.ones(4), np.ones(4)),
+            "time_s": _box([0.0], [self.sim.config.time_limit_s + self.sim.control_period_s]),
+        }
+        if self.privileged:
+            measured.update({
+                "peg_tip_pos": _box(*workspace),
+                "peg_tip_quat": _box(-np.ones(4), np.ones(4)),
+                "contact_force_n": _box([0.0], [np.inf]),
+                "insertion": _box(INSERTION_LOW, INSERTION_HIGH),
+                "in_hole": spaces.Discrete(2),
+                "inserted": spaces.Discrete(2),
+            })
+        return spaces.Dict(measured)
+
+    def _observe(self, obs: Observation) -> dict[str, Any]:
+        """The observation dict: the measured keys, and the truth's with ``privileged``."""
+        hole = self.sim.nominal_hole
+        values: dict[str, Any] = {
+            "tcp_pos": obs.tcp.pos,
+            "tcp_quat": obs.tcp.quat,
+            "qpos": obs.qpos,
+            "qvel": obs.qvel,
+            "wrist_wrench": obs.wrist_wrench,
+            "gripper_width_m": [obs.gripper_width_m],
+            "nominal_hole_pos": hole.pos,
+            "nominal_hole_quat": hole.quat,
+            "time_s": [obs.time_s],
+        }
+        out: dict[str, Any] = {key: np.asarray(value, dtype=np.float32) for key, value in values.items()}
+        if self.privileged:
+            out.update(self._truth(obs))
+        return out
+
+    @staticmethod
+    def _truth(obs: Observation) -> dict[str, Any]:
+        """The simulator's truth (PRIVILEGED_KEYS): float32 arrays, in_hole and inserted as int."""
+        ins = obs.insertion
+        return {
+            "peg_tip_pos": np.asarray(obs.peg_tip.pos, dtype=np.float32),
+            "peg_tip_quat": np.asarray(obs.peg_tip.quat, dtype=np.float32),
+            "contact_force_n": np.asarray([obs.contact_force_n], dtype=np.float32),
+            "insertion": np.asarray([ins.depth_m, ins.lateral_m, ins.tilt_deg, ins.yaw_error_deg], dtype=np.float32),
+            "in_hole": int(ins.in_hole),
+            "inserted": int(obs.inserted),
+        }
+
+    # ------------------------------------------------------------------------------------------- episode
+
+    def command(self, action: npt.ArrayLike) -> tuple[Pose, np.ndarray | None]:
+        """The peg_tip pose (and 6x6 stiffness, or None) a normalised action commands (`to_physical`: clipped to
+        [-1, 1], then scaled).
+
+        Raises:
+            EnvError: a wrong shape, NaN or inf.
+        """
+        a = self.to_physical(action)
         quat = quat_mul(quat_from_rotvec(a[3:6]), self.nominal_goal.quat)
         pose = Pose(pos=a[:3], quat=quat / norm(quat))
         if not self.stiffness_action:
@@ -289,23 +340,25 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
         """Start an episode: perturbation and start drawn by the simulator from a seed taken from ``np_random``;
-        ``options={"start_pose": (pos, quat)}`` fixes the start (the perturbation is still drawn)."""
+        ``options={"start_pose": (pos, quat)}`` fixes the start (the perturbation is still drawn). ``info`` holds the
+        start, the perturbation and the simulator's truth (PRIVILEGED_KEYS)."""
         super().reset(seed=seed)
         unknown = set(options or {}) - {"start_pose"}
         if unknown:
             raise EnvError(f"{ENV_ID}: unknown reset option(s) {sorted(unknown)}; the only one is 'start_pose'")
         obs = self.sim.reset(seed=int(self.np_random.integers(2**63 - 1)), start_pose=(options or {}).get("start_pose"))
         return self._observe(obs), {"start_pos": self.sim.start.pos.copy(), "start_quat": self.sim.start.quat.copy(),
-                                    "perturbation": self.sim.perturbation}
+                                    "perturbation": self.sim.perturbation, **self._truth(obs)}
 
     def step(self, action: npt.ArrayLike) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
-        """One control period at the commanded pose; returns (obs, reward, terminated, truncated, info)."""
+        """One control period at the pose a normalised action commands; returns (obs, reward, terminated, truncated,
+        info), ``info`` with the end reason, success, the commanded pose and the simulator's truth (PRIVILEGED_KEYS)."""
         pose, stiffness = self.command(action)
         result = self.sim.step(pose, stiffness)
         truncated = result.done and result.reason == REASON_TIME_LIMIT
         terminated = result.done and not truncated
         info = {"reason": result.reason, "is_success": bool(result.obs.success), "time_s": result.obs.time_s,
-                "target_pos": pose.pos, "target_quat": pose.quat}
+                "target_pos": pose.pos, "target_quat": pose.quat, **self._truth(result.obs)}
         return self._observe(result.obs), self.reward(result.obs), terminated, truncated, info
 
     def render(self) -> np.ndarray | None:  # type: ignore[override]

@@ -1,9 +1,11 @@
-"""The Gymnasium environment pih/PegInHole-v0: registration, spaces, checker, determinism, ends and reward."""
+"""The Gymnasium environment pih/PegInHole-v0: registration, spaces (what a real cell measures; a normalised action),
+Gymnasium's and stable-baselines3's checkers, determinism, ends and reward."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
+import warnings
 
 import gymnasium
 import numpy as np
@@ -11,7 +13,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from envs.errors import EnvError
-from envs.gym_env import ENV_ID, STIFFNESS_RANGE_N_M, PegInHoleGymEnv
+from envs.gym_env import ENV_ID, PRIVILEGED_KEYS, STIFFNESS_RANGE_N_M, PegInHoleGymEnv
 from envs.poses import quat_angle_rad, quat_conj, quat_mul, quat_to_rotvec
 
 
@@ -49,11 +51,54 @@ def test_env_checker_passes(env: PegInHoleGymEnv) -> None:
     check_env(env)
 
 
+@pytest.mark.parametrize("options", [{}, {"privileged": True, "stiffness_action": True}])
+def test_stable_baselines3_env_checker_passes_without_a_warning(options) -> None:
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    made = gymnasium.make(ENV_ID, time_limit_s=0.2, **options)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # SB3 warns, e.g., on an action Box that is not [-1, 1]
+        sb3_check_env(made.unwrapped, warn=True)
+    made.close()
+
+
+def test_no_observation_key_carries_the_simulator_truth_unless_privileged() -> None:
+    """With a 1 mm hole-pose error the observation holds the NOMINAL hole; the true state against the displaced hole
+    and the peg's own pose are in ``info`` only, and in the observation with privileged=True."""
+    made = gymnasium.make(ENV_ID, time_limit_s=0.5, hole_error_mm=1.0)
+    env = made.unwrapped
+    obs, info = env.reset(seed=1)
+    assert set(obs) == {"tcp_pos", "tcp_quat", "qpos", "qvel", "wrist_wrench", "gripper_width_m", "nominal_hole_pos",
+                        "nominal_hole_quat", "time_s"}
+    np.testing.assert_allclose(obs["nominal_hole_pos"], env.sim.nominal_hole.pos, atol=1e-7)
+    assert np.linalg.norm(env.sim.hole.pos - env.sim.nominal_hole.pos) > 1e-5  # the hole did move
+    _, _, _, _, info = env.step(np.zeros(6, dtype=np.float32))
+    assert set(PRIVILEGED_KEYS) <= set(info)
+    np.testing.assert_allclose(info["peg_tip_pos"], env.sim.observation.peg_tip.pos, atol=1e-6)
+    assert info["insertion"][0] == pytest.approx(env.sim.observation.insertion.depth_m, abs=1e-6)
+    teacher = gymnasium.make(ENV_ID, time_limit_s=0.5, privileged=True).unwrapped
+    assert set(PRIVILEGED_KEYS) <= set(teacher.observation_space.spaces)
+    assert set(PRIVILEGED_KEYS) <= set(teacher.reset(seed=1)[0])
+
+
+def test_the_action_is_normalised_onto_the_physical_range(env: PegInHoleGymEnv) -> None:
+    assert env.action_space.shape == (6,)
+    np.testing.assert_array_equal(env.action_space.low, -1.0)
+    np.testing.assert_array_equal(env.action_space.high, 1.0)
+    np.testing.assert_allclose(env.to_physical(-np.ones(6)), env.physical_low)
+    np.testing.assert_allclose(env.to_physical(np.ones(6)), env.physical_high)
+    np.testing.assert_allclose(env.to_physical(np.zeros(6))[3:], 0.0)  # a = 0: the nominal goal's orientation
+    u = 0.3 * env.physical_low + 0.7 * env.physical_high
+    np.testing.assert_allclose(env.to_physical(env.to_action(u)), u, atol=1e-6)
+    with pytest.raises(EnvError, match="NaN"):
+        env.command(np.full(6, np.nan))
+
+
 def test_observation_sizes_come_from_the_simulator(env: PegInHoleGymEnv) -> None:
-    obs, _ = env.reset(seed=0)
+    obs, info = env.reset(seed=0)
     assert env.observation_space["qpos"].shape == env.sim.observation.qpos.shape
     assert env.observation_space["qvel"].shape == env.sim.observation.qvel.shape
-    np.testing.assert_allclose(obs["peg_tip_pos"], env.sim.observation.peg_tip.pos, atol=1e-6)
+    np.testing.assert_allclose(info["peg_tip_pos"], env.sim.observation.peg_tip.pos, atol=1e-6)
     np.testing.assert_allclose(obs["tcp_pos"], env.sim.observation.tcp.pos, atol=1e-6)
     np.testing.assert_allclose(obs["wrist_wrench"], env.sim.observation.wrist_wrench, rtol=1e-6, atol=1e-5)
 
@@ -63,10 +108,10 @@ def test_reset_with_a_seed_is_deterministic_and_seeds_differ(env: PegInHoleGymEn
 
     def rollout(seed: int) -> list[np.ndarray]:
         obs, _ = env.reset(seed=seed)
-        seen = [obs["peg_tip_pos"], obs["qpos"]]
+        seen = [obs["tcp_pos"], obs["qpos"]]
         for action in actions:
             obs, reward, *_ = env.step(action.astype(np.float32))
-            seen += [obs["qpos"], obs["wrist_wrench"], obs["peg_tip_pos"], np.array([reward])]
+            seen += [obs["qpos"], obs["wrist_wrench"], obs["tcp_pos"], np.array([reward])]
         return seen
 
     first, again, other = rollout(7), rollout(7), rollout(8)
@@ -91,28 +136,28 @@ def test_random_actions_run_until_the_time_limit_truncates(env: PegInHoleGymEnv)
 def test_action_is_the_peg_tip_pose_relative_to_the_goal_orientation(env: PegInHoleGymEnv) -> None:
     rotvec = np.array([0.0, 0.0, 0.2])
     goal = env.sim.nominal_goal
-    pose, stiffness = env.command(np.concatenate([goal.pos, rotvec]))
-    np.testing.assert_allclose(pose.pos, goal.pos)
-    assert quat_angle_rad(pose.quat, goal.quat) == pytest.approx(0.2, abs=1e-12)
+    pose, stiffness = env.command(env.to_action(np.concatenate([goal.pos, rotvec])))
+    np.testing.assert_allclose(pose.pos, goal.pos, atol=1e-7)  # float32 actions: ~1e-8 m
+    assert quat_angle_rad(pose.quat, goal.quat) == pytest.approx(0.2, abs=1e-7)
     assert stiffness is None
-    clipped, _ = env.command(np.concatenate([goal.pos + 10.0, np.zeros(3)]))
-    np.testing.assert_allclose(clipped.pos, env.action_space.high[:3].astype(float))
+    clipped, _ = env.command(env.to_action(np.concatenate([goal.pos + 10.0, np.zeros(3)])))
+    np.testing.assert_allclose(clipped.pos, env.physical_high[:3])
 
 
 def test_stiffness_action_sets_the_translational_diagonal() -> None:
     made = gymnasium.make(ENV_ID, stiffness_action=True, rotational_stiffness=70.0)
     env = made.unwrapped
     assert env.action_space.shape == (9,)
-    np.testing.assert_allclose(env.action_space.low[6:], STIFFNESS_RANGE_N_M[0])
-    _, stiffness = env.command(np.concatenate([env.sim.nominal_goal.pos, np.zeros(3), [300.0, 600.0, 900.0]]))
-    np.testing.assert_allclose(stiffness, np.diag([300.0, 600.0, 900.0, 70.0, 70.0, 70.0]))
+    np.testing.assert_allclose(env.physical_low[6:], STIFFNESS_RANGE_N_M[0])
+    _, stiffness = env.command(env.to_action(np.concatenate([env.sim.nominal_goal.pos, np.zeros(3), [300.0, 600.0, 900.0]])))
+    np.testing.assert_allclose(stiffness, np.diag([300.0, 600.0, 900.0, 70.0, 70.0, 70.0]), rtol=1e-6)
 
 
 def test_reward_is_minus_the_distance_of_the_peg_to_the_true_goal(env: PegInHoleGymEnv) -> None:
     goal = env.sim.nominal_goal
     start = (goal.pos + np.array([0.0, 0.0, 0.1]), goal.quat)
     obs, _ = env.reset(options={"start_pose": start})
-    _, reward, *_ = env.step(np.concatenate([start[0], np.zeros(3)]).astype(np.float32))
+    _, reward, *_ = env.step(env.to_action(np.concatenate([start[0], np.zeros(3)])))
     peg, true_goal = env.sim.observation.peg_tip, env.sim.goal
     distance = np.linalg.norm(peg.pos - true_goal.pos)
     angle = quat_angle_rad(peg.quat, true_goal.quat)
@@ -131,12 +176,12 @@ def test_an_insertion_terminates_with_success_and_the_bonus() -> None:
     rotvec = quat_to_rotvec(quat_mul(goal.quat, quat_conj(env.sim.nominal_goal.quat)))
     for k in range(500):
         s = min(1.0, k / 300)
-        action = np.concatenate([above + s * (goal.pos - above), rotvec]).astype(np.float32)
+        action = env.to_action(np.concatenate([above + s * (goal.pos - above), rotvec]))
         obs, reward, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break
     assert terminated and not truncated and info["reason"] == "success" and info["is_success"]
-    assert reward > 90.0 and obs["inserted"] == 1
+    assert reward > 90.0 and info["inserted"] == 1
 
 
 def test_render_returns_an_rgb_frame() -> None:
