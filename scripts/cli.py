@@ -23,7 +23,7 @@ from rflow.errors import RFlowError
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "demos": ("scripts.demos", "record scripted peg-in-hole demonstrations in physics"),
     "train": ("scripts.train", "train RiemannianFlow position and orientation models on demos"),
-    "evaluate": ("scripts.evaluate", "execute a trained skill from perturbed starts and score it"),
+    "evaluate": ("scripts.evaluate", "execute a trained skill, or any policy, from perturbed starts and score it"),
     "compare": ("scripts.compare", "did a change make insertion worse? paired comparison of two skills on the same episodes"),
     "sweep": ("scripts.sweep", "success maps of a trained skill over clearance x hole-pose error x ..."),
     "render": ("scripts.render", "render an episode or a demo to MP4"),

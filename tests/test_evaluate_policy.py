@@ -71,6 +71,14 @@ def test_a_policy_meets_the_starts_and_perturbations_of_the_skill_trained_on_the
     assert goal_run["scene"] == skill_run["scene"]
 
 
+def test_a_policy_evaluation_is_refused_by_the_episode_export(goal_run, tmp_path, capsys) -> None:
+    path = tmp_path / "goal.json"
+    path.write_text(json.dumps(goal_run))
+    assert main(["export", "--episodes", str(path), "--format", "lerobot", "--out", str(tmp_path / "ds")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--policy policies_for_tests:goal cannot be replayed" in err and "\n" not in err
+
+
 @pytest.mark.parametrize("spec,words", [
     ("policies_for_tests.goal", "no ':'"),
     ("policies_for_tests:", "Python names"),

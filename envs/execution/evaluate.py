@@ -333,7 +333,7 @@ class EvaluationResult:
             ("force limit", f"{self.config.force_limit_n:g} N on the wrist force held for "
                             f"{EpisodeConfig().force_limit_window_s * 1e3:g} ms; single-sample peaks may exceed "
                             f"it (held max of successes {fmt(s['max_sustained_wrist_force_n_successes'], 'N', 1)})"),
-            ("commanded stiffness", f"{self.config.stiffness or 'controller default'}, eigenvalues "
+            ("commanded stiffness", f"{self.config.stiffness or ('the policy' if self.policy else 'controller default')}, eigenvalues "
                                     f"{fmt(s['min_stiffness_n_m'], 'N/m', 0)} to {fmt(s['max_stiffness_n_m'], 'N/m', 0)}"),
             *self._reproduction_rows(),
             ("failures", ", ".join(f"{k}: {v}" for k, v in s["failures_by_kind"].items()) or "none"),

@@ -87,7 +87,8 @@ def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[s
             to the JSON's folder).
 
     Raises:
-        EnvError: missing or unreadable file, missing keys, an incomplete evaluation, no checkpoint folder.
+        EnvError: missing or unreadable file, missing keys, an incomplete evaluation, no checkpoint folder, an
+            evaluation of a user policy (`pih evaluate --policy`).
     """
     src = Path(path)
     if not src.is_file():
@@ -98,6 +99,9 @@ def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[s
         raise EnvError(f"{src}: not a readable evaluation JSON ({type(err).__name__}: {err})") from None
     if not isinstance(data, dict):
         raise EnvError(f"{src}: not an evaluation JSON (a JSON object from `pih evaluate --json`)")
+    if isinstance(data.get("policy"), dict):
+        raise EnvError(f"{src}: an evaluation of --policy {data['policy'].get('spec')} cannot be replayed (only the "
+                       "RiemannianFlow skill's, from its checkpoint)")
     missing = [k for k in ("model", "config", "per_episode", "skill") if k not in data]
     if missing:
         raise EnvError(f"{src}: missing keys {missing} (not written by `pih evaluate --json`?)")
