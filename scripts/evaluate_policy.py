@@ -33,11 +33,12 @@ def add_policy_arguments(parser: argparse.ArgumentParser) -> None:
                        help="score your own policy: package.module:factory, called as factory(task, **options) -> "
                             "Policy (envs/execution/policy_protocol.py); imported with the current folder first on "
                             "the path")
-    group.add_argument("--demos", type=Path,
+    group.add_argument("--demos", type=Path, metavar="FILE.npz",
                        help="with --policy: the demo file whose scene and start poses the episodes use (the skill "
                             "trained on it meets the same starts)")
     group.add_argument("--policy-option", action="append", default=[], metavar="KEY=VALUE",
-                       help="with --policy: a keyword argument (a string) for the factory; repeatable")
+                       help="with --policy: a keyword argument (a string) for the factory; repeatable (default: "
+                            "none)")
     group.add_argument("--privileged", action="store_true",
                        help="with --policy: the observations carry the true hole (a teacher such as "
                             "envs.execution.expert_policy:make), recorded in the JSON")
