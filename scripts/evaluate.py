@@ -236,7 +236,7 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
         given = [o for o, v in (("--demos", args.demos), ("--privileged", args.privileged),
                                 ("--policy-option", args.policy_option)) if v]
         if given:
-            raise EnvError(f"{', '.join(given)} go(es) with --policy, not with --model")
+            raise EnvError(f"{', '.join(given)}: only with --policy (not with --model)")
         inputs = [args.model]
     if args.model is not None and not args.model.is_dir():
         raise EnvError(f"--model {args.model}: checkpoint folder not found")
@@ -461,7 +461,8 @@ def main(args: argparse.Namespace) -> int:
     config = check_args(args)
     result = run_evaluation(args, config)
     if result.goal_mismatch_mm > GOAL_MISMATCH_WARN_MM:
-        print(f"pih evaluate: warning: the {'demos' if args.policy else 'skill'}'s goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
+        whose = "demos" if args.policy else "skill"
+        print(f"pih evaluate: warning: the {whose}'s goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
               "for demos recorded elsewhere use --hole-at-goal", file=sys.stderr)
     print(result.summary_table())
     for event in result.infrastructure_events:

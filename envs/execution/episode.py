@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.execution.feedforward import command_stiffness, led_pose, translational_stiffness
-from envs.execution.policy_protocol import Action, observe
+from envs.execution.policy_protocol import Action, Policy, observe
 from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
 from rflow.small_linalg import eigh_sym, norm
@@ -160,7 +160,7 @@ class EpisodeTrace:
 # --------------------------------------------------------------------------------------------- episode
 
 
-def run_episode(env: Any, policy: Any, start: StartPose, record_trace: bool = False,
+def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool = False,
                 on_step: Callable[[Any], None] | None = None, feedforward_gain: float = 1.0,
                 privileged: bool = False) -> tuple[EpisodeRecord, EpisodeTrace | None]:
     """Run one episode from ``start`` with ``policy`` and score it (never raises for a failed episode: an action

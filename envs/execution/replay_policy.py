@@ -26,6 +26,7 @@ from envs.errors import EnvError
 from envs.execution.policy_protocol import Action, Observation
 from envs.poses import (Pose, make_continuous, minimum_jerk, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec,
                         resample_trajectory, validate_pose)
+from rflow.small_linalg import dot
 from rflow.stiffness import log_euclidean_resample
 
 FloatArray = npt.NDArray[np.float64]
@@ -89,7 +90,7 @@ class ReplayPolicy:
         if self.blend_s > 0.0:
             start = observation.tcp
             weight = 1.0 - minimum_jerk(grid / self.blend_s)
-            q0 = self.quat[0] if float(np.dot(self.quat[0], start.quat)) >= 0.0 else -self.quat[0]
+            q0 = self.quat[0] if dot(self.quat[0], start.quat) >= 0.0 else -self.quat[0]
             rot = quat_to_rotvec(quat_mul(start.quat, quat_conj(q0)))
             pos = pos + weight[:, None] * (np.asarray(start.pos) - self.pos[0])
             quat = quat_mul(quat_from_rotvec(weight[:, None] * rot), quat)
