@@ -1,6 +1,6 @@
 """The closed-loop contact adaptation (envs.execution.adaptation): the axial push builds up while the peg is
-held and leaks away, the frame yields to a sideways motion the walls refuse only near the goal, both are
-bounded, and the policy queries the flow in the shifted frame."""
+held and leaks away, the frame yields to a sideways motion or a rotation the walls refuse only near the goal, all
+are bounded, and the policy queries the flow in the shifted and turned frame."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from envs.errors import EnvError
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
 from envs.execution.policy import ClosedLoopPolicy, skill_step
-from envs.poses import Pose
+from envs.poses import Pose, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 
 PERIOD_S = 0.01
@@ -78,7 +78,8 @@ def test_rotational_compliance_only_near_the_goal_and_off_switches_everything_of
 
 
 @pytest.mark.parametrize("kwargs", [{"push_limit_m": -1.0}, {"push_limit_m": float("nan")}, {"push_leak_s": 0.0},
-                                    {"frame_limit_m": -0.001}, {"radius_m": float("inf")},
+                                    {"frame_limit_m": -0.001}, {"frame_limit_deg": float("nan")},
+                                    {"radius_m": float("inf")},
                                     {"rotational_stiffness": 0.0}])
 def test_bad_adaptation_settings_are_rejected(kwargs) -> None:
     name = next(iter(kwargs))
@@ -98,3 +99,55 @@ def test_policy_queries_the_flow_in_the_shifted_frame() -> None:
     assert command.pose.pos == pytest.approx(expected + delta, abs=1e-12)
     assert command.anchor.pos == pytest.approx(measured.pos, abs=1e-12)
     assert command.rotational_stiffness == ContactAdaptation().rotational_stiffness  # 20 mm from the goal
+
+
+def hold_turn(a: ContactAdapter, pos: np.ndarray, quat: np.ndarray, omega_d: np.ndarray, steps: int) -> None:
+    """The flow asks to turn at ``omega_d`` while the walls hold the peg at (``pos``, ``quat``)."""
+    for _ in range(steps):
+        a.update_rotation(pos, quat, omega_d, PERIOD_S)
+
+
+def test_frame_turns_with_a_refused_rotation_near_the_goal_and_is_bounded() -> None:
+    a = adapter(frame_limit_deg=5.0)
+    hold_turn(a, GOAL + [0.0, 0.0, 0.02], GOAL_QUAT, np.array([0.0, 0.01, 0.0]), 101)  # 10 mrad/s about y, held
+    # rho = -integral of the refused rotation: 10 mrad/s over 1 s (100 intervals) = -10 mrad about y
+    assert a.rotation == pytest.approx([0.0, -0.01, 0.0], abs=1e-9)
+    hold_turn(a, GOAL, GOAL_QUAT, np.array([0.0, 0.0, 0.5]), 100)
+    assert np.linalg.norm(a.rotation) == pytest.approx(np.deg2rad(5.0))
+    far = adapter(radius_m=0.035)
+    hold_turn(far, GOAL + [0.0, 0.0, 0.05], GOAL_QUAT, np.array([0.0, 0.01, 0.0]), 100)
+    assert not far.rotation.any()
+    off = ContactAdapter(ContactAdaptation.off(), GOAL, AXIS)
+    hold_turn(off, GOAL, GOAL_QUAT, np.array([0.0, 0.01, 0.0]), 100)
+    assert not off.rotation.any()
+
+
+def test_frame_does_not_turn_while_the_peg_turns_as_the_flow_asks() -> None:
+    a = adapter()
+    omega = np.array([0.02, -0.01, 0.005])
+    for k in range(101):
+        quat = quat_mul(quat_from_rotvec(omega * PERIOD_S * k), GOAL_QUAT)
+        a.update_rotation(GOAL, quat, omega, PERIOD_S)
+    assert np.linalg.norm(a.rotation) < 1e-9
+
+
+def test_policy_queries_the_flow_in_the_turned_frame() -> None:
+    skill = tiny_skill()
+    policy = ClosedLoopPolicy(skill, 0.05)
+    policy.reset_at(Pose(GOAL_POS, GOAL_QUAT), PERIOD_S)
+    rho = np.array([0.004, -0.01, 0.006])
+    policy.adapter.rotation = rho.copy()
+    turn = quat_from_rotvec(rho)
+    measured = Pose(GOAL_POS + np.array([0.003, 0.001, 0.02]), quat_mul(quat_from_rotvec([0.0, 0.02, 0.0]), GOAL_QUAT))
+    command = policy.command(0, measured)
+    pos, quat = skill_step(skill, measured.pos, quat_mul(quat_conj(turn), measured.quat), 0.05)
+    expected = quat_mul(turn, quat)
+    assert command.pose.pos == pytest.approx(pos, abs=1e-12)
+    assert abs(float(np.dot(command.pose.quat, expected))) == pytest.approx(1.0, abs=1e-12)
+    # the angular rate is the turned frame's, rotated back: it points from the measured toward the command
+    step = quat_to_rotvec(quat_mul(command.pose.quat, quat_conj(measured.quat)))
+    assert np.dot(command.twist[3:], step) > 0.0
+    unturned = ClosedLoopPolicy(skill, 0.05)
+    unturned.reset_at(Pose(GOAL_POS, GOAL_QUAT), PERIOD_S)
+    plain = unturned.command(0, Pose(measured.pos, quat_mul(quat_conj(turn), measured.quat)))
+    assert command.twist[3:] == pytest.approx(rotate(turn, plain.twist[3:]), abs=1e-12)

@@ -9,8 +9,8 @@ and orientation models (or once for a joint model). A lookahead longer than the 
 for the tracking lag of the compliant arm: the target leads the measured pose by ~lookahead of motion.
 
 Near the hole the closed loop adapts to the contact (`envs.execution.adaptation`, not in the paper): an axial
-integral push, a shift of the skill's frame onto the real hole when the walls refuse the flow's sideways
-motion, and rotational compliance; `ContactAdaptation.off()` runs the bare flow.
+integral push, a shift and a turn of the skill's frame onto the real hole when the walls refuse the flow's
+sideways motion or rotation, and rotational compliance; `ContactAdaptation.off()` runs the bare flow.
 
 Open loop (`OpenLoopPolicy`, the paper's robot experiment): the whole trajectory is generated once from
 the measured start pose (rflow.generate.rollout, one point per control period, holding the goal after
@@ -268,28 +268,35 @@ class ClosedLoopPolicy:
         """Action for control step ``step`` (from 0; unused) given the measured peg_tip pose x: the flow's pose
         x_1 = Phi(L) x, L = ``lookahead_s``; the twist and acceleration at x from the flow poses x, x_1 and
         x_2 = Phi(2L) x (xi_1 = (x_1 - x)/L, xi_2 = (x_2 - x_1)/L, a = (xi_2 - xi_1)/L, xi = xi_1 - a L/2),
-        both time-scaled by ``speed`` (xi * s, a * s^2). The flow is queried in the frame shifted by the
-        contact adaptation's delta (x - delta in, + delta out)."""
+        both time-scaled by ``speed`` (xi * s, a * s^2). The flow is queried in the frame shifted and turned by
+        the contact adaptation (p - delta and Exp(rho)^-1 q in; + delta, Exp(rho) q and R(rho) omega out)."""
         step_s = self.lookahead_s
         k = self.stiffness_state
         delta = self.adapter.frame
+        turned = self.adapter.rotation.any()
+        rho = np.array(self.adapter.rotation_quat)
         query = np.asarray(measured.pos, dtype=np.float64) - delta
-        p1, q1, k1 = skill_state_step(self.skill, query, measured.quat, k, step_s)
+        query_quat = quat_mul(quat_conj(rho), measured.quat) if turned else measured.quat
+        p1, q1, k1 = skill_state_step(self.skill, query, query_quat, k, step_s)
         p2, q2 = skill_step(self.skill, p1, q1, step_s, k1)
         q1 = q1 / norm(q1)
-        here = Pose(pos=query, quat=on_goal_hemisphere(measured.quat, q1))
+        here = Pose(pos=query, quat=on_goal_hemisphere(query_quat, q1))
         xi1 = pose_twist(here.pos, here.quat, p1, q1, step_s)
         xi2 = pose_twist(p1, q1, p2, on_goal_hemisphere(q2, q1), step_s)
         accel = (xi2 - xi1) / step_s
         twist = xi1 - 0.5 * step_s * accel
+        if turned:  # back from the turned frame: q1 <- Exp(rho) q1, angular rates rotated by R(rho)
+            q1 = quat_mul(rho, q1)
+            twist[3:], accel[3:] = rotate(rho, twist[3:]), rotate(rho, accel[3:])
         learned = None
         if k is not None:
             learned, clipped = self.skill.bound_stiffness(k)
             self.stiffness_clipped_steps += int(clipped)
-            self.stiffness_state = skill_state_step(self.skill, query, measured.quat, k, self._flow_period_s)[2]
+            self.stiffness_state = skill_state_step(self.skill, query, query_quat, k, self._flow_period_s)[2]
         self.adapter.update(measured.pos, self.speed * twist[:3], self._period_s)
+        self.adapter.update_rotation(measured.pos, measured.quat, self.speed * twist[3:], self._period_s)
         push = np.concatenate([self.adapter.push, np.zeros(3)])
-        anchor = Pose(pos=here.pos + delta, quat=here.quat)
+        anchor = Pose(pos=here.pos + delta, quat=on_goal_hemisphere(measured.quat, q1) if turned else here.quat)
         return Action(Pose(pos=p1 + delta, quat=q1), _commanded_stiffness(self.stiffness, learned),
                       self.adapter.rotational_stiffness(measured.pos), self.speed * twist, self.speed**2 * accel,
                       anchor, push)
