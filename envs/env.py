@@ -57,7 +57,7 @@ from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
 from envs import sensing_kernel
 from envs.sensing import PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
-from envs.geometry import all_finite, as_vector, quat_to_mat
+from envs.geometry import all_finite, as_vector
 from envs.success import (
     MIN_ENTRY_DEPTH_M,
     Assessment,
@@ -69,6 +69,7 @@ from envs.success import (
     frame_assessment,
     frame_state,
 )
+from rflow.quaternion import quat_to_mat
 from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
