@@ -17,6 +17,7 @@ import rflow  # noqa: F401  first: pins the CPU dispatch of torch, MKL and numpy
 from batch.errors import BatchError
 from controllers.errors import ControllerError
 from envs.errors import EnvError
+from envs.rendering import use_headless_rendering
 from rflow.errors import RFlowError
 
 # subcommand -> (module under scripts/, one-line help)
@@ -106,6 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `pih` console script; returns the exit status (module docstring)."""
     words = list(sys.argv[1:] if argv is None else argv)
     command = chosen_command(words)
+    use_headless_rendering()  # before any command imports MuJoCo; worker processes inherit it
     try:
         args = build_parser(command).parse_args(words)
     except UsageError as err:

@@ -14,10 +14,7 @@ no cache entry). It writes nothing but numba's cache. `setup.sh` calls it.
 from __future__ import annotations
 
 import argparse
-import os
 import time
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
