@@ -39,7 +39,7 @@ import numpy.typing as npt
 from pihutil.atomic import atomic_folder
 from rflow.errors import RFlowError
 from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
-from rflow.model import RiemannianFlow
+from rflow.model import RiemannianFlow, read_json
 from rflow.small_linalg import eigh_sym
 from rflow.stiffness import StiffnessBounds, clip_eigenvalues, log_euclidean_mean
 
@@ -262,12 +262,7 @@ def load_skill(directory: str | os.PathLike[str]) -> PoseSkill:
     src = Path(directory)
     if not src.is_dir():
         raise RFlowError(f"checkpoint directory {src} not found")
-    try:
-        record = json.loads((src / SKILL_FILE).read_text())
-    except FileNotFoundError:
-        raise RFlowError(f"no {SKILL_FILE} in checkpoint {src} (not a `pih train` output?)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise RFlowError(f"corrupt {src / SKILL_FILE}: {err}") from None
+    record = read_json(src / SKILL_FILE, f"no {SKILL_FILE} in checkpoint {src} (not a `pih train` output?)")
     if not isinstance(record, dict) or record.get("format") != SKILL_FORMAT:
         got = record.get("format") if isinstance(record, dict) else type(record).__name__
         raise RFlowError(f"{src / SKILL_FILE} has format {got!r}, expected {SKILL_FORMAT!r}")
