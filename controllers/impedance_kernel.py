@@ -1,7 +1,7 @@
 """The impedance control law of `controllers.impedance`, compiled with numba (no Python work per physics step).
 
 At 1 kHz the law runs once per physics step, so its cost is set by call overhead, not arithmetic: the numpy/LAPACK
-version made ~40 Python-level calls (~60 us per step on the development machine, 3x the physics). Here the whole
+version made ~40 Python-level calls per step, more than the physics step costs. Here the whole
 law -- Cholesky of Lambda^-1, the symmetric eigenproblem of C^T K C (cyclic Jacobi, exact to rounding for 6x6),
 the pose error, the modal damping, the dynamically consistent nullspace and the torque limits -- is one compiled
 call on preallocated buffers. `impedance_substep` makes a whole physics step one call: the carried tool's weight

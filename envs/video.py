@@ -3,7 +3,7 @@
 The OpenGL backend is chosen by envs.rendering (the one place): ``MUJOCO_GL`` if set (egl, osmesa or glfw),
 otherwise EGL with a fall-back to OSMesa. Frames are rendered at ``fps`` frames per second of
 SIMULATED time (not every physics step). The commanded peg_tip path is drawn as a polyline (line
-geoms, a few pixels wide: capsules cost ~10x more with a software renderer) and the goal as an RGB
+geoms, a few pixels wide: capsules cost far more with a software renderer) and the goal as an RGB
 frame (x red, y green, z blue), both as user geoms of the scene.
 The MP4 is written to a temporary file beside the target (envs.output.AtomicOutput) and renamed only when
 ffmpeg wrote a whole file; a full disk or a dead ffmpeg is an OSError, never a truncated MP4.
@@ -60,8 +60,8 @@ class VideoConfig:
         goal_axis_length_m: length of the goal frame's axes (0 hides the frame).
         shadows: render shadows (costly with a software renderer).
         multisamples: MSAA samples per pixel (MuJoCo's ``vis.quality.offsamples``); 0, the default, renders
-            2.5x faster with Mesa's software renderer (12 vs 30 ms per 640x480 frame) at the cost of jagged
-            edges; 4 is MuJoCo's default.
+            much faster with Mesa's software renderer (README: `pih bench`) at the cost of jagged edges; 4 is
+            MuJoCo's default.
     """
 
     width: int = 640

@@ -17,7 +17,7 @@ Array = Any  # numpy.ndarray or torch.Tensor
 
 def _torch() -> Any:
     """The torch module if something imported it, else None. A tensor can only exist once torch is imported, so
-    numpy-only users of the maps (the simulator, demos, rendering, the CLI's start) never pay its import (~1.5 s)."""
+    numpy-only users of the maps (the simulator, demos, rendering, the CLI's start) never pay its import time."""
     return sys.modules.get("torch")
 
 

@@ -347,8 +347,7 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
         bounds: [k_min, k_max] of the stiffness (default `StiffnessBounds()`); every demonstrated
             stiffness must lie inside, and the skill clips generated stiffness to them.
         workers: with 2 or more and the separate layout, the two models train at the same time in two
-            processes (`rflow.fit_processes`; the same weights, bit for bit; 101 -> 69 s for the default skill
-            on the 2-core development machine).
+            processes (`rflow.fit_processes`; the same weights, bit for bit; timings in the README).
 
     Returns:
         The PoseSkill, with ``training`` holding each model's config and loss history, and with stiffness

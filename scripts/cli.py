@@ -78,8 +78,8 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser(command: str = "") -> argparse.ArgumentParser:
     """Build the `pih` parser: every subcommand is listed with its one-line help, and only ``command``'s module
-    (none for "") is imported to add its options. Importing all of them loaded torch, MuJoCo, Optuna, ... on
-    every call: `pih --help` took 3.6-4.0 s on the development machine (now 0.1 s), `pih demos --help` 3.6 s (1.0 s)."""
+    (none for "") is imported to add its options: importing all of them would load torch, MuJoCo, Optuna, ... on
+    every call, seconds before the first line of help (README: the figures)."""
     parser = Parser(prog="pih", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():

@@ -124,3 +124,32 @@ def test_solve_ik_reaches_the_posture_mink_reaches(model, seed):
     pos = data.site_xpos[site].copy()
     np.testing.assert_allclose(solve_ik(model, "peg_mount", pos, quat, q_home),
                                _mink_solve_ik(model, "peg_mount", pos, quat, q_home), atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_solve_ik_with_mink_is_the_compiled_solve(model, seed):
+    from controllers.ik import solve_ik
+
+    rng = np.random.default_rng(10 + seed)
+    q_home = model.key("home").qpos.copy()
+    data = mujoco.MjData(model)
+    data.qpos[:] = np.clip(q_home + rng.uniform(-0.4, 0.4, model.nq), model.jnt_range[:, 0], model.jnt_range[:, 1])
+    mujoco.mj_kinematics(model, data)
+    site = model.site("peg_mount").id
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[site])
+    pos = data.site_xpos[site].copy()
+    compiled = solve_ik(model, "peg_mount", pos, quat, q_home)
+    with_mink = solve_ik(model, "peg_mount", pos, quat, q_home, solver="mink")
+    np.testing.assert_allclose(with_mink, compiled, atol=1e-9, rtol=0)  # the same iterates, to daqp's tolerance
+
+
+def test_solve_ik_with_mink_reports_an_unreachable_pose(model):
+    from controllers.errors import ControllerError
+    from controllers.ik import solve_ik
+
+    q_home = model.key("home").qpos.copy()
+    with pytest.raises(ControllerError, match="unreachable"):
+        solve_ik(model, "peg_mount", [2.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0], q_home, solver="mink")
+    with pytest.raises(ControllerError, match="solver"):
+        solve_ik(model, "peg_mount", [0.5, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0], q_home, solver="pinocchio")
