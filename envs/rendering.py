@@ -14,6 +14,8 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from envs.errors import EnvError
+
 DEFAULT_GL_BACKEND = "egl"
 """The headless backend used unless ``MUJOCO_GL`` names another (egl, osmesa or glfw)."""
 
@@ -37,8 +39,6 @@ def gl_context(width: int, height: int) -> tuple[Any, str]:
     Raises:
         EnvError: no backend could make a context (the message lists each backend's failure).
     """
-    from envs.errors import EnvError
-
     requested = os.environ.get("MUJOCO_GL", "").strip().lower() or DEFAULT_GL_BACKEND
     candidates = ["egl", "osmesa"] if requested == "egl" else [requested]
     failures = []
