@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from rflow.quaternion import quat_to_mat
+from rflow.quaternion import mat_to_quat, quat_to_mat  # noqa: F401 -- rflow's, re-exported for envs and tests
 
 FloatArray = npt.NDArray[np.float64]
 
