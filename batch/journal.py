@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +28,7 @@ from types import TracebackType
 from typing import Any, TextIO
 
 from batch.errors import BatchError
+from pihutil.atomic import write_atomic
 
 HEADER = "header"
 UNIT = "unit"
@@ -192,20 +192,9 @@ class Journal:
 
 
 def _create(out: Path, header: dict[str, Any]) -> TextIO:
-    """Write the header to a temporary file beside ``out`` (mode per umask), rename it into place, open it."""
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent if str(out.parent) else ".")
-    tmp = Path(tmp_name)
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(json.dumps({"kind": HEADER, "run": header}, allow_nan=False) + "\n")
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
+    """Write the header atomically (`pihutil.atomic.write_atomic`: mode per umask, renamed into place), open it."""
+    line = json.dumps({"kind": HEADER, "run": header}, allow_nan=False) + "\n"
+    write_atomic(out, lambda handle: handle.write(line))
     return open(out, "a", encoding="utf-8")
 
 

@@ -1,4 +1,4 @@
-"""Torque-level Cartesian impedance control and mink inverse kinematics for the Panda.
+"""Torque-level Cartesian impedance control and inverse kinematics (mink's, and its compiled twin) for the Panda.
 
 Modules: `impedance` (CartesianImpedanceController, ImpedanceConfig), `ik` (solve_ik, NullspaceReference,
 IKConfig), `benchmark` (measure_control_rate, measure_ik_rate for `pih bench`), `validation` (input checks),

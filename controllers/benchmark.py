@@ -117,6 +117,20 @@ def measure_control_rate(
     }
 
 
+def _home_posture(model: mujoco.MjModel) -> npt.NDArray[np.float64]:
+    """The joints of the "home" keyframe, or qpos0 when the model has none."""
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    return model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
+
+
+def _site_pose(model: mujoco.MjModel, data: mujoco.MjData, site: int) -> tuple[npt.NDArray, npt.NDArray]:
+    """The site's world position and quaternion (w, x, y, z) at ``data.qpos`` (runs mj_kinematics)."""
+    mujoco.mj_kinematics(model, data)
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[site])
+    return data.site_xpos[site].copy(), quat
+
+
 def measure_ik_rate(
     model: mujoco.MjModel,
     site: int | str = "peg_mount",
@@ -141,8 +155,7 @@ def measure_ik_rate(
     """
     if n_solves < 1:
         raise ControllerError(f"n_solves={n_solves} must be >= 1")
-    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
-    q_home = model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
+    q_home = _home_posture(model)
     data = mujoco.MjData(model)
     target_site = site_id(model, site)
     rng = np.random.default_rng(seed)
@@ -151,10 +164,7 @@ def measure_ik_rate(
         data.qpos[:] = np.clip(
             q_home + rng.uniform(-spread_rad, spread_rad, model.nq), model.jnt_range[:, 0], model.jnt_range[:, 1]
         )
-        mujoco.mj_kinematics(model, data)
-        quat = np.zeros(4)
-        mujoco.mju_mat2Quat(quat, data.site_xmat[target_site])
-        pos = data.site_xpos[target_site].copy()
+        pos, quat = _site_pose(model, data, target_site)
         start = time.perf_counter()
         solve_ik(model, site, pos, quat, q_home)
         times.append(time.perf_counter() - start)
@@ -185,15 +195,10 @@ def measure_nullspace_update(
     """
     if n_updates < 1:
         raise ControllerError(f"n_updates={n_updates} must be >= 1")
-    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
-    q_home = model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
+    q_home = _home_posture(model)
     data = mujoco.MjData(model)
     data.qpos[:] = q_home
-    mujoco.mj_kinematics(model, data)
-    target_site = site_id(model, site)
-    centre = data.site_xpos[target_site].copy()
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, data.site_xmat[target_site])
+    centre, quat = _site_pose(model, data, site_id(model, site))
     reference = NullspaceReference(model, site, q_home)
     times = []
     for k in range(n_updates):

@@ -9,9 +9,18 @@ mink.PostureTask and mink.ConfigurationLimit define them, solved exactly like da
 with e the site pose error (a body twist, FrameTask) and a posture task toward the nominal joints, then
 integrates q <- q + dq. `solve_ik` first iterates with the posture task (to choose the redundant posture near
 q_nominal), then refines with a vanishing posture cost so the pose is met exactly (a posture cost biases the
-fixed point off the target by about c_post / (J J^T)). The step is compiled (`controllers.ik_kernel`, numba):
-`NullspaceReference` runs it every control step, where mink's Python cost ~0.25 ms per iteration; it equals mink +
-daqp to ~1e-9 rad (tests/test_ik_kernel.py, with mink as the reference).
+fixed point off the target by about c_post / (J J^T)).
+
+Two solvers of this one problem (`solve_ik`'s ``solver``):
+  - "mink": mink itself (mink.FrameTask, PostureTask, ConfigurationLimit, daqp), the IK of record. It answers
+    whether a pose is reachable (the evaluation's goal check) and is the reference of the tests.
+  - "compiled": the same QP step in numba (`controllers.ik_kernel`), equal to mink + daqp to ~1e-9 rad per step
+    (tests/test_ik_kernel.py, which runs on every CI run). `NullspaceReference` runs it every control step,
+    where mink's Python iterations would cost more than the control law, and `PegInHoleEnv.reset` takes the
+    start joints from it: from the starts of the contact and paper tasks the two solvers end within 2e-12 rad
+    of each other and agree on every reachability verdict, but not to the bit, and a start 1e-12 rad away is
+    another contact-rich episode (another record), so the record path keeps the solver its records were made
+    with.
 """
 
 from __future__ import annotations
@@ -162,6 +171,67 @@ class _DifferentialIK:
         return pose_residual(self.data, self.site_id, target_pos, target_quat)
 
 
+class _MinkIK(_DifferentialIK):
+    """The same problem built from mink's own pieces -- mink.FrameTask (position and orientation cost 1,
+    ``lm_damping``), mink.PostureTask, mink.ConfigurationLimit (gain 0.95) -- and solved by daqp (damping 1e-9):
+    the IK of record, which the compiled step equals to ~1e-9 rad (tests/test_ik_kernel.py). Its iterations run
+    in Python, many times slower than the compiled ones (README: `pih bench --only ik`)."""
+
+    def __init__(self, model: mujoco.MjModel, site: int | str, config: IKConfig) -> None:
+        import mink
+
+        self._mink = mink
+        self._posture = mink.PostureTask(model, cost=config.posture_cost)  # before the base sets its target
+        super().__init__(model, site, config)
+        self._configuration = mink.Configuration(model)
+        self._frame = mink.FrameTask(self.site_name, "site", position_cost=1.0, orientation_cost=1.0,
+                                     lm_damping=config.lm_damping)
+        self._limits = [mink.ConfigurationLimit(model, gain=self.LIMIT_GAIN)]
+
+    @property
+    def posture_cost(self) -> float:
+        return float(np.max(self._posture.cost))
+
+    @posture_cost.setter
+    def posture_cost(self, cost: float) -> None:
+        self._posture.set_cost(cost)
+
+    @property
+    def q_posture(self) -> npt.NDArray[np.float64]:
+        return self._posture.target_q
+
+    @q_posture.setter
+    def q_posture(self, q: npt.NDArray[np.float64]) -> None:
+        self._posture.set_target(q)
+
+    def set_configuration(self, q: npt.NDArray[np.float64]) -> None:
+        super().set_configuration(q)
+        self._configuration.update(self.q.copy())
+
+    def set_target(self, target_pos: npt.NDArray, target_quat: npt.NDArray) -> None:
+        self._frame.set_target(self._mink.SE3(wxyz_xyz=np.concatenate([target_quat, target_pos])))
+
+    def iterate(self, iterations: int = 1) -> None:
+        """``iterations`` steps of mink.solve_ik, each integrated (mink's Configuration.integrate_inplace).
+
+        Raises:
+            ControllerError: daqp found no solution.
+        """
+        mink = self._mink
+        for _ in range(iterations):
+            try:
+                velocity = mink.solve_ik(self._configuration, [self._frame, self._posture], dt=1.0, solver="daqp",
+                                         damping=self.DAMPING, limits=self._limits)
+            except mink.NoSolutionFound as err:
+                raise ControllerError(f"IK step failed for site {self.site_name!r}: {err}") from None
+            self._configuration.integrate_inplace(velocity, 1.0)
+        super().set_configuration(self._configuration.q)
+
+
+SOLVERS: dict[str, type[_DifferentialIK]] = {"compiled": _DifferentialIK, "mink": _MinkIK}
+"""`solve_ik`'s solvers: the compiled QP step (numba) and mink itself (the reference)."""
+
+
 def solve_ik(
     model: mujoco.MjModel,
     site: int | str,
@@ -169,6 +239,7 @@ def solve_ik(
     target_quat: npt.ArrayLike,
     q_nominal: npt.ArrayLike,
     config: IKConfig = IKConfig(),
+    solver: str = "compiled",
 ) -> npt.NDArray[np.float64]:
     """Joint positions that put a site at a pose, within joint limits, near a nominal posture.
 
@@ -179,15 +250,19 @@ def solve_ik(
         target_quat: site orientation, unit quaternion (w, x, y, z).
         q_nominal: start and posture reference (rad), length nq; clipped into the joint limits.
         config: tolerances and weights.
+        solver: "compiled" (the QP step in numba, `controllers.ik_kernel`) or "mink" (mink + daqp, the
+            reference, slower); the same problem, phases and stopping rules.
 
     Returns:
         q (rad), length nq, inside the joint limits, with the site within the tolerances of the pose.
 
     Raises:
-        ControllerError: bad inputs, a target below the floor, or a pose not reached to tolerance (the message
-            names the pose and the residual in mm and deg).
+        ControllerError: bad inputs or solver, a target below the floor, or a pose not reached to tolerance
+            (the message names the pose and the residual in mm and deg).
     """
-    problem = _DifferentialIK(model, site, config)
+    if solver not in SOLVERS:
+        raise ControllerError(f"solver={solver!r} must be one of {sorted(SOLVERS)}")
+    problem = SOLVERS[solver](model, site, config)
     pos = as_vector(target_pos, 3, "target_pos")
     quat = as_unit_quaternion(target_quat, "target_quat")
     q_nom = problem.joints(q_nominal, "q_nominal")

@@ -25,7 +25,7 @@ import math
 import numba
 import numpy as np
 
-from controllers.impedance_kernel import mat_to_quat, cholesky_lower
+from controllers.impedance_kernel import cholesky_lower, mat_to_quat_into
 from controllers.mujoco_c import FN_COM_POS, FN_INTEGRATE_POS, FN_JAC_SITE, FN_KINEMATICS, call_integrate_pos, call_md, \
     call_mdppi
 from rflow.small_linalg import matmul_into
@@ -112,10 +112,7 @@ def frame_task(jac_world, site_pos, site_mat, target_pos, target_mat, error, jac
         for j in range(3):
             r_tb[i, j] = r_t[0, i] * r_b[0, j] + r_t[1, i] * r_b[1, j] + r_t[2, i] * r_b[2, j]
     quat = np.empty(4)
-    mat_to_quat(r_tb.ravel(), quat)
-    if quat[0] < 0.0:
-        for i in range(4):
-            quat[i] = -quat[i]
+    mat_to_quat_into(r_tb.ravel(), quat)  # w >= 0: the rotation of angle <= pi
     vnorm = math.sqrt(quat[1] ** 2 + quat[2] ** 2 + quat[3] ** 2)
     theta = np.zeros(3)
     if vnorm >= _EPS:

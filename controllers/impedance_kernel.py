@@ -1,7 +1,7 @@
 """The impedance control law of `controllers.impedance`, compiled with numba (no Python work per physics step).
 
 At 1 kHz the law runs once per physics step, so its cost is set by call overhead, not arithmetic: the numpy/LAPACK
-version made ~40 Python-level calls (~60 us per step on the development machine, 3x the physics). Here the whole
+version made ~40 Python-level calls per step, more than the physics step costs. Here the whole
 law -- Cholesky of Lambda^-1, the symmetric eigenproblem of C^T K C (cyclic Jacobi, exact to rounding for 6x6),
 the pose error, the modal damping, the dynamically consistent nullspace and the torque limits -- is one compiled
 call on preallocated buffers. `impedance_substep` makes a whole physics step one call: the carried tool's weight
@@ -25,6 +25,7 @@ import numba
 import numpy as np
 
 from controllers.mujoco_c import FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_jac, call_md, call_mdppi
+from rflow import quaternion
 from rflow.small_linalg import symmetric_eig
 
 STATUS_OK = 0
@@ -114,26 +115,18 @@ def inertia_inverse_into(jac: np.ndarray, jac_minv: np.ndarray, regularisation: 
         out[i, i] += regularisation
 
 
+# The quaternion formulas are rflow.quaternion's, compiled here once: the same Python source as the array versions,
+# so the same rounding (tests/test_numba_twins.py). ik_kernel uses these too.
+hamilton = _jit(quaternion.hamilton)
+matrix_to_quat_components = _jit(quaternion.matrix_to_quat_components)
+
+
 @_jit
-def mat_to_quat(mat: np.ndarray, quat: np.ndarray) -> None:
-    """Unit quaternion (w, x, y, z) of a row-major 3x3 rotation matrix (9,), by its largest component."""
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = mat[0], mat[1], mat[2], mat[3], mat[4], mat[5], mat[6], mat[7], mat[8]
-    trace = m00 + m11 + m22
-    if trace > 0.0:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        quat[0], quat[1], quat[2], quat[3] = 0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s
-    elif m00 > m11 and m00 > m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        quat[0], quat[1], quat[2], quat[3] = (m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s
-    elif m11 > m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        quat[0], quat[1], quat[2], quat[3] = (m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-        quat[0], quat[1], quat[2], quat[3] = (m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s
-    norm = math.sqrt(quat[0] ** 2 + quat[1] ** 2 + quat[2] ** 2 + quat[3] ** 2)
-    for i in range(4):
-        quat[i] /= norm
+def mat_to_quat_into(mat: np.ndarray, quat: np.ndarray) -> None:
+    """quat (4,) = the unit quaternion (w, x, y, z), w >= 0, of a row-major 3x3 rotation matrix mat (9,)
+    (`rflow.quaternion.matrix_to_quat_components`)."""
+    quat[0], quat[1], quat[2], quat[3] = matrix_to_quat_components(mat[0], mat[1], mat[2], mat[3], mat[4], mat[5],
+                                                                   mat[6], mat[7], mat[8])
 
 
 @_jit
@@ -149,13 +142,8 @@ def pose_error_into(pos: np.ndarray, quat: np.ndarray, site_pos: np.ndarray, sit
     """
     for i in range(3):
         error[i] = pos[i] - site_pos[i]
-    mat_to_quat(site_mat, scratch)
-    w1, x1, y1, z1 = quat[0], quat[1], quat[2], quat[3]
-    w2, x2, y2, z2 = scratch[0], -scratch[1], -scratch[2], -scratch[3]
-    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
-    x = w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2
-    y = w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2
-    z = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
+    mat_to_quat_into(site_mat, scratch)
+    w, x, y, z = hamilton(quat[0], quat[1], quat[2], quat[3], scratch[0], -scratch[1], -scratch[2], -scratch[3])
     if w < 0.0:  # q and -q are one rotation: take the shorter way
         w, x, y, z = -w, -x, -y, -z
     s = math.sqrt(x * x + y * y + z * z)

@@ -6,8 +6,9 @@ impedance controller runs at the physics rate:
 
     tau = J^T (K e - D v) + nullspace(q_ref) + c(q, qdot)      (controllers.impedance)
 
-with q_ref from a mink NullspaceReference that follows the commanded pose (when its QP has no solution in a
-period, the reference restarts from the measured posture; ``nullspace_failures`` counts those periods).
+with q_ref from a NullspaceReference (mink's IK problem, compiled) that follows the commanded pose (when its QP
+has no solution in a period, the reference restarts from the measured posture; ``nullspace_failures`` counts those
+periods).
 A grasped peg is squeezed by both fingers with the grasp force (a generalised force on each finger joint)
 and held by friction only. Its weight, which the arm's model does not contain (the peg is a separate body),
 is compensated as a known tool load, as the Franka controller does with its end-effector load setting: tau_load = -J_c^T m g, with J_c the
@@ -57,7 +58,7 @@ from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
 from envs import sensing_kernel
 from envs.sensing import PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
-from envs.geometry import all_finite, as_vector, quat_to_mat
+from envs.geometry import all_finite, as_vector
 from envs.success import (
     MIN_ENTRY_DEPTH_M,
     Assessment,
@@ -69,6 +70,7 @@ from envs.success import (
     frame_assessment,
     frame_state,
 )
+from rflow.quaternion import quat_to_mat
 from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
@@ -108,7 +110,7 @@ class EpisodeConfig:
             (grasped peg only).
         max_joint_speed_rad_s: a joint faster than this is an instability (the Panda's limit is 2.6 rad/s).
         start_penetration_m: a start pose whose contacts penetrate deeper than this is rejected.
-        nullspace_iterations: mink iterations per command of the nullspace joint reference.
+        nullspace_iterations: IK iterations per command of the nullspace joint reference.
         start_region: where ``reset`` samples a start when none is given.
         ik: IK settings for placing the arm at the start pose.
     """
@@ -391,8 +393,9 @@ class PegInHoleEnv:
         The perturbation (hole-pose error, grasp offset) is ``perturbation`` or, when None, drawn first from
         the generator seeded with ``seed`` within ``config.perturbations``. Without ``start_pose``, starts are
         then drawn from ``config.start_region`` with the same generator until one is reachable and
-        collision-free (at most MAX_START_DRAWS draws). The joints come from mink IK from the nominal posture
-        (keyframe "home"); velocities are zero and the controller's torque state is set to the gravity torque.
+        collision-free (at most MAX_START_DRAWS draws). The joints come from `solve_ik` (mink's problem,
+        compiled) from the nominal posture (keyframe "home"); velocities are zero and the controller's torque
+        state is set to the gravity torque.
 
         Raises:
             EnvError: a malformed start pose, an unreachable one (naming the pose), or one in collision.

@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from rflow.quaternion import mat_to_quat, quat_to_mat  # noqa: F401 -- rflow's, re-exported for envs and tests
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -53,41 +54,6 @@ def normalize_quat(quat: npt.ArrayLike, name: str = "quat") -> FloatArray:
     if length < 1e-9:
         raise EnvError(f"{name}={quat!r} has zero norm and is no rotation")
     return q / length
-
-
-def quat_to_mat(quat: npt.ArrayLike) -> FloatArray:
-    """Rotation matrix of the unit quaternion q = (w, x, y, z) (normalised first)."""
-    w, x, y, z = normalize_quat(quat).tolist()  # Python floats: the same arithmetic, without numpy scalars
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def mat_to_quat(rot: npt.ArrayLike) -> FloatArray:
-    """Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix (Shepperd's method)."""
-    from rflow.small_linalg import norm  # here: the task configs import this module, --help must not load numba
-
-    m = np.asarray(rot, dtype=np.float64)
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    if trace > max(m[0, 0], m[1, 1], m[2, 2]):
-        s = 2.0 * np.sqrt(1.0 + trace)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] >= m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    quat = np.asarray(q)
-    quat /= norm(quat)
-    return quat if quat[0] >= 0.0 else -quat
 
 
 def rot_z(angle_rad: float) -> FloatArray:

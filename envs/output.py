@@ -1,11 +1,12 @@
 """The output policy of every `pih` command: how a file is written, when an existing path may be replaced, and
 what is checked about an output before any work starts.
 
-Writing. `AtomicOutput` gives a temporary name in the output's own folder (".NAME.XXXXXXXX.tmp.SUFFIX": the
-same suffix, so writers that pick the format from it, ffmpeg and matplotlib, still do) and renames it over
-NAME (os.replace, atomic within one file system) only when the writing ended without an exception; on any
-error (an exception, a full disk, Ctrl-C) the temporary file is deleted, so a failure leaves the earlier file
-or none, never half a file. The file's mode follows the umask. Every writer below (`write_json`,
+Writing. `AtomicOutput` (the project's one atomic write, `pihutil.atomic`) gives a temporary name in the
+output's own folder (".NAME.XXXXXXXX.tmp.SUFFIX": the same suffix, so writers that pick the format from it,
+ffmpeg and matplotlib, still do) and renames it over NAME (os.replace, atomic within one file system) only
+when the writing ended without an exception; on any error (an exception, a full disk, Ctrl-C) the temporary
+file is deleted, so a failure leaves the earlier file or none, never half a file. The file's mode follows
+the umask. Every writer below (`write_json`,
 `write_text`, `save_npz`, `save_figure`) and the MP4 writer (envs.video.Mp4Writer) go through it. JSON is
 strict: ``allow_nan=False``, a non-finite float is written as null (`strict_json`).
 
@@ -37,14 +38,13 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from importlib import metadata
 from pathlib import Path
-from types import TracebackType
 from typing import Any, Callable, Iterable, Mapping
 
 from envs.errors import EnvError
 from envs.jsonable import to_jsonable
+from pihutil.atomic import AtomicFile, write_atomic
 
 MARKER_KEY = "pih"
 """Top-level JSON key, and .npz array name, of the marker."""
@@ -103,8 +103,9 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
     return digest.hexdigest()
 
 
-class AtomicOutput:
-    """A temporary file beside ``path`` that becomes ``path`` on `commit` or disappears on `abort`.
+class AtomicOutput(AtomicFile):
+    """`pihutil.atomic.AtomicFile` (a temporary file beside ``path`` that becomes ``path`` on `commit` or
+    disappears on `abort`) that can also list the output in its folder's registry after the rename.
 
     Usage::
 
@@ -117,65 +118,26 @@ class AtomicOutput:
     """
 
     def __init__(self, path: str | os.PathLike[str], register: bool = False):
-        self.path = Path(path)
+        super().__init__(path)
         self.register = register
-        folder = self.path.parent if str(self.path.parent) else Path(".")
-        try:
-            fd, name = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=f".tmp{self.path.suffix}", dir=folder)
-        except OSError as err:  # a read-only folder, a full disk: named after the output, not the temporary name
-            raise OSError(err.errno, err.strerror, str(self.path)) from err
-        self.temporary = Path(name)
-        try:
-            umask = os.umask(0)
-            os.umask(umask)
-            os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes 0600
-        finally:
-            os.close(fd)
 
     def commit(self) -> Path:
         """Rename the temporary file over ``path`` (and register it); returns ``path``."""
-        try:
-            os.replace(self.temporary, self.path)
-        except BaseException:
-            self.abort()
-            raise
+        super().commit()
         if self.register:
             register_output(self.path)
         return self.path
 
-    def abort(self) -> None:
-        """Delete the temporary file (idempotent)."""
-        self.temporary.unlink(missing_ok=True)
-
-    def __enter__(self) -> AtomicOutput:
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        if exc_type is None:
-            self.commit()
-        else:
-            self.abort()
-
 
 def write_file(path: str | os.PathLike[str], write: Callable[[Any], None], binary: bool = False,
                register: bool = False) -> Path:
-    """Write through ``write(handle)`` into an `AtomicOutput` (flushed and fsynced before the rename).
+    """Write through ``write(handle)`` into an `AtomicOutput` (`pihutil.atomic.write_atomic`: flushed and fsynced
+    before the rename).
 
     Raises:
         OSError: the write failed (a full disk, ...); named after ``path`` when the system did not name a file.
     """
-    try:
-        with AtomicOutput(path, register) as out:
-            with open(out.temporary, "wb" if binary else "w", encoding=None if binary else "utf-8") as handle:
-                write(handle)
-                handle.flush()
-                os.fsync(handle.fileno())
-    except OSError as err:
-        if err.filename is None and err.errno is not None:
-            raise OSError(err.errno, err.strerror, str(path)) from err
-        raise
-    return Path(path)
+    return write_atomic(path, write, binary, output=lambda target: AtomicOutput(target, register))
 
 
 def write_json(path: str | os.PathLike[str], record: Mapping[str, Any], mark: bool = True) -> Path:

@@ -134,7 +134,7 @@ def perturbed_frame(frame_pos: npt.ArrayLike, frame_quat: npt.ArrayLike, hole_po
     Returns:
         (position (3,), quaternion w, x, y, z (4,)).
     """
-    from envs.geometry import mat_to_quat, quat_to_mat
+    from rflow.quaternion import mat_to_quat, quat_to_mat
     from rflow.small_linalg import matmul, matvec
 
     r_h = quat_to_mat(hole_quat)

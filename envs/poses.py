@@ -1,12 +1,12 @@
-"""Poses of the peg tip: unit-quaternion helpers (w, x, y, z) and start-pose sampling.
+"""Poses of the peg tip: the Pose type, pose validation, start-pose sampling and trajectory resampling.
 
 All quaternions are unit quaternions in (w, x, y, z) order, the MuJoCo convention. A pose is a
-position in metres and a quaternion mapping the body frame to the world frame.
+position in metres and a quaternion mapping the body frame to the world frame. The quaternion algebra is
+`rflow.quaternion`'s (one definition for every layer); its functions are re-exported here for the
+modules of `envs` that import them with the poses.
 """
 
 from __future__ import annotations
-
-import math
 
 from dataclasses import dataclass
 
@@ -15,7 +15,8 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.geometry import all_finite
-from rflow.manifolds import sphere
+from rflow.quaternion import (quat_angle_rad, quat_conj, quat_from_rotvec, quat_from_rotvec_one, quat_mul,
+                              quat_mul_one, quat_to_rotvec, quat_to_rotvec_one, rotate, slerp)
 from rflow.small_linalg import matvec, norm
 
 FloatArray = npt.NDArray[np.float64]
@@ -30,94 +31,6 @@ class Pose:
 
     pos: FloatArray
     quat: FloatArray
-
-
-def quat_mul(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:
-    """Hamilton product a * b of quaternions (w, x, y, z), broadcasting over leading axes (rflow's S^3 product)."""
-    return sphere.quat_mul(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
-
-
-def quat_conj(q: npt.ArrayLike) -> FloatArray:
-    """Conjugate (= inverse for unit quaternions): w + u -> w - u."""
-    return sphere.quat_conj(np.asarray(q, dtype=float))
-
-
-def quat_from_rotvec(rotvec: npt.ArrayLike) -> FloatArray:
-    """Unit quaternion of a rotation vector r = angle * axis: q = (cos(|r|/2), sin(|r|/2) r/|r|)."""
-    r = np.asarray(rotvec, dtype=float)
-    angle = np.linalg.norm(r, axis=-1, keepdims=True)
-    half = 0.5 * angle
-    # sin(|r|/2)/|r| -> 1/2 as |r| -> 0
-    scale = np.where(angle > 1e-12, np.sin(half) / np.where(angle > 1e-12, angle, 1.0), 0.5)
-    return np.concatenate([np.cos(half), scale * r], axis=-1)
-
-
-def quat_to_rotvec(q: npt.ArrayLike) -> FloatArray:
-    """Rotation vector (angle * axis, angle in [0, pi]) of a unit quaternion; q and -q give the same.
-
-    angle = 2 atan2(|u|, |w|), axis = sign(w) u / |u|.
-    """
-    q = np.asarray(q, dtype=float)
-    w = q[..., :1]
-    u = q[..., 1:] * np.where(w < 0.0, -1.0, 1.0)
-    norm_u = np.linalg.norm(u, axis=-1, keepdims=True)
-    angle = 2.0 * np.arctan2(norm_u, np.abs(w))
-    scale = np.where(norm_u > 1e-12, angle / np.where(norm_u > 1e-12, norm_u, 1.0), 2.0)
-    return scale * u
-
-
-# One quaternion in Python floats (the closed loop's hot path): the arithmetic of quat_mul, quat_to_rotvec and
-# quat_from_rotvec above and of np.linalg.norm over the last axis (a left-to-right sum of squares), operation for
-# operation, so the results are the same to the bit (tests/test_policy_single_pose.py); the transcendental
-# functions are numpy's own ufuncs, which are what the array versions call. Tiny arrays cost more in numpy call
-# overhead than in arithmetic.
-
-def quat_mul_one(a: list[float], b: list[float]) -> list[float]:
-    """Hamilton product a * b of two quaternions (w, x, y, z), as rflow.manifolds.sphere.quat_mul computes it."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
-
-
-def quat_to_rotvec_one(q: list[float]) -> list[float]:
-    """`quat_to_rotvec` of one quaternion."""
-    w, x, y, z = q
-    sign = -1.0 if w < 0.0 else 1.0
-    ux, uy, uz = x * sign, y * sign, z * sign
-    norm_u = math.sqrt(ux * ux + uy * uy + uz * uz)
-    angle = 2.0 * float(np.arctan2(norm_u, abs(w)))
-    scale = angle / norm_u if norm_u > 1e-12 else 2.0
-    return [scale * ux, scale * uy, scale * uz]
-
-
-def quat_from_rotvec_one(r: list[float]) -> list[float]:
-    """`quat_from_rotvec` of one rotation vector."""
-    x, y, z = r
-    angle = math.sqrt(x * x + y * y + z * z)
-    half = 0.5 * angle
-    scale = float(np.sin(half)) / angle if angle > 1e-12 else 0.5
-    return [float(np.cos(half)), scale * x, scale * y, scale * z]
-
-
-def quat_angle_rad(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:
-    """Rotation angle between two orientations, in [0, pi]: |rotvec(a * conj(b))|."""
-    return np.linalg.norm(quat_to_rotvec(quat_mul(a, quat_conj(b))), axis=-1)
-
-
-def slerp(q0: npt.ArrayLike, q1: npt.ArrayLike, s: npt.ArrayLike) -> FloatArray:
-    """Spherical linear interpolation along the shorter arc, broadcasting q0, q1 (..., 4) and s (...).
-
-    slerp(q0, q1, s) = q0 * exp(s log(conj(q0) * q1)), with q1 sign-flipped onto q0's hemisphere.
-    """
-    q0 = np.asarray(q0, dtype=float)
-    q1 = np.asarray(q1, dtype=float)
-    s = np.asarray(s, dtype=float)[..., None]
-    rel = quat_mul(quat_conj(q0), q1)
-    rel = np.where(rel[..., :1] < 0.0, -rel, rel)
-    return quat_mul(q0, quat_from_rotvec(s * quat_to_rotvec(rel)))
 
 
 def make_continuous(quat: npt.ArrayLike, reference: npt.ArrayLike | None = None) -> FloatArray:
@@ -144,13 +57,6 @@ def mean_quat(quat: npt.ArrayLike) -> FloatArray:
     signs = np.where(matvec(q, q[0]) < 0.0, -1.0, 1.0)
     total = np.sum(signs[:, None] * q, axis=0)
     return total / norm(total)
-
-
-def rotate(quat: npt.ArrayLike, vec: npt.ArrayLike) -> FloatArray:
-    """Rotate vector(s) by unit quaternion(s): q * (0, v) * conj(q)."""
-    v = np.asarray(vec, dtype=float)
-    qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
-    return quat_mul(quat_mul(quat, qv), quat_conj(quat))[..., 1:]
 
 
 def validate_pose(pos: npt.ArrayLike, quat: npt.ArrayLike, what: str = "pose") -> Pose:
@@ -316,3 +222,12 @@ def quintic_hermite(s: npt.ArrayLike, p0: float, v0: float, p1: float, v1: float
     h4 = -4.0 * s3 + 7.0 * s3 * s - 3.0 * s3 * s2
     h5 = 10.0 * s3 - 15.0 * s3 * s + 6.0 * s3 * s2
     return h0 * p0 + h1 * v0 + h4 * v1 + h5 * p1
+
+
+__all__ = [
+    "Pose", "QUAT_NORM_TOL", "StartRegion", "format_pose", "make_continuous", "mean_quat", "minimum_jerk",
+    "nominal_start", "quintic_hermite", "resample_trajectory", "sample_start_poses", "validate_pose",
+    # rflow.quaternion's, re-exported for the envs modules that import them with the poses
+    "quat_angle_rad", "quat_conj", "quat_from_rotvec", "quat_from_rotvec_one", "quat_mul", "quat_mul_one",
+    "quat_to_rotvec", "quat_to_rotvec_one", "rotate", "slerp",
+]

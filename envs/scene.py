@@ -43,9 +43,7 @@ from envs.geometry import (
     FloatArray,
     as_vector,
     look_at_xyaxes,
-    mat_to_quat,
     normalize_quat,
-    quat_to_mat,
     tilt_from_down_deg,
     z_down_rotation,
     z_down_yaw_deg,
@@ -62,6 +60,7 @@ from envs.sorter import (
     symmetry_order,
 )
 from envs.success import HoleSpec
+from rflow.quaternion import mat_to_quat, quat_to_mat
 from rflow.small_linalg import matmul, matvec, norm
 
 PAPER_GOAL_POS_M: tuple[float, float, float] = (0.675, -0.051, 0.203)

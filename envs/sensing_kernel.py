@@ -1,9 +1,8 @@
 """The physics-rate sensing of an episode (envs.sensing, envs.env), compiled with numba (no Python work per step).
 
 Every physics step (1 kHz) the episode reads the wrist F/T sensor and the peg's contacts, keeps their peaks and
-checks the force limit. In numpy that was ~30 Python-level calls per step (30-40 us against ~60 us for the physics
-on the development machine); here it is one compiled call (~3 us with its arguments) on views of MjData and
-preallocated buffers. (The grasped peg's weight, applied before every step, is the controller's tool load:
+checks the force limit. In numpy that was ~30 Python-level calls per step, costing about half of the physics step;
+here it is one compiled call on views of MjData and preallocated buffers. (The grasped peg's weight, applied before every step, is the controller's tool load:
 controllers.impedance_kernel.tool_load_into.)
 
 Wrist wrench (envs.sensing), in the sensor frame S with rotation R_S, from the readings F_s, tau_s:

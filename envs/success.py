@@ -29,8 +29,9 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.geometry import R_FLIP_X, as_vector, edge_lines, quat_to_mat, twist_angle_deg
+from envs.geometry import R_FLIP_X, as_vector, edge_lines, twist_angle_deg
 from envs.shapes import CrossSection
+from rflow.quaternion import quat_to_mat
 from rflow.small_linalg import matmul, matvec
 
 FloatArray = npt.NDArray[np.float64]

@@ -1,9 +1,9 @@
 """Headless offscreen rendering of a MuJoCo scene to MP4 (H.264 through imageio-ffmpeg).
 
-The OpenGL backend is chosen here, not at ``import mujoco`` time: ``MUJOCO_GL`` if set (egl, osmesa or
-glfw), otherwise EGL with a fall-back to OSMesa. Frames are rendered at ``fps`` frames per second of
+The OpenGL backend is chosen by envs.rendering (the one place): ``MUJOCO_GL`` if set (egl, osmesa or glfw),
+otherwise EGL with a fall-back to OSMesa. Frames are rendered at ``fps`` frames per second of
 SIMULATED time (not every physics step). The commanded peg_tip path is drawn as a polyline (line
-geoms, a few pixels wide: capsules cost ~10x more with a software renderer) and the goal as an RGB
+geoms, a few pixels wide: capsules cost far more with a software renderer) and the goal as an RGB
 frame (x red, y green, z blue), both as user geoms of the scene.
 The MP4 is written to a temporary file beside the target (envs.output.AtomicOutput) and renamed only when
 ffmpeg wrote a whole file; a full disk or a dead ffmpeg is an OSError, never a truncated MP4.
@@ -18,12 +18,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 import numpy.typing as npt
 
-os.environ.setdefault("MUJOCO_GL", "egl")  # for anyone importing mujoco after us; we pick our own context
+from envs.rendering import gl_context, use_headless_rendering
+
+use_headless_rendering()  # for a library user who imports mujoco after us; we make our own context
 
 import imageio.v2 as imageio  # noqa: E402
 import mujoco  # noqa: E402
@@ -58,8 +60,8 @@ class VideoConfig:
         goal_axis_length_m: length of the goal frame's axes (0 hides the frame).
         shadows: render shadows (costly with a software renderer).
         multisamples: MSAA samples per pixel (MuJoCo's ``vis.quality.offsamples``); 0, the default, renders
-            2.5x faster with Mesa's software renderer (12 vs 30 ms per 640x480 frame) at the cost of jagged
-            edges; 4 is MuJoCo's default.
+            much faster with Mesa's software renderer (README: `pih bench`) at the cost of jagged edges; 4 is
+            MuJoCo's default.
     """
 
     width: int = 640
@@ -89,32 +91,6 @@ class VideoConfig:
             raise EnvError(f"VideoConfig: multisamples must be an integer in [0, 16], got {self.multisamples!r}")
 
 
-def _gl_context(width: int, height: int) -> tuple[Any, str]:
-    """Create and make current a headless GL context: MUJOCO_GL if set, else EGL then OSMesa."""
-    requested = os.environ.get("MUJOCO_GL", "").strip().lower() or "egl"
-    candidates = ["egl", "osmesa"] if requested == "egl" else [requested]
-    failures = []
-    for backend in candidates:
-        try:
-            if backend == "egl":
-                from mujoco.egl import GLContext
-            elif backend == "osmesa":
-                if os.environ.get("PYOPENGL_PLATFORM", "osmesa") != "osmesa":
-                    os.environ["PYOPENGL_PLATFORM"] = "osmesa"  # an EGL attempt set it before failing
-                from mujoco.osmesa import GLContext
-            elif backend == "glfw":
-                from mujoco.glfw import GLContext
-            else:
-                failures.append(f"{backend}: unknown backend (use egl, osmesa or glfw)")
-                continue
-            context = GLContext(width, height)
-            context.make_current()
-            return context, backend
-        except Exception as err:  # noqa: BLE001 -- any backend failure means: try the next one
-            failures.append(f"{backend}: {type(err).__name__}: {err}")
-    raise EnvError(f"no headless OpenGL context (MUJOCO_GL={requested!r}): " + "; ".join(failures))
-
-
 class OffscreenRenderer:
     """Renders RGB frames of ``model`` from a named camera into an offscreen buffer.
 
@@ -131,7 +107,7 @@ class OffscreenRenderer:
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
         model.vis.quality.offsamples = int(multisamples)
-        self._gl, self.backend = _gl_context(self.width, self.height)
+        self._gl, self.backend = gl_context(self.width, self.height)
         self._context: mujoco.MjrContext | None = None
         try:
             self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)

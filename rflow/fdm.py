@@ -32,7 +32,7 @@ import numpy.typing as npt
 from scipy.optimize import minimize_scalar
 
 from rflow.errors import RFlowError
-from rflow.manifolds import get_manifold
+from rflow.manifolds import get_manifold, prepare_demos
 from rflow.train import shared_goal
 
 SOURCE_END_RATIO = 1e-2  # the source line ends at 1 % of its start after the demo's duration
@@ -214,12 +214,7 @@ def fit_fdm(demos: npt.ArrayLike, manifold: str, dt: float, config: FDMConfig = 
     Raises:
         RFlowError: bad shapes, points off the manifold, demos without a shared goal, dt <= 0.
     """
-    man = get_manifold(manifold)
-    if not (np.isfinite(dt) and dt > 0):
-        raise RFlowError(f"sampling time dt={dt} must be > 0")
-    data = np.asarray(man.prepare(np.asarray(demos, dtype=np.float64)))
-    if data.ndim != 2 + man.point_ndim or data.shape[1] < 2:
-        raise RFlowError(f"FDM demos have shape {data.shape}, expected (N, M, point) with M >= 2")
+    man, data = prepare_demos(demos, manifold, dt, "FDM")
     goal = shared_goal(data, man, config.goal_tolerance)
     tangent = np.asarray(man.log(data, goal))
     scale = np.maximum(tangent.reshape(-1, tangent.shape[-1]).std(axis=0), 1e-12)

@@ -12,8 +12,7 @@ blocks of BLOCK_POINTS points whose inner loops run across the block (vectorised
 over the cores (numba prange); the closed-loop step of one point is a single call on preallocated buffers.
 In the batches exp(c tanh(u)) is a vectorised Taylor series with argument halving (`_exp_clamped_tanh`) instead of
 libm's scalar calls, and the output sums run four hidden units at a time: batch results equal the single-point step
-(libm, plain summation order) and the torch flow to ~1e-14 relative in float64, and cost a quarter of the time of
-the previous blocks of 32 points (100 x 1001 points of the paper's 3-D flow: 139 ms -> ~35 ms on one core).
+(libm, plain summation order) and the torch flow to ~1e-14 relative in float64 (timings: `pih bench`, README).
 """
 
 from __future__ import annotations

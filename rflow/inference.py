@@ -189,15 +189,15 @@ class TangentChart:
     """
 
     def __init__(self, manifold, goal: np.ndarray):
-        from rflow.manifolds import sphere
+        from rflow.quaternion import quat_conj, quat_mul
 
         self.manifold = manifold
         self.goal = np.asarray(goal, dtype=np.float64)
         self.name = manifold.name
         if self.name == "sphere":
             eye = np.eye(4)
-            self._right_conj_goal = np.ascontiguousarray(sphere.quat_mul(eye, sphere.quat_conj(self.goal)[None]).T)
-            self._right_goal = np.ascontiguousarray(sphere.quat_mul(eye, self.goal[None]).T)
+            self._right_conj_goal = np.ascontiguousarray(quat_mul(eye, quat_conj(self.goal)[None]).T)
+            self._right_goal = np.ascontiguousarray(quat_mul(eye, self.goal[None]).T)
         elif self.name == "spd":
             lam, u = eigh_sym(self.goal)
             self._half = matmul(u * np.sqrt(lam), u.T)

@@ -39,6 +39,20 @@ MAX_WIDTH = 4096
 MAX_HIDDEN_LAYERS = 16
 
 
+def read_json(path: Path, missing: str) -> Any:
+    """The JSON value in the file ``path`` (a model's or a checkpoint's record).
+
+    Raises:
+        RFlowError: ``missing`` when there is no such file; "corrupt PATH: ..." when it cannot be read or parsed.
+    """
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise RFlowError(missing) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RFlowError(f"corrupt {path}: {err}") from None
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Architecture of ImitationFlow (paper: 11 coupling layers, ReLU).
@@ -270,12 +284,7 @@ class RiemannianFlow:
             RFlowError: missing or corrupt model.json / weights.pt, or weights that do not fit.
         """
         src = Path(directory)
-        try:
-            record = json.loads((src / CONFIG_FILE).read_text())
-        except FileNotFoundError:
-            raise RFlowError(f"no {CONFIG_FILE} in model directory {src}") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise RFlowError(f"corrupt {src / CONFIG_FILE}: {err}") from None
+        record = read_json(src / CONFIG_FILE, f"no {CONFIG_FILE} in model directory {src}")
         try:
             if record.get("format") != FORMAT:
                 raise RFlowError(f"{src / CONFIG_FILE} has format {record.get('format')!r}, expected {FORMAT!r}")

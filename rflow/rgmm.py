@@ -34,7 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rflow.errors import RFlowError
-from rflow.manifolds import Manifold, get_manifold
+from rflow.manifolds import Manifold, get_manifold, prepare_demos
 
 REG_FRACTION = 1e-4  # covariance regularisation as a fraction of the data's variance per dimension
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -300,12 +300,7 @@ def fit_rgmm(demos: npt.ArrayLike, manifold: str, dt: float, config: RGMMConfig 
     Raises:
         RFlowError: bad shapes, points off the manifold, dt <= 0.
     """
-    man = get_manifold(manifold)
-    if not (np.isfinite(dt) and dt > 0):
-        raise RFlowError(f"sampling time dt={dt} must be > 0")
-    data = np.asarray(man.prepare(np.asarray(demos, dtype=np.float64)))
-    if data.ndim != 2 + man.point_ndim or data.shape[1] < 2:
-        raise RFlowError(f"R-GMM demos have shape {data.shape}, expected (N, M, point) with M >= 2")
+    man, data = prepare_demos(demos, manifold, dt, "R-GMM")
     n, m = data.shape[:2]
     keep = np.unique(np.round(np.linspace(0, m - 1, min(m, config.fit_points))).astype(int))
     times = np.tile(keep * dt, n)

@@ -29,8 +29,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -38,9 +36,10 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import numpy.typing as npt
 
+from pihutil.atomic import atomic_folder
 from rflow.errors import RFlowError
 from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
-from rflow.model import RiemannianFlow
+from rflow.model import RiemannianFlow, read_json
 from rflow.small_linalg import eigh_sym
 from rflow.stiffness import StiffnessBounds, clip_eigenvalues, log_euclidean_mean
 
@@ -225,7 +224,8 @@ def check_checkpoint_target(directory: str | os.PathLike[str], overwrite: bool =
 
 def save_skill(directory: str | os.PathLike[str], skill: PoseSkill,
                extra: Mapping[str, Callable[[Path], None]] | None = None, overwrite: bool = False) -> Path:
-    """Write a skill checkpoint directory atomically (build in DIR.tmp-XXXX beside it, then rename).
+    """Write a skill checkpoint directory atomically (`pihutil.atomic.atomic_folder`: built in .DIR.tmp-XXXX beside
+    it, then swapped in).
 
     Args:
         directory: the checkpoint directory DIR.
@@ -242,13 +242,7 @@ def save_skill(directory: str | os.PathLike[str], skill: PoseSkill,
         Whatever a writer raises (the temporary directory is removed first).
     """
     out = check_checkpoint_target(directory, overwrite)
-    parent = out.parent if str(out.parent) else Path(".")
-    tmp = Path(tempfile.mkdtemp(prefix=f"{out.name}.tmp-", dir=parent))
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700
-    old: Path | None = None
-    try:
+    with atomic_folder(out, before_swap=lambda: check_checkpoint_target(out, overwrite)) as tmp:  # still ours
         for name in MODEL_DIRS[skill.layout]:
             skill.models[name].save(tmp / name)
         record = {"format": SKILL_FORMAT, "layout": skill.layout, "models": list(MODEL_DIRS[skill.layout]),
@@ -256,19 +250,6 @@ def save_skill(directory: str | os.PathLike[str], skill: PoseSkill,
         (tmp / SKILL_FILE).write_text(json.dumps(record, indent=2, allow_nan=True))
         for name, writer in (extra or {}).items():
             writer(tmp / name)
-        if out.exists() or out.is_symlink():
-            check_checkpoint_target(out, overwrite)  # still ours to replace
-            old = Path(tempfile.mkdtemp(prefix=f"{out.name}.old-", dir=parent))
-            os.replace(out, old / out.name)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None and not out.exists() and (old / out.name).exists():
-            os.replace(old / out.name, out)  # put the previous checkpoint back
-        raise
-    finally:
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
     return out
 
 
@@ -281,12 +262,7 @@ def load_skill(directory: str | os.PathLike[str]) -> PoseSkill:
     src = Path(directory)
     if not src.is_dir():
         raise RFlowError(f"checkpoint directory {src} not found")
-    try:
-        record = json.loads((src / SKILL_FILE).read_text())
-    except FileNotFoundError:
-        raise RFlowError(f"no {SKILL_FILE} in checkpoint {src} (not a `pih train` output?)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise RFlowError(f"corrupt {src / SKILL_FILE}: {err}") from None
+    record = read_json(src / SKILL_FILE, f"no {SKILL_FILE} in checkpoint {src} (not a `pih train` output?)")
     if not isinstance(record, dict) or record.get("format") != SKILL_FORMAT:
         got = record.get("format") if isinstance(record, dict) else type(record).__name__
         raise RFlowError(f"{src / SKILL_FILE} has format {got!r}, expected {SKILL_FORMAT!r}")
@@ -371,8 +347,7 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
         bounds: [k_min, k_max] of the stiffness (default `StiffnessBounds()`); every demonstrated
             stiffness must lie inside, and the skill clips generated stiffness to them.
         workers: with 2 or more and the separate layout, the two models train at the same time in two
-            processes (`rflow.fit_processes`; the same weights, bit for bit; 101 -> 69 s for the default skill
-            on the 2-core development machine).
+            processes (`rflow.fit_processes`; the same weights, bit for bit; timings in the README).
 
     Returns:
         The PoseSkill, with ``training`` holding each model's config and loss history, and with stiffness

@@ -23,6 +23,7 @@ import numpy.typing as npt
 import torch
 from tqdm import tqdm
 
+from pihutil.atomic import write_atomic
 from rflow.cpu_dispatch import check_torch_dispatch
 from rflow.errors import RFlowError
 from rflow.manifolds import Manifold, get_manifold
@@ -117,11 +118,11 @@ class TrainHistory:
     seconds: float = 0.0
 
     def save(self, path: str | Path) -> Path:
-        """Write the history as JSON."""
+        """Write the history as JSON (atomically, `pihutil.atomic.write_atomic`)."""
         out = Path(path)
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(asdict(self), indent=2))
-        return out
+        text = json.dumps(asdict(self), indent=2)
+        return write_atomic(out, lambda handle: handle.write(text))
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainHistory":

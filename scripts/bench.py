@@ -31,18 +31,16 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import mujoco
+import numpy as np
 
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-
-from controllers.benchmark import physics_state, replayed_step_rate  # noqa: E402
-from envs.demos import ExpertConfig, demo_episode_config, plan_expert_path  # noqa: E402
-from envs.env import PegInHoleEnv  # noqa: E402
-from envs.errors import EnvError  # noqa: E402
-from envs.output import MiB, check_output, write_json  # noqa: E402
-from envs.scene import SceneConfig, build_scene  # noqa: E402
-from envs.video import EpisodeVideo, VideoConfig  # noqa: E402
+from controllers.benchmark import physics_state, replayed_step_rate
+from envs.demos import ExpertConfig, demo_episode_config, plan_expert_path
+from envs.env import PegInHoleEnv
+from envs.errors import EnvError
+from envs.output import MiB, check_output, write_json
+from envs.scene import SceneConfig, build_scene
+from envs.video import EpisodeVideo, VideoConfig
 
 Benchmark = tuple[str, Callable[[bool], dict[str, Any]]]
 

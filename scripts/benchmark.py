@@ -14,14 +14,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 from pathlib import Path
 from typing import Any, Callable
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
-from envs.errors import EnvError  # noqa: E402
-from envs.execution.protocol import (  # noqa: E402
+from envs.errors import EnvError
+from envs.execution.protocol import (
     PROTOCOL_FILE,
     REPLICATE_PREFIX,
     RESULT_FILE,
@@ -32,8 +29,8 @@ from envs.execution.protocol import (  # noqa: E402
     summarise,
     summary_lines,
 )
-from scripts.options import MAX_EPISODES  # noqa: E402
-from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
+from scripts.options import MAX_EPISODES
+from scripts.task_options import add_task_arguments, task_from_args
 
 MAX_SEEDS = 1000
 REPLICATE_BYTES = 200 * 2**20

@@ -17,6 +17,7 @@ import rflow  # noqa: F401  first: pins the CPU dispatch of torch, MKL and numpy
 from batch.errors import BatchError
 from controllers.errors import ControllerError
 from envs.errors import EnvError
+from envs.rendering import use_headless_rendering
 from rflow.errors import RFlowError
 
 # subcommand -> (module under scripts/, one-line help)
@@ -77,8 +78,8 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser(command: str = "") -> argparse.ArgumentParser:
     """Build the `pih` parser: every subcommand is listed with its one-line help, and only ``command``'s module
-    (none for "") is imported to add its options. Importing all of them loaded torch, MuJoCo, Optuna, ... on
-    every call: `pih --help` took 3.6-4.0 s on the development machine (now 0.1 s), `pih demos --help` 3.6 s (1.0 s)."""
+    (none for "") is imported to add its options: importing all of them would load torch, MuJoCo, Optuna, ... on
+    every call, seconds before the first line of help (README: the figures)."""
     parser = Parser(prog="pih", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
@@ -106,6 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `pih` console script; returns the exit status (module docstring)."""
     words = list(sys.argv[1:] if argv is None else argv)
     command = chosen_command(words)
+    use_headless_rendering()  # before any command imports MuJoCo; worker processes inherit it
     try:
         args = build_parser(command).parse_args(words)
     except UsageError as err:

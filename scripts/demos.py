@@ -11,14 +11,11 @@ the demo file's ``stiffness``, learned with `pih train --stiffness expert`.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 from envs.errors import EnvError  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402

@@ -27,14 +27,11 @@ outputs are checked before any episode, envs/output.py), 1 also on an operating-
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
 import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402

@@ -13,17 +13,14 @@ Read back with `pih demos --import DIR --format lerobot|robomimic --out demos.np
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
-from envs.datasets import LAYOUTS, require_layout  # noqa: E402
-from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demos  # noqa: E402
-from envs.datasets.output import check_export_folder, staged_folder  # noqa: E402
-from envs.errors import EnvError  # noqa: E402
-from envs.output import MiB, check_output_folder  # noqa: E402
+from envs.datasets import LAYOUTS, require_layout
+from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demos
+from envs.datasets.output import check_export_folder, staged_folder
+from envs.errors import EnvError
+from envs.output import MiB, check_output_folder
 
 DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x128"}
 VIDEO_BYTES = 500 * MiB

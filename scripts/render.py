@@ -10,25 +10,22 @@ drawn. Other trajectory sources (e.g. a trained model) plug in through ``Traject
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import numpy as np
+import numpy.typing as npt
 
-import numpy as np  # noqa: E402
-import numpy.typing as npt  # noqa: E402
-
-from envs.demo_file import load_demos  # noqa: E402
-from envs.demos import scene_config_from_demos  # noqa: E402
-from envs.env import EpisodeConfig, PegInHoleEnv, StepResult, replay_trajectory  # noqa: E402
-from envs.errors import EnvError  # noqa: E402
-from envs.output import MiB, check_output  # noqa: E402
-from envs.poses import Pose  # noqa: E402
-from envs.scene import SceneConfig  # noqa: E402
-from envs.video import EpisodeVideo, VideoConfig  # noqa: E402
-from scripts.options import MAX_DEMOS, check_camera, count, number  # noqa: E402
+from envs.demo_file import load_demos
+from envs.demos import scene_config_from_demos
+from envs.env import EpisodeConfig, PegInHoleEnv, StepResult, replay_trajectory
+from envs.errors import EnvError
+from envs.output import MiB, check_output
+from envs.poses import Pose
+from envs.scene import SceneConfig
+from envs.video import EpisodeVideo, VideoConfig
+from scripts.options import MAX_DEMOS, check_camera, count, number
 
 VIDEO_BYTES = 100 * MiB
 """Generous size of one rendered demo (640x480 H.264, a 10-20 s demo takes a few MiB)."""

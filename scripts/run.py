@@ -20,12 +20,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
-from envs.errors import EnvError  # noqa: E402
-from envs.output import MiB, check_output, check_output_folder, write_json  # noqa: E402
-from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed  # noqa: E402
-from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
+from envs.errors import EnvError
+from envs.output import MiB, check_output, check_output_folder, write_json
+from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed
+from scripts.task_options import add_task_arguments, task_from_args
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "forces.png", "episodes.mp4",
                "summary.json")

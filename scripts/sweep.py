@@ -16,19 +16,16 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import time
 
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
-from envs.errors import EnvError  # noqa: E402
-from envs.execution.config import MODES, EvaluationConfig  # noqa: E402
-from envs.output import MiB, check_output, check_output_folder, write_json  # noqa: E402
-from scripts.options import MAX_EPISODES, MAX_WORKERS, count, number, seed  # noqa: E402
-from scripts.task_options import task_from_args  # noqa: E402
+from envs.errors import EnvError
+from envs.execution.config import MODES, EvaluationConfig
+from envs.output import MiB, check_output, check_output_folder, write_json
+from scripts.options import MAX_EPISODES, MAX_WORKERS, count, number, seed
+from scripts.task_options import task_from_args
 
 AXIS_OPTIONS: dict[str, tuple[str, float]] = {
     "clearance_m": ("--clearance-mm", 1e-3),
@@ -198,6 +195,5 @@ def main(args: argparse.Namespace) -> int:
               "continue with the same command and --resume", file=sys.stderr)
         return 3
     return 0
-
 
 

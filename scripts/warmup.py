@@ -3,9 +3,9 @@
     pih warmup
 
 The impedance law, the IK step, the per-physics-step sensing and the flow passes are compiled with numba and
-cached on disk beside their modules (``cache=True``), per argument types. Compiling them takes about 25 s on a
-2-core machine, which the first `pih run` of a fresh clone would otherwise spend. This runs the code paths of a
-run on a tiny throw-away skill -- a reset (IK), a few closed-loop steps of an episode with the flow (impedance
+cached on disk beside their modules (``cache=True``), per argument types. Compiling them takes tens of seconds
+(README: `pih warmup`), which the first `pih run` of a fresh clone would otherwise spend. This runs the code paths
+of a run on a tiny throw-away skill -- a reset (IK), a few closed-loop steps of an episode with the flow (impedance
 law, nullspace IK, sensing, tool load) and the flow's plan -- so every kernel is compiled with the argument types
 a run uses (the scripted demos and the evaluation call the same kernels with the same types: after this they add
 no cache entry). It writes nothing but numba's cache. `setup.sh` calls it.
@@ -14,10 +14,7 @@ no cache entry). It writes nothing but numba's cache. `setup.sh` calls it.
 from __future__ import annotations
 
 import argparse
-import os
 import time
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

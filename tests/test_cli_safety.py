@@ -1,6 +1,6 @@
 """Every `pih` command refuses bad input and unsafe outputs before any work, with one line and exit 2, touching
 nothing; an operating-system error while writing (a full disk, a read-only folder) is one line and exit 1
-and leaves no half-written output (envs/output.py, scripts/options.py).
+and leaves no half-written output (envs/output.py on pihutil/atomic.py, scripts/options.py).
 
 Each case: the command line (``{tmp}`` is the case's folder, which holds a checkpoint ``model/``, a demo
 file ``demos.npz`` and whatever the case prepares), the files to prepare, the exit status and a fragment of
@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 import pytest
 
-from envs import output
+from pihutil import atomic
 from rflow.skill_io import save_skill
 from scripts.cli import main
 from skill_fixtures import synthetic_demos, tiny_skill, write_demo_file
@@ -236,7 +236,7 @@ def _fail_temporary(monkeypatch, folder: Path, target: str, how: str) -> None:
         os.symlink("/dev/full", name)
         return os.open(folder / ".scratch-for-fchmod", os.O_CREAT | os.O_WRONLY), name
 
-    monkeypatch.setattr(output.tempfile, "mkstemp", mkstemp)
+    monkeypatch.setattr(atomic.tempfile, "mkstemp", mkstemp)  # the one atomic write (pihutil.atomic)
 
 
 def _leftovers(folder: Path) -> list[str]:

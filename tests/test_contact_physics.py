@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from envs.contact import ContactConfig
-from envs.geometry import R_FLIP_X, mat_to_quat, quat_to_mat, rot_z
+from envs.geometry import R_FLIP_X, rot_z
+from rflow.quaternion import mat_to_quat, quat_to_mat
 from envs.scene import SHAPES, SceneConfig, build_scene
 from envs.shapes import PEG_LENGTH_M
 from envs.shapes import peg_cross_section

@@ -2,40 +2,23 @@
 
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
 from envs.errors import EnvError
 from envs.geometry import (
     as_vector,
     clip_polygon,
     look_at_xyaxes,
-    mat_to_quat,
     offset_convex_polygon,
     polygon_area,
-    quat_to_mat,
     rectangle,
     regular_polygon,
     tilt_from_down_deg,
     z_down_rotation,
     z_down_yaw_deg,
 )
+from rflow.quaternion import mat_to_quat, quat_to_mat
 
 PAPER_QUAT = (0.022, 0.991, -0.125, 0.035)
-
-unit = st.floats(-1.0, 1.0, allow_nan=False)
-
-
-@given(st.tuples(unit, unit, unit, unit).filter(lambda q: np.linalg.norm(q) > 0.1))
-def test_quat_mat_round_trip(quat):
-    q = np.asarray(quat) / np.linalg.norm(quat)
-    assert np.allclose(quat_to_mat(mat_to_quat(quat_to_mat(q))), quat_to_mat(q), atol=1e-9)
-
-
-def test_quat_to_mat_is_a_rotation():
-    rot = quat_to_mat(PAPER_QUAT)
-    assert np.allclose(rot.T @ rot, np.eye(3)) and np.isclose(np.linalg.det(rot), 1.0)
-
 
 @pytest.mark.parametrize("yaw_deg", [-170.0, -14.4, 0.0, 33.0, 179.0])
 def test_z_down_yaw_inverts_z_down_rotation(yaw_deg):

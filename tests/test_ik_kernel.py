@@ -109,10 +109,8 @@ def _mink_solve_ik(model, site, pos, quat, q_nominal, config=IKConfig()):
     return configuration.q.copy()
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_solve_ik_reaches_the_posture_mink_reaches(model, seed):
-    from controllers.ik import solve_ik
-
+def _reachable_pose(model, seed):
+    """The peg_mount pose of a random posture near "home" (reachable by construction), and the home joints."""
     rng = np.random.default_rng(seed)
     q_home = model.key("home").qpos.copy()
     data = mujoco.MjData(model)
@@ -121,6 +119,34 @@ def test_solve_ik_reaches_the_posture_mink_reaches(model, seed):
     site = model.site("peg_mount").id
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, data.site_xmat[site])
-    pos = data.site_xpos[site].copy()
+    return data.site_xpos[site].copy(), quat, q_home
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_solve_ik_reaches_the_posture_mink_reaches(model, seed):
+    from controllers.ik import solve_ik
+
+    pos, quat, q_home = _reachable_pose(model, seed)
     np.testing.assert_allclose(solve_ik(model, "peg_mount", pos, quat, q_home),
                                _mink_solve_ik(model, "peg_mount", pos, quat, q_home), atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_solve_ik_with_mink_is_the_compiled_solve(model, seed):
+    from controllers.ik import solve_ik
+
+    pos, quat, q_home = _reachable_pose(model, 10 + seed)
+    compiled = solve_ik(model, "peg_mount", pos, quat, q_home)
+    with_mink = solve_ik(model, "peg_mount", pos, quat, q_home, solver="mink")
+    np.testing.assert_allclose(with_mink, compiled, atol=1e-9, rtol=0)  # the same iterates, to daqp's tolerance
+
+
+def test_solve_ik_with_mink_reports_an_unreachable_pose(model):
+    from controllers.errors import ControllerError
+    from controllers.ik import solve_ik
+
+    q_home = model.key("home").qpos.copy()
+    with pytest.raises(ControllerError, match="unreachable"):
+        solve_ik(model, "peg_mount", [2.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0], q_home, solver="mink")
+    with pytest.raises(ControllerError, match="solver"):
+        solve_ik(model, "peg_mount", [0.5, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0], q_home, solver="pinocchio")

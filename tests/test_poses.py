@@ -1,4 +1,5 @@
-"""Quaternion helpers, trajectory resampling, time scalings and start-pose sampling."""
+"""Pose validation, trajectory resampling, time scalings and start-pose sampling (the quaternion algebra:
+tests/test_quaternion.py)."""
 
 from __future__ import annotations
 
@@ -13,44 +14,12 @@ from envs.poses import (
     StartRegion,
     make_continuous,
     minimum_jerk,
-    quat_angle_rad,
-    quat_conj,
-    quat_from_rotvec,
-    quat_mul,
-    quat_to_rotvec,
     quintic_hermite,
     resample_trajectory,
-    rotate,
     sample_start_poses,
-    slerp,
     validate_pose,
 )
-
-rotvecs = st.lists(st.floats(-1.8, 1.8), min_size=3, max_size=3).map(np.array)
-
-
-@given(rotvecs)
-def test_rotvec_round_trip(r: np.ndarray) -> None:
-    np.testing.assert_allclose(quat_to_rotvec(quat_from_rotvec(r)), r, atol=1e-9)
-
-
-@given(rotvecs)
-def test_quaternion_times_conjugate_is_identity(r: np.ndarray) -> None:
-    q = quat_from_rotvec(r)
-    np.testing.assert_allclose(quat_mul(q, quat_conj(q)), [1.0, 0.0, 0.0, 0.0], atol=1e-12)
-
-
-def test_rotate_quarter_turn_about_z() -> None:
-    q = quat_from_rotvec([0.0, 0.0, np.pi / 2])
-    np.testing.assert_allclose(rotate(q, [1.0, 0.0, 0.0]), [0.0, 1.0, 0.0], atol=1e-12)
-
-
-@given(rotvecs, rotvecs, st.floats(0.0, 1.0))
-def test_slerp_splits_the_angle(a: np.ndarray, b: np.ndarray, s: float) -> None:
-    q0, q1 = quat_from_rotvec(a), quat_from_rotvec(b)
-    total = quat_angle_rad(q0, q1)
-    mid = slerp(q0, q1, s)
-    assert quat_angle_rad(q0, mid) == pytest.approx(s * total, abs=1e-7)
+from rflow.quaternion import quat_angle_rad, quat_from_rotvec, quat_to_rotvec
 
 
 def test_make_continuous_removes_sign_flips_and_ends_on_reference() -> None:

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
-from envs.geometry import mat_to_quat, quat_to_mat, tilt_from_down_deg, z_down_yaw_deg
+from envs.geometry import tilt_from_down_deg, z_down_yaw_deg
+from rflow.quaternion import mat_to_quat, quat_to_mat
 from envs.scene import (
     CAMERAS,
     PAPER_GOAL_POS_M,

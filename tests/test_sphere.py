@@ -9,6 +9,7 @@ from hypothesis.extra.numpy import arrays
 
 from rflow.errors import RFlowError
 from rflow.manifolds import sphere
+from rflow.quaternion import quat_conj, quat_mul
 
 finite = st.floats(-1.0, 1.0, allow_nan=False)
 vec4 = arrays(np.float64, 4, elements=finite).filter(lambda v: np.linalg.norm(v) > 0.1)
@@ -49,9 +50,9 @@ def test_log_has_no_factor_two():
 def test_log_uses_q_times_conj_base():
     rng = np.random.default_rng(1)
     q, g = unit(rng.normal(size=4)), unit(rng.normal(size=4))
-    expected = sphere.quat_log(sphere.quat_mul(q, sphere.quat_conj(g)))
+    expected = sphere.quat_log(quat_mul(q, quat_conj(g)))
     assert np.allclose(sphere.log_map(q, g), expected)
-    assert not np.allclose(sphere.log_map(q, g), sphere.quat_log(sphere.quat_mul(sphere.quat_conj(g), q)))
+    assert not np.allclose(sphere.log_map(q, g), sphere.quat_log(quat_mul(quat_conj(g), q)))
 
 
 def test_log_is_accurate_near_the_base():
@@ -65,11 +66,6 @@ def test_log_is_finite_near_the_antipode():
     g = np.array([1.0, 0, 0, 0])
     assert np.allclose(sphere.log_map(sphere.exp_map(v, g), g), v, atol=1e-6)
     assert np.allclose(np.linalg.norm(sphere.log_map(-g, g)), np.pi)
-
-
-def test_quat_mul_with_conjugate_is_identity():
-    q = unit(np.array([0.2, 0.5, -0.3, 0.7]))
-    assert np.allclose(sphere.quat_mul(q, sphere.quat_conj(q)), [1, 0, 0, 0])
 
 
 def test_distance_is_twice_the_log_norm():

@@ -5,14 +5,13 @@ exports (it holds the marker file, envs.datasets.features.MARKER_FILE).
 
 from __future__ import annotations
 
-import os
-import shutil
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
 from envs.datasets.features import MARKER_FILE
 from envs.errors import EnvError
+from pihutil.atomic import atomic_folder
 
 
 def check_export_folder(out: Path, overwrite: bool) -> None:
@@ -42,24 +41,14 @@ def check_export_folder(out: Path, overwrite: bool) -> None:
 @contextmanager
 def staged_folder(out: Path, overwrite: bool) -> Iterator[Path]:
     """Yield a temporary folder beside ``out`` to write the export into (with its MARKER_FILE); on a normal exit
-    rename it to ``out`` (replacing an export of ours there), else delete it.
+    swap it in for ``out`` (replacing an export of ours there), else delete it (`pihutil.atomic.atomic_folder`).
+    ``out`` is checked again just before the swap: nothing else may have appeared there meanwhile.
 
     Raises:
         EnvError: see `check_export_folder`; no MARKER_FILE was written.
     """
     check_export_folder(out, overwrite)
-    staging = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir()
-    try:
+    with atomic_folder(out, before_swap=lambda: check_export_folder(out, overwrite)) as staging:
         yield staging
         if not (staging / MARKER_FILE).is_file():
             raise EnvError(f"export to {out}: no {MARKER_FILE} was written")
-        check_export_folder(out, overwrite)  # nothing else appeared there meanwhile
-        old = out.with_name(f".{out.name}.old-{os.getpid()}")
-        if out.exists():
-            os.replace(out, old)
-        os.replace(staging, out)
-        shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)

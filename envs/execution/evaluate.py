@@ -18,8 +18,8 @@ try is lost is it an infrastructure error -- not scored, not journalled (a resum
 and the evaluation is incomplete. The success rate is over the scored episodes; the infrastructure errors
 and events are listed apart.
 
-Episode. The arm is put at the start with mink IK (PegInHoleEnv.reset; an unreachable or colliding start
-is recorded as a failure with its reason, not raised), then each control period the policy
+Episode. The arm is put at the start by the IK (controllers.ik.solve_ik in PegInHoleEnv.reset; an unreachable
+or colliding start is recorded as a failure with its reason, not raised), then each control period the policy
 (envs.execution.policy) commands a peg_tip pose to the impedance controller. Success is the physics-based check of
 envs.success on the MEASURED peg_tip pose (criteria held for hold_s), never the plan. Any exception inside
 an episode is recorded as a failure "error: ..." and the batch goes on.
@@ -172,12 +172,13 @@ def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: P
 
 
 def check_goal_reachable(env: Any) -> None:
-    """Raise EnvError (one line) when mink IK cannot put the peg_tip at the scene's goal pose."""
+    """Raise EnvError (one line) when mink (the IK of record, `solve_ik(solver="mink")`) cannot put the peg_tip at
+    the scene's goal pose. Nothing of the episodes depends on it: they start from the compiled solver's joints."""
     from controllers.errors import ControllerError
     from controllers.ik import solve_ik
 
     try:
-        solve_ik(env.arm_model, "tcp", env.goal.pos, env.goal.quat, env.q_nominal, env.config.ik)
+        solve_ik(env.arm_model, "tcp", env.goal.pos, env.goal.quat, env.q_nominal, env.config.ik, solver="mink")
     except ControllerError as err:
         raise EnvError(f"the goal pose {format_pose(env.goal)} is out of the arm's reach ({err})") from None
 

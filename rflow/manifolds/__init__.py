@@ -15,7 +15,7 @@ joins them, points and tangent vectors concatenated flat.
 from __future__ import annotations
 
 from types import MappingProxyType
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -253,6 +253,22 @@ def get_manifold(name: str | Manifold) -> Manifold:
         raise RFlowError(f"unknown manifold {name!r}; expected one of {sorted(MANIFOLDS)}") from None
 
 
+def prepare_demos(demos: Any, manifold: str | Manifold, dt: float, method: str) -> tuple[Manifold, np.ndarray]:
+    """The manifold named ``manifold`` and the demos (N, M, point) prepared on it (`Manifold.prepare`: e.g.
+    quaternion hemisphere continuity), checked for a baseline's fit (``method`` names it in the errors).
+
+    Raises:
+        RFlowError: dt <= 0 or not finite; demos that are not (N, M, point) with M >= 2.
+    """
+    man = get_manifold(manifold)
+    if not (np.isfinite(dt) and dt > 0):
+        raise RFlowError(f"sampling time dt={dt} must be > 0")
+    data = np.asarray(man.prepare(np.asarray(demos, dtype=np.float64)))
+    if data.ndim != 2 + man.point_ndim or data.shape[1] < 2:
+        raise RFlowError(f"{method} demos have shape {data.shape}, expected (N, M, point) with M >= 2")
+    return man, data
+
+
 __all__ = [
     "Manifold",
     "EuclideanSpace",
@@ -262,6 +278,7 @@ __all__ = [
     "ProductManifold",
     "MANIFOLDS",
     "get_manifold",
+    "prepare_demos",
     "euclidean",
     "sphere",
     "spd",

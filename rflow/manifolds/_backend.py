@@ -1,29 +1,16 @@
-"""Tiny numpy/torch dispatch used by the manifold maps: the same equation runs on either array type."""
+"""Tiny numpy/torch dispatch used by the manifold maps: the same equation runs on either array type (the light
+part, `is_torch`, `xp`, `concat`, `stack`, lives in `rflow.arrays`; here the checks and the linear algebra)."""
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 import numpy as np
 
+from rflow.arrays import Array, _torch, concat, is_torch, stack, xp
 from rflow.errors import RFlowError
 from rflow.small_linalg import eigh_sym
 from rflow.small_linalg import matmul as small_matmul
-
-Array = Any  # numpy.ndarray or torch.Tensor
-
-
-def _torch() -> Any:
-    """The torch module if something imported it, else None. A tensor can only exist once torch is imported, so
-    numpy-only users of the maps (the simulator, demos, rendering, the CLI's start) never pay its import (~1.5 s)."""
-    return sys.modules.get("torch")
-
-
-def is_torch(x: Array) -> bool:
-    """True when ``x`` is a torch tensor (the maps then return tensors and stay differentiable)."""
-    torch = _torch()
-    return torch is not None and isinstance(x, torch.Tensor)
 
 
 def as_array(x: Any, name: str) -> Array:
@@ -63,21 +50,6 @@ def norm(x: Array, keepdims: bool = True) -> Array:
     return np.linalg.norm(x, axis=-1, keepdims=keepdims)
 
 
-def xp(x: Array) -> Any:
-    """The array module (numpy or torch) matching ``x`` for functions named alike in both."""
-    return _torch() if is_torch(x) else np
-
-
-def concat(parts: list[Array], like: Array) -> Array:
-    """Concatenate along the last axis."""
-    return _torch().cat(parts, dim=-1) if is_torch(like) else np.concatenate(parts, axis=-1)
-
-
-def stack(parts: list[Array], like: Array) -> Array:
-    """Stack along a new last axis."""
-    return _torch().stack(parts, dim=-1) if is_torch(like) else np.stack(parts, axis=-1)
-
-
 def swap_last(x: Array) -> Array:
     """Transpose the last two axes."""
     return x.transpose(-1, -2) if is_torch(x) else np.swapaxes(x, -1, -2)
@@ -98,3 +70,7 @@ def max_abs(x: Array) -> float:
     if is_torch(x):
         return float(x.abs().max()) if x.numel() else 0.0
     return float(np.abs(x).max()) if x.size else 0.0
+
+
+__all__ = ["Array", "as_array", "check_last_dims", "concat", "eigh", "is_torch", "matmul", "max_abs", "norm", "stack",
+           "swap_last", "xp"]

@@ -5,6 +5,7 @@ Convention (no factor 2): for q = w + u,
     Exp(v) = cos||v|| + sin||v|| v / ||v||   (1 when v = 0),
     Log_g(p) = Log(p * conj(g)),   Exp_g(v) = Exp(v) * g.
 Every function takes numpy arrays or torch tensors (batched over leading axes) and returns the same type.
+The product and conjugate are `rflow.quaternion`'s.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from rflow.errors import RFlowError
-from rflow.manifolds._backend import Array, as_array, check_last_dims, concat, is_torch, max_abs, norm, stack, xp
+from rflow.manifolds._backend import Array, as_array, check_last_dims, concat, is_torch, max_abs, norm, xp
+from rflow.quaternion import quat_conj, quat_mul
 
 UNIT_TOLERANCE = 1e-6  # | ||q|| - 1 | allowed for an input quaternion
 _SMALL_ANGLE = 1e-4  # below this rotation angle the sinc / angle-over-sine series are used
@@ -42,27 +44,6 @@ def check_tangent(v: Array, name: str = "tangent") -> Array:
     v = as_array(v, name)
     check_last_dims(v, (3,), name)
     return v
-
-
-def quat_conj(q: Array) -> Array:
-    """Conjugate w - u of quaternions (..., 4)."""
-    return concat([q[..., :1], -q[..., 1:]], q)
-
-
-def quat_mul(a: Array, b: Array) -> Array:
-    """Hamilton product a * b of quaternions (..., 4), w-x-y-z.
-
-    (w1 + u1)(w2 + u2) = w1 w2 - u1.u2 + w1 u2 + w2 u1 + u1 x u2.
-    """
-    w1, x1, y1, z1 = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    w2, x2, y2, z2 = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    parts = [
-        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-    ]
-    return stack(parts, a)
 
 
 def quat_log(q: Array) -> Array:

@@ -1,0 +1,101 @@
+"""pihutil.atomic, the one atomic write: an output appears whole under its name or not at all."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+import pytest
+
+from pihutil.atomic import AtomicFile, atomic_folder, umask, write_atomic
+
+
+def leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if ".tmp" in p.name or ".old-" in p.name)
+
+
+def test_a_written_file_replaces_the_old_one_with_the_umasks_mode(tmp_path: Path) -> None:
+    out = tmp_path / "a.json"
+    out.write_text("old")
+    write_atomic(out, lambda handle: handle.write("new"))
+    assert out.read_text() == "new"
+    assert stat.S_IMODE(out.stat().st_mode) == 0o666 & ~umask()
+    assert leftovers(tmp_path) == []
+
+
+def test_a_failing_writer_leaves_the_old_file_and_no_temporary(tmp_path: Path) -> None:
+    out = tmp_path / "a.json"
+    out.write_text("old")
+
+    def fail(handle) -> None:
+        handle.write("half")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError):
+        write_atomic(out, fail)
+    assert out.read_text() == "old"
+    assert leftovers(tmp_path) == []
+
+
+def test_the_temporary_name_keeps_the_suffix(tmp_path: Path) -> None:
+    with AtomicFile(tmp_path / "video.mp4") as out:
+        assert out.temporary.suffix == ".mp4" and out.temporary.parent == tmp_path
+        out.temporary.write_bytes(b"x")
+    assert (tmp_path / "video.mp4").read_bytes() == b"x"
+
+
+def test_a_folder_that_cannot_be_written_is_named_in_the_error(tmp_path: Path) -> None:
+    with pytest.raises(OSError) as info:
+        write_atomic(tmp_path / "missing" / "a.json", lambda handle: handle.write("x"))
+    assert info.value.filename == str(tmp_path / "missing" / "a.json")
+
+
+def test_a_folder_is_swapped_in_whole(tmp_path: Path) -> None:
+    out = tmp_path / "model"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+    with atomic_folder(out) as staging:
+        assert not out.joinpath("new.txt").exists()
+        (staging / "new.txt").write_text("new")
+    assert sorted(p.name for p in out.iterdir()) == ["new.txt"]
+    assert stat.S_IMODE(out.stat().st_mode) == 0o777 & ~umask()
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("where", ["body", "before_swap"])
+def test_a_failed_folder_write_keeps_the_old_folder(tmp_path: Path, where: str) -> None:
+    out = tmp_path / "model"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+
+    def refuse() -> None:
+        raise RuntimeError("not ours any more")
+
+    with pytest.raises(RuntimeError):
+        with atomic_folder(out, before_swap=refuse if where == "before_swap" else None) as staging:
+            (staging / "new.txt").write_text("new")
+            if where == "body":
+                raise RuntimeError("writer failed")
+    assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
+    assert leftovers(tmp_path) == []
+
+
+def test_a_failed_rename_puts_the_old_folder_back(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = tmp_path / "model"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+    real_replace = os.replace
+
+    def replace(src, dst) -> None:
+        if ".tmp-" in Path(src).name:  # the new folder's rename into place
+            raise OSError(28, "No space left on device")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(OSError):
+        with atomic_folder(out) as staging:
+            (staging / "new.txt").write_text("new")
+    monkeypatch.undo()
+    assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
+    assert leftovers(tmp_path) == []
