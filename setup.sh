@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up pih-rflow on a fresh Debian machine: system packages for headless rendering (Mesa EGL/OSMesa) and the
 # PostgreSQL server of the shared-study test, a virtual environment in .venv with the CPU build of torch, and
-# the project with its test (pytest, mink, stable-baselines3), cluster (Ray), search (Optuna) and datasets (pyarrow,
+# the project with its test (pytest, stable-baselines3), cluster (Ray), search (Optuna) and datasets (pyarrow,
 # h5py) extras. stable-baselines3 needs torch, which the pinned CPU build installed first already satisfies.
 set -euo pipefail
 cd "$(dirname "$0")"
