@@ -22,16 +22,14 @@ is split about the skill's insertion axis a (the goal's peg axis, z of R_goal):
         rho_{k+1} = sat( Log( Exp(-(omega_d T - r)) Exp(rho_k) ),  ``frame_limit_deg`` ),
     and the flow is queried at Exp(rho)^-1 q and its command turned back by Exp(rho) (twist and acceleration
     rotated by R(rho)). Why: a hole tilted or turned by up to 1 deg holds the peg off the demos' goal orientation,
-    the flow asks to turn back, and the velocity feed-forward turns that request into a torque K^-1 D omega_d
-    away from the hole's axis that does not vanish while the walls hold the peg (traced: the lead grew to
-    7.5 deg at 5 N m/rad and the peg wedged 2 mm short of the floor at 80 N of contact force). Letting the
-    skill's frame turn with the walls removes the request, so the peg follows the hole's axis;
+    the flow asks to turn back, and the velocity feed-forward turns that request into a lead K^-1 D omega_d, a
+    torque D omega_d away from the hole's axis that does not vanish while the walls hold the peg, so the peg wedges
+    against a tilted hole (a traced failure is in the README). Letting the skill's frame turn with the walls
+    removes the request, so the peg follows the hole's axis;
   - rotational compliance: within ``radius_m`` of the goal the commanded rotational stiffness is
     ``rotational_stiffness`` (remote-centre compliance at the peg tip: the controlled frame is the tcp).
 
-Measured on the 39 starts of 100 that the bare push failed (an earlier model of the contact task: grasped,
-0.2 mm, 1 mm chamfer, hole error <= 1 mm / 1 deg): an axial push alone seats 4, the push plus 5 N m/rad 9, the
-push plus the frame shift 28, all three 38. On the whole task the closed loop seats 97 of 100 (README).
+What each part contributes is measured in the README (the protocol figure and the ablation).
 `ContactAdaptation.off()` restores the bare flow (the ablation, `pih evaluate --no-contact-adaptation`).
 """
 
