@@ -87,10 +87,16 @@ def test_bad_adaptation_settings_are_rejected(kwargs) -> None:
         ContactAdaptation(**kwargs)
 
 
-def test_policy_queries_the_flow_in_the_shifted_frame() -> None:
-    skill = tiny_skill()
+def started_policy(skill) -> ClosedLoopPolicy:
+    """A closed-loop policy with a 50 ms lookahead, reset at the goal."""
     policy = ClosedLoopPolicy(skill, 0.05)
     policy.reset_at(Pose(GOAL_POS, GOAL_QUAT), PERIOD_S)
+    return policy
+
+
+def test_policy_queries_the_flow_in_the_shifted_frame() -> None:
+    skill = tiny_skill()
+    policy = started_policy(skill)
     delta = np.array([0.0008, -0.0005, 0.0])
     policy.adapter.frame = delta.copy()
     measured = Pose(GOAL_POS + np.array([0.003, 0.001, 0.02]), GOAL_QUAT)
@@ -133,8 +139,7 @@ def test_frame_does_not_turn_while_the_peg_turns_as_the_flow_asks() -> None:
 
 def test_policy_queries_the_flow_in_the_turned_frame() -> None:
     skill = tiny_skill()
-    policy = ClosedLoopPolicy(skill, 0.05)
-    policy.reset_at(Pose(GOAL_POS, GOAL_QUAT), PERIOD_S)
+    policy = started_policy(skill)
     rho = np.array([0.004, -0.01, 0.006])
     policy.adapter.rotation = rho.copy()
     turn = quat_from_rotvec(rho)
@@ -147,7 +152,6 @@ def test_policy_queries_the_flow_in_the_turned_frame() -> None:
     # the angular rate is the turned frame's, rotated back: it points from the measured toward the command
     step = quat_to_rotvec(quat_mul(command.pose.quat, quat_conj(measured.quat)))
     assert np.dot(command.twist[3:], step) > 0.0
-    unturned = ClosedLoopPolicy(skill, 0.05)
-    unturned.reset_at(Pose(GOAL_POS, GOAL_QUAT), PERIOD_S)
+    unturned = started_policy(skill)
     plain = unturned.command(0, Pose(measured.pos, quat_mul(quat_conj(turn), measured.quat)))
     assert command.twist[3:] == pytest.approx(rotate(turn, plain.twist[3:]), abs=1e-12)

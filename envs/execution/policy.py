@@ -216,7 +216,29 @@ def _commanded_stiffness(setting: StiffnessSetting | None, learned: FloatArray |
     return None if learned is None else learned.copy()
 
 
-class ClosedLoopPolicy:
+class _PoseSkillPolicy:
+    """The `Policy` protocol over a pose-level skill policy: ``reset`` starts it at the observation's measured tcp
+    pose (``reset_at``) and ``act`` asks ``command`` for the next control step at that pose."""
+
+    _step: int
+
+    def reset_at(self, start: Pose, period_s: float) -> None:
+        raise NotImplementedError
+
+    def command(self, step: int, measured: Pose) -> Action:
+        raise NotImplementedError
+
+    def reset(self, observation: Observation, period_s: float) -> None:
+        """`Policy.reset`: start an episode at the observation's measured tcp pose (`reset_at`)."""
+        self.reset_at(observation.tcp, period_s)
+
+    def act(self, observation: Observation) -> Action:
+        """`Policy.act`: the action for the next control step at the observation's measured tcp pose (`command`)."""
+        self._step += 1
+        return self.command(self._step - 1, observation.tcp)
+
+
+class ClosedLoopPolicy(_PoseSkillPolicy):
     """Command the flow's pose ``lookahead_s`` ahead of the measured peg_tip pose (module docstring), with the
     contact adaptation of `envs.execution.adaptation` near the hole: the flow is queried at x - delta (delta
     the frame shift the walls impose), its pose shifted back by + delta, the axial push added to the anchor,
@@ -244,15 +266,6 @@ class ClosedLoopPolicy:
         self._period_s = 0.0
         self._flow_period_s = 0.0
         self._step = 0
-
-    def reset(self, observation: Observation, period_s: float) -> None:
-        """`Policy.reset`: start an episode at the observation's measured tcp pose (`reset_at`)."""
-        self.reset_at(observation.tcp, period_s)
-
-    def act(self, observation: Observation) -> Action:
-        """`Policy.act`: the action at the observation's measured tcp pose (`command`)."""
-        self._step += 1
-        return self.command(self._step - 1, observation.tcp)
 
     def reset_at(self, start: Pose, period_s: float) -> None:
         """Start an episode: no push or frame shift; the stiffness state (stiffness skills) starts at the
@@ -302,7 +315,7 @@ class ClosedLoopPolicy:
                       anchor, push)
 
 
-class OpenLoopPolicy:
+class OpenLoopPolicy(_PoseSkillPolicy):
     """Generate the whole trajectory at reset and play it back one sample per control step.
 
     With ``speed`` s the plan is generated with flow steps of s x the control period (the same path,
@@ -322,15 +335,6 @@ class OpenLoopPolicy:
         self.period_s = 0.0
         self.plan: Plan | None = None
         self._step = 0
-
-    def reset(self, observation: Observation, period_s: float) -> None:
-        """`Policy.reset`: generate the plan from the observation's measured tcp pose (`reset_at`)."""
-        self.reset_at(observation.tcp, period_s)
-
-    def act(self, observation: Observation) -> Action:
-        """`Policy.act`: the plan's next sample (`command`; the measured pose is not used)."""
-        self._step += 1
-        return self.command(self._step - 1, observation.tcp)
 
     def reset_at(self, start: Pose, period_s: float) -> None:
         """Generate the plan from the measured start pose."""
