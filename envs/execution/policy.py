@@ -287,9 +287,11 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         k = self.stiffness_state
         delta = self.adapter.frame
         turned = self.adapter.rotation.any()
-        rho = np.array(self.adapter.rotation_quat)
         query = np.asarray(measured.pos, dtype=np.float64) - delta
-        query_quat = quat_mul(quat_conj(rho), measured.quat) if turned else measured.quat
+        query_quat = measured.quat
+        if turned:  # into the turned frame: Exp(rho)^-1 q (only near the hole, after the walls refused a rotation)
+            rho = np.array(self.adapter.rotation_quat)
+            query_quat = quat_mul(quat_conj(rho), measured.quat)
         p1, q1, k1 = skill_state_step(self.skill, query, query_quat, k, step_s)
         p2, q2 = skill_step(self.skill, p1, q1, step_s, k1)
         q1 = q1 / norm(q1)
