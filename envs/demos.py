@@ -82,6 +82,7 @@ from envs.poses import (
 )
 from envs.scene import SceneConfig
 from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
+from envs.task import Task
 from rflow.small_linalg import dot, norm
 from rflow.stiffness import log_euclidean_resample
 
@@ -417,7 +418,8 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
                   env: PegInHoleEnv | None = None,
                   on_attempt: Callable[[int, DemoAttempt], None] | None = None,
                   on_step: Callable[[StepResult], None] | None = None,
-                  before_attempt: Callable[[PegInHoleEnv, Pose, FloatArray], None] | None = None) -> Collection:
+                  before_attempt: Callable[[PegInHoleEnv, Pose, FloatArray], None] | None = None,
+                  task: Task | None = None) -> Collection:
     """Record ``num`` successful scripted demonstrations from starts sampled with ``seed``.
 
     Args:
@@ -428,6 +430,8 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
         on_attempt: called with (attempt index, DemoAttempt) after each attempt.
         on_step: called with every StepResult (e.g. to render).
         before_attempt: called with (env, start, planned positions (K, 3)) before each attempt.
+        task: the task the demos are recorded for (envs.task), kept in the file's config as "task" with the scene's
+            shape and fields (`Task.with_scene`); `pih train` copies it into the checkpoint.
 
     Returns:
         Collection with the DemoSet (N, M) ending at the shared goal.
@@ -478,6 +482,7 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
                      for i, a in enumerate(attempts) if not a.ok],
         "attempts": len(attempts),
         "seconds_per_attempt": float(np.mean([a.wall_s for a in attempts])),
+        **({} if task is None else {"task": to_jsonable(task.with_scene(env.scene.config).to_dict())}),
     }
     json.dumps(config)  # fail here, not at save time, if something is not serialisable
     demos = DemoSet(

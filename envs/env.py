@@ -31,7 +31,6 @@ as the end reason, never raised.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
@@ -58,6 +57,7 @@ from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
 from envs import sensing_kernel
 from envs.sensing import PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
+from envs.task import Task, check_force_limit, check_number
 from envs.geometry import all_finite, as_vector
 from envs.success import (
     MIN_ENTRY_DEPTH_M,
@@ -131,20 +131,21 @@ class EpisodeConfig:
 
     def __post_init__(self) -> None:
         for name in ("control_period_s", "time_limit_s", "max_joint_speed_rad_s", "start_penetration_m"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0.0):
-                raise EnvError(f"EpisodeConfig.{name}={value!r} must be a positive finite number")
-        if not (isinstance(self.force_limit_n, (int, float)) and not math.isnan(self.force_limit_n)
-                and self.force_limit_n > 0.0):
-            raise EnvError(f"EpisodeConfig.force_limit_n={self.force_limit_n!r} must be > 0 (inf: no limit)")
+            check_number(f"EpisodeConfig.{name}", getattr(self, name), strict=True)
+        check_force_limit(self.force_limit_n, "EpisodeConfig.force_limit_n")
         for name in ("force_limit_window_s", "grasp_settle_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0.0):
-                raise EnvError(f"EpisodeConfig.{name}={value!r} must be a finite number >= 0")
+            check_number(f"EpisodeConfig.{name}", getattr(self, name))
         if not isinstance(self.perturbations, PerturbationRanges):
             raise EnvError(f"EpisodeConfig.perturbations={self.perturbations!r} must be a PerturbationRanges")
         if self.nullspace_iterations < 1:
             raise EnvError(f"EpisodeConfig.nullspace_iterations={self.nullspace_iterations} must be >= 1")
+
+    @classmethod
+    def from_task(cls, task: Task, **overrides: Any) -> EpisodeConfig:
+        """The episode settings of ``task`` (envs.task: time and force limits, perturbations, success), plus
+        ``overrides``."""
+        return cls(**{"time_limit_s": task.time_limit_s, "force_limit_n": task.force_limit_n,
+                      "perturbations": task.perturbations, "success": task.success, **overrides})
 
 
 @dataclass(frozen=True)

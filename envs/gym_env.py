@@ -7,7 +7,10 @@
 Gymnasium 1.x has no plugin entry points (they were removed in 1.0); ``gymnasium.make`` registers a
 third-party environment by importing the module named before the ':' of the id, as above.
 
-Options (keyword arguments of ``gymnasium.make``): any field of SceneConfig, EpisodeConfig or
+Options (keyword arguments of ``gymnasium.make``): ``task`` (an envs.task.Task, e.g. ``preset("factory")`` or
+``Task.from_toml("my_task.toml")``: its scene, perturbations, force and time limits and success tolerances; its
+start range, which is around demos' starts, does not apply: starts come from EpisodeConfig.start_region), then any
+field of SceneConfig, EpisodeConfig or
 ImpedanceConfig, or of a config nested in them (EpisodeConfig.perturbations, .start_region, .success, ...),
 by its name; a field ending in ``_m`` may also be given in millimetres as ``..._mm`` (``clearance_mm=0.2``
 sets ``clearance_m=0.0002``, ``hole_error_mm=1`` the perturbations' ``hole_error_m``). Besides: ``stiffness_action``
@@ -73,6 +76,7 @@ from envs.env import REASON_TIME_LIMIT, EpisodeConfig, Observation, PegInHoleEnv
 from envs.errors import EnvError
 from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
 from envs.scene import SceneConfig
+from envs.task import Task
 from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
@@ -110,8 +114,10 @@ class RewardConfig:
                 raise EnvError(f"RewardConfig.{name}={value!r} must be finite and >= 0")
 
 
-def configs_from_kwargs(options: dict[str, Any]) -> tuple[SceneConfig, ImpedanceConfig, EpisodeConfig]:
-    """Map ``gymnasium.make`` keyword arguments onto the three simulator configs (module docstring).
+def configs_from_kwargs(options: dict[str, Any],
+                        task: Task | None = None) -> tuple[SceneConfig, ImpedanceConfig, EpisodeConfig]:
+    """Map ``gymnasium.make`` keyword arguments onto the three simulator configs (module docstring), starting from
+    ``task``'s scene and episode settings when given (else the configs' defaults).
 
     A name is a field of SceneConfig, ImpedanceConfig or EpisodeConfig, or a field of a config nested in one
     of them (e.g. ``hole_error_m`` of EpisodeConfig.perturbations, ``max_angle_deg`` of its start_region);
@@ -121,7 +127,11 @@ def configs_from_kwargs(options: dict[str, Any]) -> tuple[SceneConfig, Impedance
         EnvError: an option that names no field, one that names fields of two configs, or an invalid value
             (the config's own check).
     """
-    configs: dict[str, Any] = {"scene": SceneConfig(), "controller": ImpedanceConfig(), "episode": EpisodeConfig()}
+    if task is not None and not isinstance(task, Task):
+        raise EnvError(f"{ENV_ID}: task={task!r} must be an envs.task.Task")
+    configs: dict[str, Any] = {"scene": SceneConfig() if task is None else SceneConfig.from_task(task),
+                               "controller": ImpedanceConfig(),
+                               "episode": EpisodeConfig() if task is None else EpisodeConfig.from_task(task)}
     owners: dict[str, list[tuple[str, str | None]]] = {}
     for key, cfg in configs.items():
         for top in dataclasses.fields(cfg):
@@ -140,7 +150,8 @@ def configs_from_kwargs(options: dict[str, Any]) -> tuple[SceneConfig, Impedance
             except (TypeError, ValueError):
                 raise EnvError(f"{ENV_ID}: option {name}={value!r} must be a number (millimetres)") from None
         if field_name not in owners:
-            raise EnvError(f"{ENV_ID}: unknown option {name!r}; options are stiffness_action, privileged, reward, "
+            raise EnvError(f"{ENV_ID}: unknown option {name!r}; options are task, stiffness_action, privileged, "
+                           "reward, "
                            f"{', '.join(RENDER_OPTIONS)}, and the config fields {', '.join(sorted(owners))} "
                            f"(any *_m also as *_mm)")
         if len(owners[field_name]) > 1:
@@ -189,13 +200,13 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
 
     def __init__(self, render_mode: str | None = None, stiffness_action: bool = False, privileged: bool = False,
                  reward: RewardConfig = RewardConfig(), camera: str = "front", width: int = 640, height: int = 480,
-                 **options: Any):
+                 task: Task | None = None, **options: Any):
         """Args: see the module docstring. Raises: EnvError on an unknown or invalid option."""
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise EnvError(f"{ENV_ID}: render_mode={render_mode!r} must be None or 'rgb_array'")
         if not isinstance(reward, RewardConfig):
             raise EnvError(f"{ENV_ID}: reward={reward!r} must be a RewardConfig")
-        scene_config, controller_config, episode_config = configs_from_kwargs(options)
+        scene_config, controller_config, episode_config = configs_from_kwargs(options, task)
         self.render_mode = render_mode
         self.reward_config = reward
         self.stiffness_action = bool(stiffness_action)

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from envs.contact import ContactConfig
+from envs.errors import EnvError
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
 
 if TYPE_CHECKING:  # loads MuJoCo: imported where the model is built
@@ -22,6 +23,19 @@ PEG_MODES: tuple[str, ...] = ("grasped", "welded", "free")
 """How the peg is held: by the fingers' friction, rigidly in the hand, or lying free."""
 FRANKA_GRASP_FORCE_N: float = 70.0
 """Continuous grasp force of the Franka hand."""
+MAX_GRASP_FORCE_N: float = 2.0 * FRANKA_GRASP_FORCE_N
+
+
+def check_grasp_force(grasp_force_n: float) -> float:
+    """Return ``grasp_force_n`` if it lies in (0, MAX_GRASP_FORCE_N] N.
+
+    Raises:
+        EnvError: otherwise.
+    """
+    if not (isinstance(grasp_force_n, (int, float)) and np.isfinite(grasp_force_n)
+            and 0.0 < grasp_force_n <= MAX_GRASP_FORCE_N):
+        raise EnvError(f"grasp_force_n={grasp_force_n} must lie in (0, {MAX_GRASP_FORCE_N:g}] N")
+    return float(grasp_force_n)
 
 PEG_DENSITY_KG_M3: float = 700.0
 """Hard wood; the 30 mm square peg weighs 57 g."""

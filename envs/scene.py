@@ -28,7 +28,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -48,7 +48,7 @@ from envs.geometry import (
     z_down_rotation,
     z_down_yaw_deg,
 )
-from envs.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, build_peg
+from envs.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, build_peg, check_grasp_force
 from envs.shapes import PEG_LENGTH_M, SHAPES, check_shape, grip_half_width_m, hole_inradius_m
 from envs.sorter import (
     SorterLayout,
@@ -62,6 +62,9 @@ from envs.sorter import (
 from envs.success import HoleSpec
 from rflow.quaternion import mat_to_quat, quat_to_mat
 from rflow.small_linalg import matmul, matvec, norm
+
+if TYPE_CHECKING:
+    from envs.task import Task
 
 PAPER_GOAL_POS_M: tuple[float, float, float] = (0.675, -0.051, 0.203)
 """g_p of the paper's peg-in-hole experiment, robot base frame."""
@@ -184,8 +187,7 @@ class SceneConfig:
         check_clearance(self.clearance_m)
         check_chamfer(self.chamfer_m)
         check_hole_depth(self.hole_depth_m)
-        if not (np.isfinite(self.grasp_force_n) and 0.0 < self.grasp_force_n <= 2.0 * FRANKA_GRASP_FORCE_N):
-            raise EnvError(f"grasp_force_n={self.grasp_force_n} must lie in (0, {2.0 * FRANKA_GRASP_FORCE_N:g}] N")
+        check_grasp_force(self.grasp_force_n)
         if not (np.isfinite(self.insertion_depth_m) and 0.0 < self.insertion_depth_m <= self.hole_depth_m):
             raise EnvError(
                 f"insertion_depth_m={self.insertion_depth_m} must lie in (0, hole_depth_m={self.hole_depth_m}]"
@@ -203,6 +205,11 @@ class SceneConfig:
             self.goal_rotation()
             pos, quat = self.hole_at_goal
             object.__setattr__(self, "hole_at_goal", (tuple(float(v) for v in pos), tuple(float(v) for v in quat)))
+
+    @classmethod
+    def from_task(cls, task: Task, **overrides: Any) -> SceneConfig:
+        """The scene of ``task`` (its shape, when set, and scene fields; envs.task), plus ``overrides``."""
+        return cls(**{**task.scene_fields(), **overrides})
 
     def goal_rotation(self) -> FloatArray:
         """Rotation matrix of the goal peg_tip frame (from hole_at_goal if given).

@@ -31,6 +31,7 @@ import numpy.typing as npt
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, as_vector, edge_lines, twist_angle_deg
 from envs.shapes import CrossSection
+from envs.task import SuccessConfig  # the tolerances are part of the task
 from rflow.quaternion import quat_to_mat
 from rflow.small_linalg import matmul, matvec
 
@@ -93,29 +94,6 @@ class InsertionState:
     in_hole: bool
     wall_penetration_m: float = float("nan")
     speed_m_s: float = float("nan")
-
-
-@dataclass(frozen=True)
-class SuccessConfig:
-    """Criteria of a seated insertion (defaults after NVIDIA Factory: within 1 mm of fully inserted).
-
-    Attributes:
-        seat_tolerance_m: |depth - target depth| must be at most this.
-        penetration_tolerance_m: largest wall penetration (see the module docstring) still counted as inside.
-        max_speed_m_s: the peg must move slower than this (at rest).
-        hold_s: how long (physics time) the criteria must hold without interruption.
-    """
-
-    seat_tolerance_m: float = 0.001
-    penetration_tolerance_m: float = 2e-5
-    max_speed_m_s: float = 0.005
-    hold_s: float = 0.2
-
-    def __post_init__(self) -> None:
-        for name in ("seat_tolerance_m", "penetration_tolerance_m", "max_speed_m_s", "hold_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0.0):
-                raise EnvError(f"{name}={value!r} must be a finite number >= 0")
 
 
 @dataclass(frozen=True)

@@ -1,10 +1,11 @@
 """`pih benchmark`: the success-rate protocol -- demos, training and evaluation per demo seed, then the rate as a
 distribution over demo seeds (envs/execution/protocol.py says what is randomised and which intervals it reports).
 
-    pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/ [--shape square] [task options] [--workers 2]
+    pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/ [--shape square] [--task NAME|FILE.toml]
+        [task options] [--workers 2]
 
-Writes bench/protocol.json (what runs), bench/seed-<s>/ (demos.npz, model/, eval.json and its journal),
-bench/benchmark.json (per-seed and pooled rates, between-seed interval, beta-binomial fit) and bench/benchmark.png.
+Writes bench/protocol.json (what runs, the task among it), bench/seed-<s>/ (demos.npz, model/, eval.json and its
+journal), bench/benchmark.json (per-seed and pooled rates, between-seed interval, beta-binomial fit) and bench/benchmark.png.
 Run it again with the same options to continue after Ctrl-C or a crash: finished stages are kept, an interrupted
 evaluation resumes from its journal. Exit 0 when every replicate ran, 3 when one could not (its error is listed).
 """
@@ -30,7 +31,7 @@ from envs.execution.protocol import (
     summary_lines,
 )
 from scripts.options import MAX_EPISODES
-from scripts.task_options import add_task_arguments, task_from_args
+from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
 MAX_SEEDS = 1000
 REPLICATE_BYTES = 200 * 2**20
@@ -45,25 +46,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--start-seed-offset", type=int, default=1000,
                      help="replicate s evaluates starts and hole errors of seed s + offset (default 1000)")
     run.add_argument("--demos", type=int, default=7, help="demos per replicate (default 7, as the paper)")
-    run.add_argument("--shape", default="square", help="peg and hole shape (default square)")
+    run.add_argument("--shape", help="peg and hole shape (default: the task's, else square)")
     run.add_argument("--epochs", type=int, default=None, help="training epochs (default: `pih train`'s)")
     run.add_argument("--workers", type=int, default=2, help="training and evaluation processes (default 2)")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     out = parser.add_argument_group("output")
     out.add_argument("--out", type=Path, required=True, help="protocol folder (new, or one to continue)")
+    add_start_arguments(run)
     add_task_arguments(parser)
 
 
-def protocol_from_args(args: argparse.Namespace) -> tuple[ProtocolConfig, dict[str, Any]]:
-    """The protocol and the task's scene fields of the parsed options (validated before any work).
+def protocol_from_args(args: argparse.Namespace) -> ProtocolConfig:
+    """The protocol of the parsed options, its task among it (validated before any work).
 
     Raises:
         EnvError: naming the offending option.
     """
     from envs.execution.evaluate import EvaluationConfig
-    from envs.shapes import check_shape
 
-    check_shape(args.shape)
+    task = task_from_args(args)
     seeds = parse_seeds(args.demo_seeds)
     if len(seeds) > MAX_SEEDS:
         raise EnvError(f"--demo-seeds {args.demo_seeds!r}: at most {MAX_SEEDS} replicates")
@@ -71,23 +72,21 @@ def protocol_from_args(args: argparse.Namespace) -> tuple[ProtocolConfig, dict[s
         raise EnvError(f"--episodes {args.episodes}: must be 1..{MAX_EPISODES}")
     if args.workers < 1:
         raise EnvError(f"--workers {args.workers}: must be >= 1")
-    task = task_from_args(args)
-    evaluation = EvaluationConfig(episodes=args.episodes, perturbations=task.perturbations,
-                                  force_limit_n=task.force_limit_n)
-    config = ProtocolConfig(demo_seeds=seeds, start_seed_offset=args.start_seed_offset, num_demos=args.demos,
-                            shape=args.shape, epochs=args.epochs, evaluation=evaluation)
-    return config, task.scene_fields()
+    evaluation = EvaluationConfig(episodes=args.episodes, task=task.override(shape=task.shape or "square"))
+    return ProtocolConfig(demo_seeds=seeds, start_seed_offset=args.start_seed_offset, num_demos=args.demos,
+                          epochs=args.epochs, evaluation=evaluation)
 
 
-def protocol_record(config: ProtocolConfig, scene_fields: dict[str, Any]) -> dict[str, Any]:
-    """What protocol.json holds: everything that decides the results (not the number of workers)."""
+def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
+    """What protocol.json holds: everything that decides the results (not the number of workers): the task
+    (versioned, envs.task) and the other evaluation settings."""
     from envs.jsonable import to_jsonable
 
-    evaluation = {k: v for k, v in dataclasses.asdict(config.evaluation).items()
+    evaluation = {k: v for k, v in config.evaluation.settings().items()
                   if k not in ("seed", "workers", "unit_timeout_s", "backend", "ray_address")}
     return to_jsonable({"command": "pih benchmark", "demo_seeds": list(config.demo_seeds),
-                        "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "shape": config.shape,
-                        "epochs": config.epochs, "scene": scene_fields, "evaluation": evaluation})
+                        "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "epochs": config.epochs,
+                        "task": config.task.to_dict(), "evaluation": evaluation})
 
 
 def prepare_folder(out: Path, record: dict[str, Any]) -> None:
@@ -118,8 +117,8 @@ def prepare_folder(out: Path, record: dict[str, Any]) -> None:
     write_json(out / PROTOCOL_FILE, record)
 
 
-def run_replicate(config: ProtocolConfig, scene_fields: dict[str, Any], folder: Path, demo_seed: int,
-                  start_seed: int, workers: int, progress: bool, report: Callable[[str], None]) -> ReplicateOutcome:
+def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_seed: int, workers: int, progress: bool,
+                  report: Callable[[str], None]) -> ReplicateOutcome:
     """Demos, training and evaluation of one replicate in ``folder``; a stage whose output exists is skipped and an
     interrupted evaluation resumes from its journal.
 
@@ -137,8 +136,8 @@ def run_replicate(config: ProtocolConfig, scene_fields: dict[str, Any], folder: 
     folder.mkdir(exist_ok=True)
     demos_path, model_dir, eval_path = folder / "demos.npz", folder / "model", folder / "eval.json"
     if not demos_path.exists():
-        report(f"seed {demo_seed}: recording {config.num_demos} {config.shape} demos")
-        collection = collect_demos(config.num_demos, demo_seed, SceneConfig(**{**scene_fields, "shape": config.shape}))
+        report(f"seed {demo_seed}: recording {config.num_demos} {config.task.shape} demos")
+        collection = collect_demos(config.num_demos, demo_seed, SceneConfig.from_task(config.task), task=config.task)
         save_demos(demos_path, collection.demos)
     if not (model_dir / "skill.json").exists():
         report(f"seed {demo_seed}: training (seed {demo_seed})")
@@ -172,20 +171,20 @@ def main(args: argparse.Namespace) -> int:
     from envs.output import write_json
     from rflow.errors import RFlowError
 
-    config, scene_fields = protocol_from_args(args)
-    record = protocol_record(config, scene_fields)
+    config = protocol_from_args(args)
+    record = protocol_record(config)
     prepare_folder(args.out, record)
     outcomes = []
     for demo_seed, start_seed in zip(config.demo_seeds, config.start_seeds()):
         try:
-            outcomes.append(run_replicate(config, scene_fields, args.out / f"{REPLICATE_PREFIX}{demo_seed}", demo_seed,
-                                          start_seed, args.workers, not args.quiet, lambda line: print(line, flush=True)))
+            outcomes.append(run_replicate(config, args.out / f"{REPLICATE_PREFIX}{demo_seed}", demo_seed, start_seed,
+                                          args.workers, not args.quiet, lambda line: print(line, flush=True)))
         except (EnvError, RFlowError) as err:
             print(f"seed {demo_seed}: failed -- {err}", flush=True)
             outcomes.append(ReplicateOutcome(demo_seed, start_seed, error=str(err)))
     summary = {"protocol": record, **summarise(outcomes)}
     write_json(args.out / RESULT_FILE, summary)
-    title = (f"{config.shape}, {len(config.demo_seeds)} demo seeds x {config.evaluation.episodes} episodes")
+    title = (f"{config.task.shape}, {len(config.demo_seeds)} demo seeds x {config.evaluation.episodes} episodes")
     plot_protocol(summary, args.out / "benchmark.png", title)
     print()
     print("\n".join(summary_lines(summary)))

@@ -35,6 +35,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "benchmark": ("scripts.benchmark", "the success-rate protocol: demos, training, evaluation per demo seed, rate "
                                        "over seeds"),
     "run": ("scripts.run", "the main job: demos -> train -> evaluate -> figures and video"),
+    "task": ("scripts.task", "print a task (a preset or a task file, with single fields replaced) as a task file"),
     "warmup": ("scripts.warmup", "compile and cache the numba kernels once (setup.sh runs it)"),
 }
 

@@ -2,7 +2,7 @@
 
     pih compare BASE.json CAND.json [--margin 0.0] [--alpha 0.05] [--json out.json]
     pih compare --sequential --base-model A --cand-model B --seed S [--max-episodes 400] [--chunk 10]
-        [--workers N] [the start and task options of `pih evaluate`]
+        [--workers N] [the start and task options of `pih evaluate`: --task NAME|FILE.toml, ...]
 
 Paired mode reads two `pih evaluate --json` files that ran the same episodes (same --seed, --episodes and
 start / task options; refused, one line naming the first differing episode, otherwise) and prints the success
@@ -144,7 +144,8 @@ def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
     first = results[0]
     return EvaluationResult(dataclasses.replace(config, episodes=max(pairs, 1)), records,
                             sum(r.wall_s for r in results), first.model_dir, first.metadata, first.scene,
-                            first.goal_mismatch_mm, all(r.complete for r in results), any(r.interrupted for r in results))
+                            first.goal_mismatch_mm, all(r.complete for r in results),
+                            any(r.interrupted for r in results), task=first.task)
 
 
 def run_sequential(args: argparse.Namespace) -> int:

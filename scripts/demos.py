@@ -1,9 +1,10 @@
 """`pih demos`: record scripted peg-in-hole demonstrations in physics (or check the expert's success rate).
 
 The expert commands and records its translational stiffness schedule (envs/demos.py, envs/stiffness_schedule.py):
-the demo file's ``stiffness``, learned with `pih train --stiffness expert`.
+the demo file's ``stiffness``, learned with `pih train --stiffness expert`. The scene is the task's (--task and the
+task options, envs/task.py); the demo file records the task, and `pih train` copies it into the checkpoint.
 
-    pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--video runs/demos.mp4]
+    pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--task NAME|FILE.toml] [--video runs/demos.mp4]
     pih demos --check 100 --seed 0            # success rate of the scripted expert over 100 starts
     pih demos --import rec.npz --tool-offset franka-tcp --dt-s 0.001 --out demos.npz [--snap-goal]
 """
@@ -34,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     demos.add_argument("--num", type=count(MAX_DEMOS), default=7,
                        help=f"demonstrations to keep, 1..{MAX_DEMOS:,} (default 7, as the paper)")
     demos.add_argument("--seed", type=seed, default=0, help="seed of the start-pose stream, 0..2**32-1")
-    demos.add_argument("--shape", default="square", help="peg and hole shape")
+    demos.add_argument("--shape", help="peg and hole shape (default: the task's, else square)")
     demos.add_argument("--samples", type=count(MAX_SAMPLES, minimum=2), default=4000,
                        help=f"samples M per demo, 2..{MAX_SAMPLES:,} (default 4000, as the paper)")
     demos.add_argument("--entry-speed-mm-s", type=number(above=0.0), default=10.0,
@@ -95,8 +96,10 @@ def main(args: argparse.Namespace) -> int:
         return run_import(args)
     from envs.demos import ExpertConfig, collect_demos, demo_episode_config
     from envs.env import PegInHoleEnv
+    from envs.scene import SceneConfig
 
-    scene = task_from_args(args).scene_config(shape=args.shape)
+    task = task_from_args(args)
+    scene = SceneConfig.from_task(task, shape=task.shape or "square")
     expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed_mm_s * 1e-3)
     if args.check is not None:
         return _check(args, scene, expert)
@@ -119,7 +122,7 @@ def main(args: argparse.Namespace) -> int:
             if video is not None:
                 video.capture(env.data, result.obs.time_s)  # type: ignore[attr-defined]
 
-        collection = collect_demos(args.num, args.seed, env=env, expert=expert,
+        collection = collect_demos(args.num, args.seed, env=env, expert=expert, task=task,
                                    on_attempt=lambda i, a: print(_describe(i, a), flush=True),
                                    on_step=on_step if video is not None else None, before_attempt=before_attempt)
     except BaseException:

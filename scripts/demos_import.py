@@ -66,7 +66,8 @@ def run_import(args: argparse.Namespace) -> int:
     if args.tool_offset is not None:
         parse_tool_offset(args.tool_offset)
     config = ImportConfig(num_samples=args.samples, snap_goal=args.snap_goal)
-    clearance_m = task_from_args(args).clearance_m
+    task = task_from_args(args)
+    shape, clearance_m = task.shape or "square", task.clearance_m
     if args.import_format == "npz":
         recorded = load_recorded_demos(args.import_file)
     else:
@@ -76,19 +77,19 @@ def run_import(args: argparse.Namespace) -> int:
     check_free_space(f"--out {args.out}", args.out.parent if str(args.out.parent) else Path("."),
                      2 * len(recorded.lengths) * args.samples * (3 + 4 + 9) * 8)
     dt = resolve_dt(recorded.dt, args.dt_s, str(args.import_file))
-    if recorded.shape is not None and recorded.shape != args.shape:
-        raise EnvError(f"{args.import_file} is for shape {recorded.shape!r} but --shape is {args.shape!r}; pass "
+    if recorded.shape is not None and recorded.shape != shape:
+        raise EnvError(f"{args.import_file} is for shape {recorded.shape!r} but --shape is {shape!r}; pass "
                        f"--shape {recorded.shape}")
     if recorded.clearance_m is not None and abs(recorded.clearance_m - clearance_m) > 1e-9:
         raise EnvError(f"{args.import_file} is for a {recorded.clearance_m * 1e3:g} mm clearance but --clearance-mm "
                        f"is {clearance_m * 1e3:g}; pass --clearance-mm {recorded.clearance_m * 1e3:g}")
-    grasp = Pose(*nominal_flange_to_peg_tip(args.shape))
+    grasp = Pose(*nominal_flange_to_peg_tip(shape))
     if args.tool_offset is None and recorded.tool_frame != "tcp":
         raise EnvError(f"--tool-offset is required: {args.import_file} does not name its poses' frame (e.g. "
                        "--tool-offset franka-tcp)")
     tool_offset = grasp if args.tool_offset is None else parse_tool_offset(args.tool_offset)  # tcp: no conversion
     source_config = recorded.source_config or {}
-    result = import_demos(recorded, tool_offset, grasp, dt, args.shape, clearance_m, config,
+    result = import_demos(recorded, tool_offset, grasp, dt, shape, clearance_m, config,
                           provenance={"source_file": str(args.import_file.resolve()),
                                       "tool_offset_arg": args.tool_offset or recorded.tool_frame,
                                       "dt_from": "flag" if args.dt_s is not None else "file",

@@ -35,11 +35,11 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.execution.config import AROUND, DEFAULT_LOOKAHEAD_S, MODES, EvaluationConfig  # noqa: E402
+from envs.execution.config import DEFAULT_LOOKAHEAD_S, MODES, EvaluationConfig  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, seed  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
-from scripts.task_options import add_task_arguments, scene_given, task_from_args  # noqa: E402
+from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
     from envs.execution.evaluate import EvaluationResult, StartPose
@@ -70,7 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="continue the run recorded in --journal: only its missing episodes are run")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     out = parser.add_argument_group("output")
-    out.add_argument("--json", type=Path, help="write the full record (config, rate, CI, per episode) here")
+    out.add_argument("--json", type=Path,
+                     help="write the full record (config, the task it ran, rate, CI, per episode) here")
     out.add_argument("--video", type=Path, help="render the chosen episodes (--video-episodes) to this MP4")
     out.add_argument("--video-episodes", default="auto",
                      help="comma-separated episode indices for --video/--figure, or 'auto' "
@@ -112,14 +113,7 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
                        help="closed loop: run the bare learned flow, without the axial push, frame shift and "
                             "rotational compliance near the hole (envs/execution/adaptation.py; the ablation)")
     run.add_argument("--seed", type=seed, default=d.seed, help="seed of the start poses, 0..2**32-1")
-    run.add_argument("--pos-range-mm", type=number(minimum=0.0), default=d.pos_range_m * 1e3,
-                     help="start position perturbation half-width, mm")
-    run.add_argument("--rot-range-deg", type=number(minimum=0.0, maximum=179.0), default=d.rot_range_deg,
-                     help="start orientation perturbation radius, deg")
-    run.add_argument("--around", choices=AROUND, default=d.around,
-                     help="centre of the start perturbations: the mean demo start or a random demo's start")
-    run.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0), default=d.time_limit_s,
-                     help="simulated seconds per episode")
+    add_start_arguments(run)  # the task's start range and time limit
     run.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel processes")
     run.add_argument("--backend", choices=BACKENDS, default=d.backend,
                      help="process: local worker processes; ray: Ray actors (pip install -e '.[cluster]')")
@@ -128,28 +122,19 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
                      help="wall-clock seconds per episode before its worker is killed and the episode recorded "
                           "'wall_timeout'; 0 = no limit")
     task = add_task_arguments(parser)
-    task.add_argument("--shape", help="the scene's peg/hole shape (default: the demos'; must match them)")
+    task.add_argument("--shape", help="the scene's peg/hole shape (default: the task's, else the demos'; must match "
+                                      "them)")
     task.add_argument("--hole-at-goal", action="store_true",
                       help="place the target hole at the demos' goal pose (demos recorded elsewhere)")
 
 
-def evaluation_task_fields(args: argparse.Namespace) -> dict[str, Any]:
-    """EvaluationConfig fields of the task options: the scene options given (else the demos'), and the
-    perturbations and force limit of --preset (default: the contact preset) with the options given."""
-    task = task_from_args(args)
-    scene = scene_given(args)
-    return {"clearance_m": scene.get("clearance_m"), "chamfer_m": scene.get("chamfer_m"),
-            "peg_mode": scene.get("peg_mode"), "grasp_force_n": scene.get("grasp_force_n"),
-            "perturbations": task.perturbations, "force_limit_n": task.force_limit_n}
-
-
 def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
-    """EvaluationConfig of the parsed options (validated there)."""
+    """EvaluationConfig of the parsed options (validated there): the task of --task and the single task options,
+    the scene the demos' but for the scene options given (all of them with --task or --preset)."""
     return EvaluationConfig(
-        episodes=args.episodes, seed=args.seed, mode=args.mode, pos_range_m=args.pos_range_mm * 1e-3,
-        rot_range_deg=args.rot_range_deg, around=args.around, lookahead_s=args.lookahead_s,
-        feedforward_gain=args.feedforward, speed=args.speed, time_limit_s=args.time_limit_s,
-        **evaluation_task_fields(args), shape=args.shape, hole_at_goal=args.hole_at_goal, workers=args.workers,
+        episodes=args.episodes, seed=args.seed, mode=args.mode, lookahead_s=args.lookahead_s,
+        feedforward_gain=args.feedforward, speed=args.speed, task=task_from_args(args),
+        scene_from_task=scene_from_task(args), hole_at_goal=args.hole_at_goal, workers=args.workers,
         unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s, backend=args.backend,
         ray_address=args.ray_address, stiffness=args.stiffness,
         contact_adaptation=not args.no_contact_adaptation)
@@ -367,7 +352,7 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         if "video" not in holder:
             holder["video"] = EpisodeVideo(env.model, video, VideoConfig(camera=camera), goal=env.goal)
         holder["video"].new_episode()
-        holder["video"].set_commanded_path(generate_plan(skill, start.pose, config.time_limit_s,
+        holder["video"].set_commanded_path(generate_plan(skill, start.pose, config.task.time_limit_s,
                                                          env.control_period_s).pos)
 
     def on_step(env: Any) -> None:
@@ -403,7 +388,7 @@ def plot_episode_forces(replays: Sequence[Any], starts: Sequence[StartPose], pat
     traces = [(f"episode {start.index}: {record.reason.split(' (')[0]}", record.success, trace.times_s,
                np.sqrt((trace.wrist_wrench[:, :3] ** 2).sum(axis=1)))
               for (record, trace), start in zip(replays, starts) if trace is not None]
-    return plot_force_traces(traces, config.force_limit_n, path, "wrist force of the chosen episodes")
+    return plot_force_traces(traces, config.task.force_limit_n, path, "wrist force of the chosen episodes")
 
 
 def plot_episode_stiffness(model_dir: Path, replays: Sequence[Any], starts: Sequence[StartPose], path: Path,
@@ -441,8 +426,8 @@ def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: S
             demos.append(PoseCurve(dt * np.arange(pos.shape[1]), pos[n], skill.to_tangent(pos[n], q)[:, 3:]))
     plans, executed = [], []
     for (rec, trace), start in zip(replays, starts):
-        plan = generate_plan(skill, start.pose, config.time_limit_s, 0.01)
-        keep = plan.times_s <= (trace.times_s[-1] if trace is not None else config.time_limit_s) + 1e-9
+        plan = generate_plan(skill, start.pose, config.task.time_limit_s, 0.01)
+        keep = plan.times_s <= (trace.times_s[-1] if trace is not None else config.task.time_limit_s) + 1e-9
         plans.append(PoseCurve(plan.times_s[keep], plan.pos[keep], plan.tangent[keep, 3:]))
         if trace is not None:
             q = on_goal_hemisphere(trace.quat, skill.goal_quat)

@@ -2,11 +2,11 @@
 
     pih run [--name default] [--episodes 50] [--workers 2] [--overwrite]
 
-The task is the default "contact" preset (envs/task.py: grasped peg, 0.2 mm clearance, 1 mm chamfers, seated
-on the hole floor, hole-pose error up to 1 mm / 1 deg, 40 N force limit) unless --preset or a task option says
-otherwise. Writes runs/<name>/: demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png),
-eval.json (closed-loop evaluation, 50 perturbed starts), skill.png (demos / generated / executed, as the
-paper's peg-in-hole figure), outcomes.png (outcomes by reason over the hole-pose error and where each episode
+The task is the default "contact" preset (envs/tasks/contact.toml: grasped peg, 0.2 mm clearance, 1 mm chamfers,
+seated on the hole floor, hole-pose error up to 1 mm / 1 deg, 40 N force limit) unless --task (a preset or a task
+file) or a task option says otherwise; the demo file, the checkpoint and eval.json record it. Writes runs/<name>/:
+demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png), eval.json (closed-loop evaluation, 50
+perturbed starts), skill.png (demos / generated / executed, as the paper's peg-in-hole figure), outcomes.png (outcomes by reason over the hole-pose error and where each episode
 ended), forces.png (wrist force of the video's episodes, with the limit), episodes.mp4 (three successes and the first
 failure, if any) and summary.json (timings and the success rate). Prints a summary. Running it again on the
 same folder needs --overwrite, and replaces only what an earlier `pih run` wrote (envs/output.py).
@@ -23,7 +23,7 @@ from typing import Any
 from envs.errors import EnvError
 from envs.output import MiB, check_output, check_output_folder, write_json
 from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed
-from scripts.task_options import add_task_arguments, task_from_args
+from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "forces.png", "episodes.mp4",
                "summary.json")
@@ -55,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             help=f"evaluation episodes, 1..{MAX_EPISODES:,}")
     evaluation.add_argument("--seed", type=seed, default=0, help="seed of the evaluation starts, 0..2**32-1")
     evaluation.add_argument("--workers", type=count(MAX_WORKERS), default=2, help="training and evaluation processes")
+    add_start_arguments(evaluation)
     add_task_arguments(parser)
 
 
@@ -85,14 +86,15 @@ def main(args: argparse.Namespace) -> int:
     from envs.demos import collect_demos
     from envs.execution.evaluate import EvaluationConfig, evaluate
     from envs.execution.figures import plot_outcomes
+    from envs.scene import SceneConfig
     from scripts.evaluate import choose_episodes, render_and_plot
     from scripts.train import skill_train_config, train_skill
 
     if not args.name or "/" in args.name or args.name in (".", ".."):
         raise EnvError(f"--name {args.name!r} must be a plain folder name")
     task = task_from_args(args)
-    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers,
-                              perturbations=task.perturbations, force_limit_n=task.force_limit_n)  # validated first
+    task = task.override(shape=task.shape or "square")
+    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task)  # checked first
     out = args.root / args.name
     check_run_folder(out, args.overwrite, video=not args.no_video)
     out.mkdir(parents=True, exist_ok=True)
@@ -108,7 +110,8 @@ def main(args: argparse.Namespace) -> int:
             else:
                 tqdm.write(f"  failed attempt: {attempt.reason}")
 
-        collection = collect_demos(args.demos, args.demo_seed, task.scene_config(), on_attempt=on_attempt)
+        collection = collect_demos(args.demos, args.demo_seed, SceneConfig.from_task(task), on_attempt=on_attempt,
+                                   task=task)
     demo_path = save_demos(out / "demos.npz", collection.demos)
     timings["demos_s"] = time.perf_counter() - t0
 

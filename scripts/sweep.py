@@ -8,7 +8,8 @@
 Every cell (the product of the axes) runs the same K seeded starts (envs/execution/sweep.py). Writes, in --out:
 sweep.json (per cell: rate, Wilson interval, median time, peak forces, contact rate; every episode),
 sweep.png (heat map: clearance x hole error, or the first two axes) and journal.jsonl (finished episodes,
-for --resume). Settings not swept come from --preset and the task options, and the scene from the demos.
+for --resume). Settings not swept come from --task (a preset or a task file; default the contact preset) and the
+task options, and the scene from the demos (but for the task's with --task, and the options given).
 Outputs follow envs/output.py: an earlier sweep's files are replaced only with --overwrite, others never.
 """
 
@@ -25,7 +26,7 @@ from envs.errors import EnvError
 from envs.execution.config import MODES, EvaluationConfig
 from envs.output import MiB, check_output, check_output_folder, write_json
 from scripts.options import MAX_EPISODES, MAX_WORKERS, count, number, seed
-from scripts.task_options import task_from_args
+from scripts.task_options import add_task_file_arguments, scene_from_task, task_from_args
 
 AXIS_OPTIONS: dict[str, tuple[str, float]] = {
     "clearance_m": ("--clearance-mm", 1e-3),
@@ -59,8 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run = parser.add_argument_group("run")
     run.add_argument("--episodes", type=count(MAX_EPISODES), default=30, help=f"episodes per cell, 1..{MAX_EPISODES:,}")
     run.add_argument("--seed", type=seed, default=0, help="seed of the starts and perturbations, 0..2**32-1")
-    run.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0), default=d.time_limit_s,
-                     help="simulated seconds per episode")
+    run.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0),
+                     help=f"simulated seconds per episode (default: the task's, {d.task.time_limit_s:g})")
     run.add_argument("--workers", type=count(MAX_WORKERS), default=2, help="parallel workers")
     run.add_argument("--backend", choices=BACKENDS, default=d.backend, help="process or ray")
     run.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray)")
@@ -73,14 +74,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="output folder (created; sweep.json, sweep.png, journal.jsonl)")
     out.add_argument("--overwrite", action="store_true",
                      help="replace an earlier sweep's outputs in --out (files pih did not write are never replaced)")
-    task = parser.add_argument_group("task settings that are not swept (default: the demos' scene and --preset)")
-    task.add_argument("--preset", help="task preset (contact, paper, factory) for the settings not swept")
+    task = parser.add_argument_group("task settings that are not swept (default: the demos' scene and --task)")
+    add_task_file_arguments(task)
     task.add_argument("--peg-mount", choices=("grasped", "welded"), help="peg mount (default: the demos')")
     task.add_argument("--grasp-force-n", type=number(above=0.0), help="grasp force per finger, N")
     task.add_argument("--grasp-offset-mm", type=number(minimum=0.0),
-                      help="grasp offset range along the peg axis, mm (default: the preset's)")
+                      help="grasp offset range along the peg axis, mm (default: the task's)")
     task.add_argument("--force-limit-n", type=number(above=0.0, infinite=True),
-                      help="wrist force limit, N, on the force held for 5 ms (default: the preset's, 40)")
+                      help="wrist force limit, N, on the force held for 5 ms (default: the task's, 40)")
 
 
 def parse_values(option: str, text: str | None, scale: float) -> tuple[float, ...]:
@@ -117,16 +118,11 @@ def parse_stiffness(text: str | None) -> tuple[str, ...]:
 def base_config(args: argparse.Namespace) -> EvaluationConfig:
     """The EvaluationConfig every cell derives from. Raises EnvError on a bad option."""
     swept = {name[2:].replace("-", "_") for name, _ in AXIS_OPTIONS.values()} | {"stiffness"}
-    task = task_from_args(argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in swept}))
-    explicit_scene = task.scene_fields() if args.preset else {}
+    fixed = argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in swept})
     return EvaluationConfig(
-        episodes=args.episodes, seed=args.seed, mode=args.mode, time_limit_s=args.time_limit_s,
-        workers=args.workers, backend=args.backend, ray_address=args.ray_address,
-        unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s,
-        peg_mode=args.peg_mount or explicit_scene.get("peg_mode"),
-        grasp_force_n=args.grasp_force_n if args.grasp_force_n is not None else explicit_scene.get("grasp_force_n"),
-        clearance_m=explicit_scene.get("clearance_m"), chamfer_m=explicit_scene.get("chamfer_m"),
-        perturbations=task.perturbations, force_limit_n=task.force_limit_n)
+        episodes=args.episodes, seed=args.seed, mode=args.mode, task=task_from_args(fixed),
+        scene_from_task=scene_from_task(fixed), workers=args.workers, backend=args.backend,
+        ray_address=args.ray_address, unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s)
 
 
 def main(args: argparse.Namespace) -> int:

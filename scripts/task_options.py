@@ -1,9 +1,13 @@
-"""The task options shared by `pih demos`, `pih evaluate`, `pih sweep` and `pih run`, spelled the same everywhere.
+"""The task options shared by `pih demos`, `evaluate`, `sweep`, `run`, `benchmark`, `compare --sequential` and
+`task`, spelled the same everywhere:
 
-    --preset NAME  --peg-mount grasped|welded  --clearance-mm C  --chamfer-mm C  --grasp-force-n F
-    --hole-error-mm R  --hole-error-deg A  --grasp-offset-mm G  --force-limit-n F
+    --task NAME|FILE.toml (--preset NAME: the same)  --peg-mount grasped|welded  --clearance-mm C  --chamfer-mm C
+    --grasp-force-n F  --hole-error-mm R  --hole-error-deg A  --grasp-offset-mm G  --force-limit-n F
+    and, where episodes run, --time-limit-s T  --pos-range-mm P  --rot-range-deg A  --around mean|demo
 
-Every option defaults to None ("not given"), so a command can tell an explicit choice from the preset's value.
+The task is --task's (a preset of envs/tasks/ or a TOML file; default: the contact preset) with each single option
+given replacing its field (envs.task.Task.override validates them, one line naming the field). Every option
+defaults to None ("not given"), so a command can tell an explicit choice from the task's value.
 """
 
 from __future__ import annotations
@@ -11,24 +15,44 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from envs.task import DEFAULT_PRESET, PRESETS, TaskConfig, preset, with_overrides
+from envs.errors import EnvError
+from envs.task import AROUND, DEFAULT_PRESET, PRESET_NAMES, Task, load_task
 from scripts.options import number
 
-SCENE_OPTIONS: tuple[str, ...] = ("peg_mount", "clearance_mm", "chamfer_mm", "grasp_force_n")
-EPISODE_OPTIONS: tuple[str, ...] = ("hole_error_mm", "hole_error_deg", "grasp_offset_mm", "force_limit_n")
+OPTION_FIELDS: dict[str, tuple[str, float | None]] = {
+    "shape": ("shape", None),
+    "peg_mount": ("peg_mode", None),
+    "clearance_mm": ("clearance_m", 1e-3),
+    "chamfer_mm": ("chamfer_m", 1e-3),
+    "grasp_force_n": ("grasp_force_n", 1.0),
+    "hole_error_mm": ("hole_error_m", 1e-3),
+    "hole_error_deg": ("hole_error_deg", 1.0),
+    "grasp_offset_mm": ("grasp_offset_m", 1e-3),
+    "force_limit_n": ("force_limit_n", 1.0),
+    "time_limit_s": ("time_limit_s", 1.0),
+    "pos_range_mm": ("pos_range_m", 1e-3),
+    "rot_range_deg": ("rot_range_deg", 1.0),
+    "around": ("around", None),
+}
+"""Option (argparse dest) -> the task field it sets (envs.task.Task.override) and the scale to the field's unit."""
+
+
+def add_task_file_arguments(group: Any) -> None:
+    """--task and its alias --preset, into ``group``."""
+    group.add_argument("--task", metavar="NAME|FILE.toml",
+                       help=f"the task: a preset ({', '.join(PRESET_NAMES)}; envs/tasks/) or a task file "
+                            f"(`pih task show` prints one to start from); single options below replace its fields "
+                            f"(default {DEFAULT_PRESET})")
+    group.add_argument("--preset", choices=PRESET_NAMES, help="the same as --task NAME")
 
 
 def add_task_arguments(parser: argparse.ArgumentParser, episode: bool = True) -> Any:
-    """Add the task options (``episode``: also the per-episode perturbations and the force limit) in a group
-    "task", returned so a command can add its own task options to it. The defaults shown are the default
-    preset's; a command uses the given values over --preset's."""
-    default = PRESETS[DEFAULT_PRESET]
-    group = parser.add_argument_group("task (default: the values of --preset)")
-    group.add_argument("--preset", choices=tuple(PRESETS),
-                       help=f"task preset (default {DEFAULT_PRESET}: grasped peg, "
-                            f"{default.clearance_m * 1e3:g} mm clearance, {default.chamfer_m * 1e3:g} mm chamfer, "
-                            f"hole error {default.perturbations.hole_error_m * 1e3:g} mm / "
-                            f"{default.perturbations.hole_error_deg:g} deg; paper: 1 mm, no chamfer, exact hole)")
+    """Add --task, --preset and the single task options (``episode``: also the per-episode perturbations and the
+    force limit) in a group "task", returned so a command can add its own task options to it. The defaults shown are
+    the default task's."""
+    default = Task()
+    group = parser.add_argument_group("task (default: the values of --task)")
+    add_task_file_arguments(group)
     group.add_argument("--peg-mount", choices=("grasped", "welded"),
                        help="grasped: a free peg held by the fingers with the grasp force; welded: rigid "
                             f"(default {default.peg_mode})")
@@ -55,36 +79,46 @@ def add_task_arguments(parser: argparse.ArgumentParser, episode: bool = True) ->
     return group
 
 
-def _mm(value: float | None) -> float | None:
-    return None if value is None else value * 1e-3
+def add_start_arguments(group: Any) -> None:
+    """The task's start range and time limit (--pos-range-mm, --rot-range-deg, --around, --time-limit-s), into
+    ``group`` (a command's "starts and run")."""
+    start, limit = Task().start, Task().time_limit_s
+    group.add_argument("--pos-range-mm", type=number(minimum=0.0),
+                       help=f"the task's start position half-width, mm (default {start.pos_range_m * 1e3})")
+    group.add_argument("--rot-range-deg", type=number(minimum=0.0, maximum=179.0),
+                       help=f"the task's start orientation radius, deg (default {start.rot_range_deg})")
+    group.add_argument("--around", choices=AROUND,
+                       help="the task's centre of the start perturbations: the mean demo start or a random demo's "
+                            f"start (default {start.around})")
+    group.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0),
+                       help=f"the task's time limit: simulated seconds per episode (default {limit})")
 
 
-def task_from_args(args: argparse.Namespace, base: TaskConfig | None = None) -> TaskConfig:
-    """The TaskConfig of --preset (or ``base``, or the default preset) with the explicit options applied.
+def task_from_args(args: argparse.Namespace, base: Task | None = None) -> Task:
+    """The Task of --task (or --preset, or ``base``, or the default task) with the single options given applied.
 
     Raises:
-        EnvError: an unknown preset or an invalid value (negative, NaN, out of range), naming the option.
+        EnvError: --task and --preset both given, a missing or invalid task file, an invalid value (negative, out of
+            range), one line naming the file or the field.
     """
-    task = preset(args.preset) if getattr(args, "preset", None) else (base or PRESETS[DEFAULT_PRESET])
-    return with_overrides(
-        task,
-        peg_mode=getattr(args, "peg_mount", None),
-        clearance_m=_mm(getattr(args, "clearance_mm", None)),
-        chamfer_m=_mm(getattr(args, "chamfer_mm", None)),
-        grasp_force_n=getattr(args, "grasp_force_n", None),
-        hole_error_m=_mm(getattr(args, "hole_error_mm", None)),
-        hole_error_deg=getattr(args, "hole_error_deg", None),
-        grasp_offset_m=_mm(getattr(args, "grasp_offset_mm", None)),
-        force_limit_n=getattr(args, "force_limit_n", None),
-    )
+    given, alias = getattr(args, "task", None), getattr(args, "preset", None)
+    if given is not None and alias is not None:
+        raise EnvError(f"--task {given} and --preset {alias}: give one (--preset NAME is --task NAME)")
+    spec = given if given is not None else alias
+    task = load_task(spec) if spec is not None else (base or Task())
+    values = {}
+    for option, (name, scale) in OPTION_FIELDS.items():
+        value = getattr(args, option, None)
+        values[name] = value if value is None or scale is None else value * scale
+    return task.override(**values)
 
 
-def scene_given(args: argparse.Namespace) -> dict[str, Any]:
-    """The scene options given explicitly (or all of the preset's when --preset was given), as SceneConfig fields."""
-    task = task_from_args(args)
-    if getattr(args, "preset", None):
-        return task.scene_fields()
-    names = {"peg_mount": "peg_mode", "clearance_mm": "clearance_m", "chamfer_mm": "chamfer_m",
-             "grasp_force_n": "grasp_force_n"}  # hole depth: only through --preset
-    fields = task.scene_fields()
-    return {names[o]: fields[names[o]] for o in SCENE_OPTIONS if getattr(args, o, None) is not None}
+def scene_from_task(args: argparse.Namespace) -> tuple[str, ...]:
+    """The scene fields (envs.execution.config.SCENE_FROM_TASK) an evaluation takes from the task instead of the
+    demos: all of them when --task or --preset names the task, else those whose option was given."""
+    from envs.execution.config import SCENE_FROM_TASK
+
+    if getattr(args, "task", None) is not None or getattr(args, "preset", None) is not None:
+        return SCENE_FROM_TASK
+    given = {name for option, (name, _) in OPTION_FIELDS.items() if getattr(args, option, None) is not None}
+    return tuple(name for name in SCENE_FROM_TASK if name in given)

@@ -2,7 +2,8 @@
 
 Writes a checkpoint directory (rflow.skill_io): the models (weights.pt, loaded with weights_only=True, and
 model.json with normalisation and goal), skill.json (demo metadata: shape, clearance, SHA-256 of the demo
-file, demo start poses, training config and loss history), demos.npz (a subsampled copy of the demos for
+file, demo start poses, the demos' task (envs/task.py, versioned: the one the demo file records, else the default
+task, with the demos' scene), training config and loss history), demos.npz (a subsampled copy of the demos for
 figures, with the demos' stiffness for a stiffness skill) and loss.png. Built in DIR.tmp-XXXX and renamed into place.
 """
 
@@ -180,7 +181,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     cfg = skill_train_config() if config is None else config
     check_checkpoint_target(out, overwrite)
     demos = load_demos(demos_path)
-    check_demo_scene(demos, demos_path)
+    task = demos_task(demos, demos_path)
     pos, quat = take_every(demos.pos, subsample), take_every(demos.quat, subsample)
     k_demo = None if stiffness is None else demo_stiffness(demos, stiffness, bounds, demos_path)
     k = None if k_demo is None else take_every(k_demo, subsample)
@@ -207,6 +208,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
         "goal_quat": demos.goal_quat.tolist(),
         "demo_starts": {"pos": demos.pos[:, 0].tolist(), "quat": demos.quat[:, 0].tolist()},
         "scene": {k: scene[k] for k in SCENE_METADATA if k in scene} if scene else None,
+        "task": task.to_dict(),
         "train_seconds": train_s,
     }
     step = max(1, demos.num_samples // PREVIEW_SAMPLES)
@@ -221,20 +223,26 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     return save_skill(out, skill, extra, overwrite=overwrite)
 
 
-def check_demo_scene(demos: Any, demos_path: str | Path) -> None:
-    """The demos' shape, clearance and recorded scene must make the scene `pih evaluate` would build.
+def demos_task(demos: Any, demos_path: str | Path) -> Any:
+    """The demos' task for the checkpoint: the task the demo file records (`pih demos`), else the default task, with
+    the scene `pih evaluate` rebuilds from the demos (their shape, clearance and recorded scene).
 
     Raises:
-        EnvError: naming the demo file and the problem (unknown shape, clearance <= 0 or out of range, ...).
+        EnvError: naming the demo file and the problem (unknown shape, clearance <= 0 or out of range, an invalid
+            recorded task, ...).
     """
     from envs.errors import EnvError
     from envs.execution.evaluate import EvaluationConfig, scene_config_for
     from envs.poses import Pose
+    from envs.task import Task
 
     scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None
     metadata = {"shape": demos.shape, "clearance_m": demos.clearance_m, "scene": scene}
+    recorded = demos.config.get("task")
     try:
-        scene_config_for(metadata, EvaluationConfig(), Pose(pos=demos.goal_pos, quat=demos.goal_quat))
+        task = Task() if recorded is None else Task.from_dict(recorded, "task")
+        return task.with_scene(scene_config_for(metadata, EvaluationConfig(), Pose(pos=demos.goal_pos,
+                                                                                    quat=demos.goal_quat)))
     except (EnvError, TypeError, ValueError) as err:
         raise EnvError(f"demo file {demos_path}: {err}") from None
 

@@ -15,11 +15,12 @@ def paper_checkpoint(tmp_path_factory):
     20 of 20 closed-loop starts of seed 1 (tests/test_end_to_end.py)."""
     from envs.demo_file import save_demos
     from envs.demos import ExpertConfig, collect_demos
-    from envs.task import PRESETS
+    from envs.scene import SceneConfig
+    from envs.task import preset
     from scripts.train import skill_train_config, train_skill
 
     folder = tmp_path_factory.mktemp("paper_skill")
-    demos = collect_demos(7, seed=0, scene_config=PRESETS["paper"].scene_config(),
+    demos = collect_demos(7, seed=0, scene_config=SceneConfig.from_task(preset("paper")),
                           expert=ExpertConfig(num_samples=400)).demos
     path = save_demos(folder / "demos.npz", demos)
     return train_skill(path, folder / "model", skill_train_config(epochs=40), subsample=1, progress=False)

@@ -197,6 +197,10 @@ def _definitions(name: str) -> list[str]:
     ("AtomicFile", "pihutil.atomic"),
     ("wilson_interval", "envs.execution.statistics"),
     ("use_headless_rendering", "envs.rendering"),
+    ("Task", "envs.task"),  # the task: its fields and their checks (the presets are its files, envs/tasks/)
+    ("SuccessConfig", "envs.task"),
+    ("StartRange", "envs.task"),
+    ("check_force_limit", "envs.task"),
 ])
 def test_a_concept_with_one_owner_is_defined_once(name: str, owner: str) -> None:
     assert _definitions(name) == [owner]

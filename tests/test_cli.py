@@ -45,7 +45,7 @@ def test_help_is_grouped_and_shows_units_and_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["evaluate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    for heading in ("skill:", "starts and run:", "output:", "task (default: the values of --preset):"):
+    for heading in ("skill:", "starts and run:", "output:", "task (default: the values of --task):"):
         assert heading in text
     assert "--pos-range-mm" in text and "--time-limit-s" in text and "--force-limit-n" in text
     assert "(default 50.0)" in text and "(default 0.2)" in text  # the start range and the preset's clearance

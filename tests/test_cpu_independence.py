@@ -22,10 +22,11 @@ sys.path.insert(0, {tests!r})
 from skill_fixtures import tiny_skill
 from rflow.skill_io import save_skill
 from envs.execution.evaluate import EvaluationConfig, evaluate
+from envs.task import Task
 import torch
 out = Path(sys.argv[1])
 save_skill(out / "model", tiny_skill())
-result = evaluate(out / "model", EvaluationConfig(episodes=2, seed=5, time_limit_s=1.5), progress=False)
+result = evaluate(out / "model", EvaluationConfig(episodes=2, seed=5, task=Task(time_limit_s=1.5)), progress=False)
 weights = {{k: v.tolist() for k, v in torch.load(out / "model" / "position" / "weights.pt", weights_only=True).items()
            if hasattr(v, "tolist")}}
 json.dump({{"records": [r.to_dict() for r in result.records], "weights": weights,

@@ -14,19 +14,19 @@ import numpy as np
 import pytest
 
 from envs.execution.evaluate import EvaluationConfig, evaluate
-from envs.task import PRESETS
+from envs.task import preset
 from rflow.skill_io import load_skill, save_skill
 
 pytestmark = pytest.mark.slow  # trains a model (the paper_checkpoint fixture of conftest.py) and runs physics episodes
 
 GOAL_SHIFT_M = np.array([0.0, 0.03, 0.0])
-PAPER = PRESETS["paper"]
+PAPER = preset("paper")
 
 
 @pytest.mark.parametrize("mode", ["closed-loop", "open-loop"])
 def test_small_skill_inserts_from_perturbed_starts(paper_checkpoint, mode):
-    config = EvaluationConfig(episodes=20, seed=1, mode=mode, workers=2, perturbations=PAPER.perturbations)
-    assert (config.pos_range_m, config.rot_range_deg) == (0.05, 15.0)
+    config = EvaluationConfig(episodes=20, seed=1, mode=mode, workers=2, task=PAPER)
+    assert (config.task.start.pos_range_m, config.task.start.rot_range_deg) == (0.05, 15.0)
     result = evaluate(paper_checkpoint, config, progress=False)
     failures = [r.reason for r in result.records if not r.success]
     assert result.success_rate >= 0.9, failures
@@ -38,8 +38,8 @@ def test_goal_shifted_skill_is_scored_as_failing(paper_checkpoint, tmp_path):
     skill = load_skill(paper_checkpoint)
     skill.models["position"].goal = skill.models["position"].goal + GOAL_SHIFT_M
     shifted = save_skill(tmp_path / "shifted", skill)
-    config = EvaluationConfig(episodes=4, seed=1, pos_range_m=0.02, rot_range_deg=5.0, time_limit_s=8.0, workers=2,
-                              perturbations=PAPER.perturbations)
+    config = EvaluationConfig(episodes=4, seed=1, workers=2,
+                              task=PAPER.override(pos_range_m=0.02, rot_range_deg=5.0, time_limit_s=8.0))
     result = evaluate(shifted, config, progress=False)
     assert result.num_success == 0
     assert all(r.final_pos_error_mm > 20.0 for r in result.records)

@@ -23,6 +23,7 @@ from envs.execution.evaluate import (
 from envs.execution.statistics import wilson_interval
 from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
+from envs.task import Task
 from envs.execution.policy import ClosedLoopPolicy, StiffnessSetting
 from rflow.skill_io import save_skill
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
@@ -72,7 +73,7 @@ def test_config_rejects_an_unknown_mode():
 
 def test_scene_of_another_shape_is_an_error():
     with pytest.raises(EnvError, match="trained on 'triangle'"):
-        scene_config_for({"shape": "triangle"}, EvaluationConfig(shape="square"), Pose(GOAL_POS, GOAL_QUAT))
+        scene_config_for({"shape": "triangle"}, EvaluationConfig(task=Task(shape="square")), Pose(GOAL_POS, GOAL_QUAT))
 
 
 def test_scene_takes_the_demos_clearance():
@@ -140,7 +141,7 @@ def test_result_json_holds_rate_and_interval(tmp_path):
 @pytest.mark.slow
 def test_batch_keeps_order_and_count_with_two_workers(skill, tmp_path):
     save_skill(tmp_path / "ck", skill)
-    config = EvaluationConfig(episodes=3, time_limit_s=0.05, workers=2)
+    config = EvaluationConfig(episodes=3, task=Task(time_limit_s=0.05), workers=2)
     result = evaluate(tmp_path / "ck", config, progress=False)
     assert [r.index for r in result.records] == [0, 1, 2]
 

@@ -17,6 +17,7 @@ import pytest
 
 from batch import Journal
 from envs.execution.evaluate import EvaluationConfig, evaluate, journal_run
+from envs.task import Task
 from rflow.skill_io import save_skill
 from scripts.cli import main as pih
 from skill_fixtures import tiny_skill
@@ -40,7 +41,7 @@ def without_wall_times(data: dict) -> dict:
 
 @pytest.mark.slow
 def test_resumed_evaluation_equals_an_uninterrupted_one(model, tmp_path):
-    config = EvaluationConfig(episodes=4, time_limit_s=0.05)
+    config = EvaluationConfig(episodes=4, task=Task(time_limit_s=0.05))
     path = tmp_path / "j.jsonl"
     with Journal.open(path, journal_run(model, config)) as journal:
         whole = evaluate(model, config, progress=False, journal=journal)
@@ -48,8 +49,8 @@ def test_resumed_evaluation_equals_an_uninterrupted_one(model, tmp_path):
     path.write_text("".join(lines[:3]) + lines[3][:40])  # a run stopped after 2 episodes, mid-write of the 3rd
     with Journal.open(path, journal_run(model, config), resume=True) as journal:
         assert len(journal.done()) == 2
-        resumed = evaluate(model, EvaluationConfig(episodes=4, time_limit_s=0.05, workers=2), progress=False,
-                           journal=journal)
+        resumed = evaluate(model, EvaluationConfig(episodes=4, task=Task(time_limit_s=0.05), workers=2),
+                           progress=False, journal=journal)
     assert resumed.complete and len(path.read_text().splitlines()) == 5
     a, b = without_wall_times(whole.to_dict()), without_wall_times(resumed.to_dict())
     assert (a["config"].pop("workers"), b["config"].pop("workers")) == (1, 2)
@@ -153,8 +154,8 @@ def test_sigkill_of_a_worker_changes_no_episode_and_is_listed(model, tmp_path):
     assert proc.returncode == 0, stderr
     data = without_wall_times(json.loads(out.read_text()))
     assert data.pop("pih")["command"] == "evaluate"  # the file's marker (envs/output.py), not in to_dict
-    undisturbed = without_wall_times(evaluate(model, EvaluationConfig(episodes=8, time_limit_s=1.0, workers=2),
-                                              progress=False).to_dict())
+    undisturbed = without_wall_times(evaluate(model, EvaluationConfig(episodes=8, task=Task(time_limit_s=1.0),
+                                                                      workers=2), progress=False).to_dict())
     (event,) = data.pop("infrastructure_events")
     assert event["event"] == "worker_lost" and event["where"]["pid"] == victims[0] and "infrastructure:" in stderr
     assert undisturbed.pop("infrastructure_events") == []
@@ -190,7 +191,7 @@ def test_ctrl_c_then_resume_gives_the_uninterrupted_json(model, tmp_path):
 def test_one_replay_renders_the_video_of_all_and_the_figure_of_the_chosen(model, tmp_path, monkeypatch):
     import scripts.evaluate as evaluate_cli
 
-    config = EvaluationConfig(episodes=3, time_limit_s=0.05)
+    config = EvaluationConfig(episodes=3, task=Task(time_limit_s=0.05))
     result = evaluate(model, config, progress=False)
     plotted: list[list[int]] = []
     monkeypatch.setattr(evaluate_cli, "plot_episodes",
@@ -202,7 +203,7 @@ def test_one_replay_renders_the_video_of_all_and_the_figure_of_the_chosen(model,
 
 
 def test_a_resumed_evaluation_counts_the_wall_time_of_the_earlier_part(model, tmp_path):
-    config = EvaluationConfig(episodes=2, time_limit_s=0.05)
+    config = EvaluationConfig(episodes=2, task=Task(time_limit_s=0.05))
     path = tmp_path / "j.jsonl"
     with Journal.open(path, journal_run(model, config)) as journal:
         evaluate(model, config, progress=False, journal=journal)

@@ -91,11 +91,12 @@ def test_evaluation_episodes_are_exported_from_their_replay(tmp_path: Path) -> N
     import json
 
     from envs.execution.evaluate import EvaluationConfig, evaluate, evaluation_starts, replay_episodes
+    from envs.task import Task
     from rflow.skill_io import save_skill
     from skill_fixtures import tiny_skill
 
     save_skill(tmp_path / "model", tiny_skill())
-    config = EvaluationConfig(episodes=2, time_limit_s=0.3)
+    config = EvaluationConfig(episodes=2, task=Task(time_limit_s=0.3))
     evaluate(tmp_path / "model", config, progress=False).save_json(tmp_path / "eval.json")
     records = json.loads((tmp_path / "eval.json").read_text())["per_episode"]
     ran = [r for r in records if r["steps"] > 0]

@@ -11,6 +11,7 @@ import pytest
 from envs.execution.episode import run_episode
 from envs.execution.evaluate import EvaluationConfig, build_setup, evaluation_starts
 from envs.execution.profile import PARTS, profile_periods
+from envs.task import Task
 from rflow.skill_io import save_skill
 from skill_fixtures import tiny_skill
 
@@ -18,7 +19,7 @@ from skill_fixtures import tiny_skill
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     model = save_skill(tmp_path_factory.mktemp("ck") / "model", tiny_skill())
-    config = EvaluationConfig(episodes=2, time_limit_s=0.1)
+    config = EvaluationConfig(episodes=2, task=Task(time_limit_s=0.1))
     skill, env, policy = build_setup(model, config)
     return env, policy, evaluation_starts(skill.metadata["demo_starts"], config), config
 

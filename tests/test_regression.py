@@ -11,7 +11,7 @@ import pytest
 from envs.errors import EnvError
 from envs.execution.evaluate import EvaluationConfig, EvaluationResult, evaluate, record_from_dict
 from envs.execution.regression import assert_no_regression
-from envs.task import PRESETS
+from envs.task import preset
 from evaluation_fixtures import synthetic_evaluation
 
 EPISODES = 60
@@ -56,11 +56,12 @@ def test_evaluations_of_other_episodes_are_an_input_error_not_a_failure():
 def test_a_trained_skill_passes_against_itself_and_a_time_starved_run_is_flagged(paper_checkpoint):
     """Six episodes of the small paper-preset skill (tests/conftest.py) twice, then with half the shortest
     insertion time as the time limit: every episode the base seated fails, which the check must flag."""
-    config = EvaluationConfig(episodes=6, seed=1, workers=2, perturbations=PRESETS["paper"].perturbations)
+    config = EvaluationConfig(episodes=6, seed=1, workers=2, task=preset("paper"))
     base = evaluate(paper_checkpoint, config, progress=False)
     assert base.num_success >= 5  # the helper needs 5 discordant pairs to flag anything at alpha 0.05
     assert_no_regression(base, evaluate(paper_checkpoint, config, progress=False))
     shortest = min(r.time_to_insert_s for r in base.records if r.success)
-    starved = evaluate(paper_checkpoint, dataclasses.replace(config, time_limit_s=0.5 * shortest), progress=False)
+    starved_task = config.task.override(time_limit_s=0.5 * shortest)
+    starved = evaluate(paper_checkpoint, dataclasses.replace(config, task=starved_task), progress=False)
     with pytest.raises(AssertionError, match="regression"):
         assert_no_regression(base, starved)

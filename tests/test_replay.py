@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -13,26 +13,29 @@ from envs.execution.episode import EpisodeRecord
 from envs.execution.evaluate import EvaluationConfig
 from envs.execution.replay import check_replay, evaluation_config_from_dict, load_evaluation
 from envs.jsonable import to_jsonable
+from envs.output import strict_json
 from envs.perturbation import PerturbationRanges
+from envs.task import Task
 
 
 def test_config_survives_its_json_record() -> None:
-    config = EvaluationConfig(episodes=7, seed=3, mode="open-loop", stiffness="constant:800",
-                              perturbations=PerturbationRanges(0.002, 1.5, 0.001), force_limit_n=float("inf"))
-    text = json.dumps(to_jsonable(asdict(config)))
-    assert evaluation_config_from_dict(json.loads(text), "eval.json") == config
+    task = Task(perturbations=PerturbationRanges(0.002, 1.5, 0.001), force_limit_n=float("inf"))
+    config = EvaluationConfig(episodes=7, seed=3, mode="open-loop", stiffness="constant:800", task=task)
+    text = json.dumps(strict_json({"config": config.settings(), "task": config.task.to_dict()}))
+    record = json.loads(text)
+    assert evaluation_config_from_dict(record["config"], "eval.json", record["task"]) == config
 
 
 def test_config_is_rebuilt_for_one_local_process() -> None:
-    values = to_jsonable(asdict(EvaluationConfig(workers=4, backend="ray", ray_address="head:6379")))
-    config = evaluation_config_from_dict(values, "eval.json")
+    values = to_jsonable(EvaluationConfig(workers=4, backend="ray", ray_address="head:6379").settings())
+    config = evaluation_config_from_dict(values, "eval.json", Task().to_dict())
     assert (config.workers, config.backend, config.ray_address) == (1, "process", None)
 
 
 def test_a_config_key_of_another_version_is_an_error() -> None:
-    values = {**to_jsonable(asdict(EvaluationConfig())), "gripper_mode": "soft"}
+    values = {**to_jsonable(EvaluationConfig().settings()), "gripper_mode": "soft"}
     with pytest.raises(EnvError, match="gripper_mode"):
-        evaluation_config_from_dict(values, "eval.json")
+        evaluation_config_from_dict(values, "eval.json", Task().to_dict())
 
 
 def test_a_replay_that_ends_otherwise_than_recorded_is_an_error() -> None:
@@ -44,7 +47,7 @@ def test_a_replay_that_ends_otherwise_than_recorded_is_an_error() -> None:
 
 
 def write_eval(path: Path, model: str, **extra: object) -> Path:
-    record = {"model": model, "config": to_jsonable(asdict(EvaluationConfig())), "skill": {},
+    record = {"model": model, "config": to_jsonable(EvaluationConfig().settings()), "skill": {},
               "per_episode": [EpisodeRecord(0, -1, [0.0] * 3, [1.0, 0, 0, 0]).to_dict()], **extra}
     path.write_text(json.dumps(record))
     return path

@@ -13,6 +13,7 @@ from envs.errors import EnvError
 from envs.execution.evaluate import EvaluationConfig, evaluation_starts
 from envs.execution.sweep import SweepAxes, cell_summary, sweep_cells, sweep_units, unit_key
 from envs.perturbation import PerturbationRanges
+from envs.task import Task
 from rflow.skill_io import save_skill
 from scripts import cli
 from scripts.sweep import parse_values
@@ -27,15 +28,17 @@ def model_dir(tmp_path_factory) -> Path:
 def test_cells_are_the_product_of_the_axes_first_axis_slowest() -> None:
     cells = sweep_cells(EvaluationConfig(), SweepAxes(clearance_m=(0.001, 0.0002), hole_error_m=(0.0, 0.001, 0.002)))
     assert [c.settings for c in cells[:3]] == [{"clearance_m": 0.001, "hole_error_m": e} for e in (0.0, 0.001, 0.002)]
-    assert len(cells) == 6 and cells[4].config.clearance_m == 0.0002
-    assert cells[4].config.perturbations.hole_error_m == 0.001
+    assert len(cells) == 6 and cells[4].config.task.clearance_m == 0.0002
+    assert cells[4].config.scene_from_task == ("clearance_m",)  # the swept clearance replaces the demos'
+    assert cells[4].config.task.perturbations.hole_error_m == 0.001
 
 
 def test_settings_not_swept_keep_the_base_config() -> None:
-    base = EvaluationConfig(perturbations=PerturbationRanges(hole_error_m=0.001, hole_error_deg=0.5), seed=3)
+    ranges = PerturbationRanges(hole_error_m=0.001, hole_error_deg=0.5)
+    base = EvaluationConfig(task=Task(perturbations=ranges), seed=3)
     cell = sweep_cells(base, SweepAxes(hole_error_m=(0.002,)))[0]
-    assert cell.config.perturbations.hole_error_deg == 0.5 and cell.config.seed == 3
-    assert cell.config.clearance_m is None  # the demos' clearance
+    assert cell.config.task.perturbations.hole_error_deg == 0.5 and cell.config.seed == 3
+    assert "clearance_m" not in cell.config.scene_from_task  # the demos' clearance
 
 
 def test_every_cell_uses_the_same_starts_and_scaled_perturbations() -> None:

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from envs.errors import EnvError
-from envs.task import PRESETS, TaskConfig, preset
+from envs.task import Task, preset
 from scripts import cli
-from scripts.task_options import add_task_arguments, scene_given, task_from_args
+from scripts.task_options import add_task_arguments, scene_from_task, task_from_args
 
 
 def parse(*argv: str) -> argparse.Namespace:
@@ -22,7 +22,7 @@ def parse(*argv: str) -> argparse.Namespace:
 
 def test_default_is_the_contact_preset() -> None:
     task = task_from_args(parse())
-    assert task == PRESETS["contact"] == TaskConfig()
+    assert task == preset("contact") == Task()
     assert (task.clearance_m, task.chamfer_m, task.hole_depth_m) == (0.0002, 0.001, 0.03)
     assert (task.perturbations.hole_error_m, task.perturbations.hole_error_deg, task.force_limit_n) == (0.001, 1.0, 40.0)
 
@@ -36,8 +36,9 @@ def test_options_override_the_preset_and_only_given_scene_options_are_reported()
     args = parse("--preset", "paper", "--hole-error-mm", "0.5")
     assert task_from_args(args).perturbations.hole_error_m == pytest.approx(0.0005)
     assert task_from_args(args).clearance_m == 0.001
-    assert scene_given(parse("--chamfer-mm", "2")) == {"chamfer_m": 0.002}
-    assert scene_given(parse()) == {}
+    assert scene_from_task(parse("--chamfer-mm", "2")) == ("chamfer_m",)
+    assert task_from_args(parse("--chamfer-mm", "2")).chamfer_m == 0.002
+    assert scene_from_task(parse()) == ()
 
 
 @pytest.mark.parametrize("argv, match", [

@@ -7,7 +7,6 @@ for the tables written at the end (LeRobot; small arrays).
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +40,9 @@ class EpisodeExport:
         """Before each episode: the metadata and the frame sink on the first, a new clip on every one."""
         if self.meta is None:
             scene = self.evaluation.scene
-            config = {"evaluation": to_jsonable(asdict(self.evaluation.config)), "scene": scene,
-                      "skill": self.evaluation.skill, "model": str(self.evaluation.model_dir)}
+            evaluation = self.evaluation.config
+            config = {"evaluation": to_jsonable(evaluation.settings()), "task": to_jsonable(evaluation.task.to_dict()),
+                      "scene": scene, "skill": self.evaluation.skill, "model": str(self.evaluation.model_dir)}
             self.meta = evaluation_meta(self.source, env.control_period_s, str(scene.get("shape", env.shape)),
                                         float(scene.get("clearance_m", env.scene.config.clearance_m)), config,
                                         self.camera)

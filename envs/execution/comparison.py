@@ -56,12 +56,14 @@ class EvaluationSample:
         records: the per-episode records (EpisodeRecord.to_dict()).
         time_limit_s: the evaluation's episode time limit.
         target_depth_mm: the scene's insertion depth of a seated peg (None: not recorded).
+        task: the task the evaluation ran, as recorded (envs.task.Task.to_dict; None: a file of before task files).
     """
 
     source: str
     records: list[Mapping[str, Any]]
     time_limit_s: float
     target_depth_mm: float | None
+    task: Mapping[str, Any] | None = None
 
 
 def _read_json(path: Path, label: str) -> Any:
@@ -83,7 +85,8 @@ def load_evaluation(source: Any, label: str = "evaluation") -> EvaluationSample:
 
     Raises:
         EnvError: a missing or unreadable file, not JSON, or not an evaluation (no per_episode list, no
-            config.time_limit_s), one line naming ``label`` and the source.
+            task.time_limit_s, or config.time_limit_s in a file of before task files), one line naming ``label`` and
+            the source.
     """
     if isinstance(source, (str, os.PathLike)):
         name, data = str(source), _read_json(Path(source), label)
@@ -96,14 +99,16 @@ def load_evaluation(source: Any, label: str = "evaluation") -> EvaluationSample:
     where = f"{label} {name}" if name != label else label
     if not isinstance(data, Mapping) or not isinstance(data.get("per_episode"), list):
         raise EnvError(f"{where}: not an evaluation of `pih evaluate --json` (no per_episode list)")
-    config = data.get("config")
-    limit = config.get("time_limit_s") if isinstance(config, Mapping) else None
+    task, config = data.get("task"), data.get("config")  # the task's time limit; before task files, the config's
+    limit = next((values.get("time_limit_s") for values in (task, config) if isinstance(values, Mapping)
+                  and "time_limit_s" in values), None)
     if not (isinstance(limit, (int, float)) and math.isfinite(limit) and limit > 0):
-        raise EnvError(f"{where}: not an evaluation of `pih evaluate --json` (no config.time_limit_s)")
+        raise EnvError(f"{where}: not an evaluation of `pih evaluate --json` (no task.time_limit_s)")
     scene = data.get("scene") if isinstance(data.get("scene"), Mapping) else {}
     depth = scene.get("insertion_depth_m")
     target = float(depth) * 1e3 if isinstance(depth, (int, float)) and depth > 0 else None
-    return EvaluationSample(name, list(data["per_episode"]), float(limit), target)
+    return EvaluationSample(name, list(data["per_episode"]), float(limit), target,
+                            task if isinstance(task, Mapping) else None)
 
 
 def progress(record: Mapping[str, Any], target_depth_mm: float | None) -> float:
@@ -143,13 +148,16 @@ def sequential_differences(base: EvaluationSample, candidate: EvaluationSample, 
 
 @dataclass(frozen=True)
 class Comparison:
-    """A paired comparison of two evaluations (module docstring)."""
+    """A paired comparison of two evaluations (module docstring), with the tasks they ran as recorded (None: not
+    recorded)."""
 
     base_source: str
     cand_source: str
     success: SuccessComparison
     metrics: dict[str, MetricComparison]
     time_censor_s: float
+    base_task: Mapping[str, Any] | None = None
+    cand_task: Mapping[str, Any] | None = None
 
     @property
     def decision(self) -> str:
@@ -161,7 +169,7 @@ class Comparison:
         return {"base": self.base_source, "candidate": self.cand_source, "success": self.success.to_dict(),
                 "metrics": {name: m.to_dict() for name, m in self.metrics.items()},
                 "time_to_seat_of_a_failure_s": self.time_censor_s, "decision": self.decision,
-                "statement": self.statement()}
+                "statement": self.statement(), "base_task": self.base_task, "candidate_task": self.cand_task}
 
     def statement(self) -> str:
         """The decision in words."""
@@ -232,7 +240,7 @@ def compare_evaluations(base: EvaluationSample, candidate: EvaluationSample, mar
     censor = max(base.time_limit_s, candidate.time_limit_s)
     b, c = metric_values(base, base_records, censor), metric_values(candidate, cand_records, censor)
     metrics = {name: compare_metric(b[name], c[name], higher) for name, (_, higher) in METRICS.items()}
-    return Comparison(base.source, candidate.source, success, metrics, censor)
+    return Comparison(base.source, candidate.source, success, metrics, censor, base.task, candidate.task)
 
 
 __all__ = [

@@ -5,18 +5,15 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from batch.errors import BatchError
 from batch.config import BatchConfig
 from envs.errors import EnvError
-from envs.perturbation import PerturbationRanges
-from envs.sorter import check_chamfer, check_clearance
-from envs.task import DEFAULT_PRESET, PRESETS
+from envs.task import Task, check_number
 
 if TYPE_CHECKING:
     from rflow.skill_io import PoseSkill
@@ -24,9 +21,6 @@ if TYPE_CHECKING:
 MODES: tuple[str, ...] = ("closed-loop", "open-loop")
 DEFAULT_LOOKAHEAD_S: float = 0.05
 """Closed-loop lookahead along the learned flow (tuned on the default scene, see envs/execution/evaluate.py)."""
-
-
-AROUND: tuple[str, ...] = ("mean", "demo")
 
 
 STIFFNESS_KINDS: tuple[str, ...] = ("learned", "constant")
@@ -67,28 +61,32 @@ class StiffnessSetting:
             raise EnvError("stiffness 'learned' needs a skill trained with `pih train --stiffness ...`")
 
 
+SCENE_FROM_TASK: tuple[str, ...] = ("peg_mode", "clearance_m", "chamfer_m", "grasp_force_n")
+"""The scene fields an evaluation may take from its task instead of the demos' (`EvaluationConfig.scene_from_task`);
+the hole depth and the goal are always the demos': a skill is evaluated at the depth it was taught."""
+
+
 @dataclass(frozen=True)
 class EvaluationConfig:
-    """What `evaluate` runs.
+    """What `evaluate` runs: the task (envs.task.Task), how the skill executes it and how the episodes run.
+
+    The scene is the demos' (the checkpoint's or demo file's recorded scene; envs.execution.evaluate.scene_config_for)
+    but for the task's shape, when set, and the task's fields named in ``scene_from_task``; the perturbations, force
+    and time limits, success tolerances and start range are the task's. The task the episodes ran, resolved against
+    the demos' scene, is in the result (`EvaluationResult.task`).
 
     Attributes:
         episodes: number of perturbed starts K.
-        seed: seed of the start poses.
+        seed: seed of the start poses; each episode's perturbation (``task.perturbations``) is drawn from a
+            generator seeded with (seed, 1), apart from the start poses, so the starts do not depend on them.
         mode: "closed-loop" (query the flow at the measured pose every step) or "open-loop" (generate
             the trajectory once, track it in time).
-        pos_range_m: half-width of the position box around a demo start.
-        rot_range_deg: radius of the orientation ball around a demo start.
-        around: the centre of the perturbations, "mean" (mean demo start) or "demo" (a random demo start).
         lookahead_s: closed loop: flow time between the measured and the commanded pose.
         feedforward_gain: scale of the impedance velocity feed-forward (envs.execution.policy); 0 turns it off.
         speed: time scaling of the learned flow (the same path, speed times as fast), both modes.
-        time_limit_s: an episode without success ends (fails) after this much simulated time.
-        clearance_m: hole clearance of the scene (None: the demos').
-        chamfer_m, peg_mode, grasp_force_n: the scene's chamfer, peg mount and grasp force (None: the demos').
-        perturbations: per-episode hole-pose error and grasp offset ranges (envs.perturbation), drawn from a
-            generator seeded with (seed, 1), apart from the start poses, so the starts do not depend on them.
-        force_limit_n: wrist force limit of an episode (N; inf: none).
-        shape: the scene's peg/hole shape (None: the demos'); must equal the demos' shape.
+        task: the task (envs.task.Task; default: the "contact" preset).
+        scene_from_task: the task's scene fields (of SCENE_FROM_TASK) that replace the demos' (a task file or preset
+            given: all of them; single options: those given).
         hole_at_goal: place the target hole at the skill's goal pose (demos from another setup).
         workers: processes (1: in this process) or Ray actors.
         unit_timeout_s: wall-clock seconds one episode may take before its worker is killed and the episode
@@ -104,20 +102,11 @@ class EvaluationConfig:
     episodes: int = 100
     seed: int = 0
     mode: str = "closed-loop"
-    pos_range_m: float = 0.05
-    rot_range_deg: float = 15.0
-    around: str = "mean"
     lookahead_s: float = DEFAULT_LOOKAHEAD_S
     feedforward_gain: float = 1.0
     speed: float = 1.0
-    time_limit_s: float = 20.0
-    clearance_m: float | None = None
-    chamfer_m: float | None = None
-    peg_mode: str | None = None
-    grasp_force_n: float | None = None
-    perturbations: PerturbationRanges = field(default_factory=lambda: PRESETS[DEFAULT_PRESET].perturbations)
-    force_limit_n: float = PRESETS[DEFAULT_PRESET].force_limit_n
-    shape: str | None = None
+    task: Task = field(default_factory=Task)
+    scene_from_task: tuple[str, ...] = ()
     hole_at_goal: bool = False
     workers: int = 1
     unit_timeout_s: float | None = 300.0
@@ -133,31 +122,16 @@ class EvaluationConfig:
             StiffnessSetting.parse(self.stiffness)
         if self.mode not in MODES:
             raise EnvError(f"mode={self.mode!r} must be one of {', '.join(MODES)}")
-        for name in ("pos_range_m", "rot_range_deg"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise EnvError(f"{name}={value!r} must be a finite number >= 0")
-        if self.around not in AROUND:
-            raise EnvError(f"around={self.around!r} must be one of {', '.join(AROUND)}")
-        if not self.rot_range_deg < 180.0:
-            raise EnvError(f"rot_range_deg={self.rot_range_deg} must be < 180")
-        for name in ("lookahead_s", "time_limit_s"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise EnvError(f"{name}={value!r} must be a positive number")
-        if not (np.isfinite(self.speed) and self.speed > 0.0):
-            raise EnvError(f"speed={self.speed!r} must be > 0")
-        if not (np.isfinite(self.feedforward_gain) and self.feedforward_gain >= 0.0):
-            raise EnvError(f"feedforward_gain={self.feedforward_gain!r} must be >= 0")
-        if self.clearance_m is not None:
-            check_clearance(self.clearance_m)
-        if self.chamfer_m is not None:
-            check_chamfer(self.chamfer_m)
-        if not isinstance(self.perturbations, PerturbationRanges):
-            raise EnvError(f"perturbations={self.perturbations!r} must be a PerturbationRanges")
-        if not (isinstance(self.force_limit_n, (int, float)) and not math.isnan(self.force_limit_n)
-                and self.force_limit_n > 0.0):
-            raise EnvError(f"force_limit_n={self.force_limit_n!r} must be > 0 (inf: no limit)")
+        check_number("lookahead_s", self.lookahead_s, strict=True)
+        check_number("speed", self.speed, strict=True)
+        check_number("feedforward_gain", self.feedforward_gain)
+        if not isinstance(self.task, Task):
+            raise EnvError(f"task={self.task!r} must be an envs.task.Task")
+        object.__setattr__(self, "scene_from_task", tuple(self.scene_from_task))
+        unknown = [name for name in self.scene_from_task if name not in SCENE_FROM_TASK]
+        if unknown:
+            raise EnvError(f"scene_from_task names {unknown}: only {', '.join(SCENE_FROM_TASK)} may replace the "
+                           "demos' scene")
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
         try:
@@ -170,4 +144,7 @@ class EvaluationConfig:
         return BatchConfig(workers=self.workers, unit_timeout_s=self.unit_timeout_s, backend=self.backend,
                            ray_address=self.ray_address)
 
-
+    def settings(self) -> dict[str, Any]:
+        """Every field but the task, JSON-ready: a result's "config" (the task is recorded beside it)."""
+        return {f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v
+                for f in fields(self) if f.name != "task"}

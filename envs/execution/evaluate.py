@@ -5,8 +5,9 @@ orientation exp(r) * q, r a rotation vector (world frame) uniform in the ball of
 (envs.poses.sample_start_poses). The centre (``around``) is the mean of the demos' start poses
 ("mean", default: arithmetic mean position, normalised-sum quaternion) or, per episode, the start of a
 demo drawn uniformly ("demo": harder, it reaches up to 15 deg past the demos' own orientation range).
-Defaults: +-5 cm, +-15 deg. All starts come from one generator seeded with ``seed``, drawn before any
-episode runs, so the result does not depend on the number of workers.
+The ranges and the centre are the task's (envs.task.StartRange; defaults +-5 cm, +-15 deg). All starts come from
+one generator seeded with ``seed``, drawn before any episode runs, so the result does not depend on the number of
+workers.
 
 Batch. Episodes are the units of a `batch.run_batch`: in this process, in spawned worker processes or on
 Ray; each finished record goes into the run's journal (if any) as it ends, so an interrupted evaluation
@@ -45,10 +46,11 @@ from envs.output import write_json
 from envs.errors import EnvError
 from envs.perturbation import PerturbationRanges, sample_perturbation
 from envs.poses import Pose, StartRegion, format_pose, mean_quat, sample_start_poses
+from envs.task import StartRange, Task
 from envs.execution.adaptation import ContactAdaptation
 from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose, run_episode
 from envs.execution.statistics import wilson_interval
-from envs.execution.config import AROUND, EvaluationConfig, StiffnessSetting
+from envs.execution.config import EvaluationConfig, StiffnessSetting
 from envs.execution.policy import make_policy
 from rflow.small_linalg import norm
 
@@ -102,16 +104,15 @@ def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike,
             generator seeded with (seed, 1) so that the start poses do not depend on them.
 
     Raises:
-        EnvError: malformed demo starts.
+        EnvError: malformed demo starts, or ranges or a centre that envs.task.StartRange refuses.
     """
+    StartRange(pos_range_m, rot_range_deg, around)
     p = np.asarray(demo_start_pos, dtype=np.float64)
     q = np.asarray(demo_start_quat, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or q.shape != (p.shape[0], 4) or p.shape[0] < 1:
         raise EnvError(f"demo starts must be pos (N, 3) and quat (N, 4), got {p.shape} and {q.shape}")
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
         raise EnvError("demo start poses contain NaN or inf")
-    if around not in AROUND:
-        raise EnvError(f"around={around!r} must be one of {', '.join(AROUND)}")
     region = StartRegion(pos_half_width_m=(pos_range_m,) * 3, max_angle_deg=rot_range_deg)
     rng = np.random.default_rng(seed)
     task_rng = np.random.default_rng([seed, 1])
@@ -132,12 +133,14 @@ def evaluation_starts(demo_starts: dict[str, Any], config: EvaluationConfig) -> 
     Raises:
         EnvError: malformed demo starts.
     """
-    return sample_starts(demo_starts["pos"], demo_starts["quat"], config.episodes, config.seed, config.pos_range_m,
-                         config.rot_range_deg, config.around, config.perturbations)
+    start = config.task.start
+    return sample_starts(demo_starts["pos"], demo_starts["quat"], config.episodes, config.seed, start.pos_range_m,
+                         start.rot_range_deg, start.around, config.task.perturbations)
 
 
 def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: Pose) -> Any:
-    """The SceneConfig to evaluate a skill in: the demos' scene, shape and clearance unless overridden.
+    """The SceneConfig to evaluate a skill in: the demos' scene, shape and clearance but for the task's shape (when
+    set) and the task's fields named in ``config.scene_from_task``.
 
     The demos' recorded scene (metadata["scene"], from the demo file's config) supplies goal_pos,
     goal_yaw_deg, hole_depth_m and insertion_depth_m when present; ``hole_at_goal`` puts the target
@@ -148,8 +151,9 @@ def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: P
     """
     from envs.scene import SceneConfig
 
+    task = config.task
     demo_shape = metadata.get("shape")
-    shape = config.shape or demo_shape or "square"
+    shape = task.shape or demo_shape or "square"
     if demo_shape is not None and shape != demo_shape:
         raise EnvError(f"the skill was trained on {demo_shape!r} demos but the scene's peg is {shape!r}")
     kwargs: dict[str, Any] = {"shape": shape}
@@ -157,13 +161,11 @@ def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: P
     for key in ("goal_pos", "goal_yaw_deg", "hole_depth_m", "insertion_depth_m"):
         if key in recorded and recorded[key] is not None:
             kwargs[key] = tuple(recorded[key]) if isinstance(recorded[key], list) else recorded[key]
-    for key in ("chamfer_m", "peg_mode", "grasp_force_n"):  # the demos' scene unless overridden
-        value = getattr(config, key)
-        if value is None:
-            value = recorded.get(key)
+    for key in ("chamfer_m", "peg_mode", "grasp_force_n"):  # the demos' scene unless the task's is asked for
+        value = getattr(task, key) if key in config.scene_from_task else recorded.get(key)
         if value is not None:
             kwargs[key] = value
-    clearance = config.clearance_m if config.clearance_m is not None else metadata.get("clearance_m")
+    clearance = task.clearance_m if "clearance_m" in config.scene_from_task else metadata.get("clearance_m")
     if clearance is not None:
         kwargs["clearance_m"] = float(clearance)
     if config.hole_at_goal:
@@ -199,6 +201,8 @@ class EvaluationResult:
         workers: processes or actors the episodes ran on (0: all were in the journal already).
         fault: what stopped the whole evaluation (e.g. the Ray head lost), else None.
         policy: a user policy's spec, options and privilege (`pih evaluate --policy`); None for the skill.
+        task: the task the episodes ran: ``config.task`` with the scene it ran in (`Task.with_scene`); None: the
+            config's.
     """
 
     config: EvaluationConfig
@@ -215,6 +219,12 @@ class EvaluationResult:
     workers: int = 1
     fault: str | None = None
     policy: dict[str, Any] | None = None
+    task: Task | None = None
+
+    @property
+    def ran(self) -> Task:
+        """The task the episodes ran (``task``, else the config's)."""
+        return self.task if self.task is not None else self.config.task
 
     @property
     def num_success(self) -> int:
@@ -270,7 +280,8 @@ class EvaluationResult:
         return {k: record[k] for k in keys if k in record}
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON record: config, success rate with its Wilson interval over the scored episodes, statistics,
+        """The JSON record: config (`EvaluationConfig.settings`), the task it ran (`ran`, versioned: envs.task),
+        success rate with its Wilson interval over the scored episodes, statistics,
         the learned stiffness's reproduction of the demos' (`stiffness_reproduction`), the scored episodes, the
         infrastructure errors and events, the workers that ran and the fault that stopped the run (if any), and for a
         user policy its spec ("policy")."""
@@ -279,7 +290,8 @@ class EvaluationResult:
             "model": self.model_dir,
             "complete": self.complete,
             "interrupted": self.interrupted,
-            "config": asdict(self.config),
+            "config": self.config.settings(),
+            "task": self.ran.to_dict(),
             "scene": self.scene,
             "skill": self.metadata,
             "episodes": len(self.records),
@@ -331,7 +343,7 @@ class EvaluationResult:
             ("peak wrist force, successes (median/max)",
              f"{fmt(s['median_peak_wrist_force_n_successes'], 'N', 1)} / "
              f"{fmt(s['max_peak_wrist_force_n_successes'], 'N', 1)} (largest single 1 ms reading)"),
-            ("force limit", f"{self.config.force_limit_n:g} N on the wrist force held for "
+            ("force limit", f"{self.ran.force_limit_n:g} N on the wrist force held for "
                             f"{EpisodeConfig().force_limit_window_s * 1e3:g} ms; single-sample peaks may exceed "
                             f"it (held max of successes {fmt(s['max_sustained_wrist_force_n_successes'], 'N', 1)})"),
             ("commanded stiffness", f"{self.config.stiffness or ('the policy' if self.policy else 'controller default')}, eigenvalues "
@@ -371,15 +383,15 @@ class _Setup:
 
 def build_env(metadata: dict[str, Any], goal: Pose, config: EvaluationConfig) -> Any:
     """The evaluation's PegInHoleEnv: the demos' scene (`scene_config_for` of the checkpoint's or demo file's
-    metadata), the config's time and force limits; with ``hole_at_goal`` the goal must be reachable.
+    metadata), the task's time and force limits, perturbation ranges and success tolerances; with ``hole_at_goal``
+    the goal must be reachable.
 
     Raises:
         EnvError: shape mismatch, invalid scene, unreachable goal.
     """
     from envs.env import EpisodeConfig, PegInHoleEnv
 
-    env = PegInHoleEnv(scene_config_for(metadata, config, goal),
-                       episode_config=EpisodeConfig(time_limit_s=config.time_limit_s, force_limit_n=config.force_limit_n))
+    env = PegInHoleEnv(scene_config_for(metadata, config, goal), episode_config=EpisodeConfig.from_task(config.task))
     if config.hole_at_goal:
         check_goal_reachable(env)
     return env
@@ -400,7 +412,7 @@ def build_setup(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
     env = build_env(skill.metadata, Pose(pos=skill.goal_pos, quat=skill.goal_quat), config)
     stiffness = None if config.stiffness is None else StiffnessSetting.parse(config.stiffness)
     adaptation = ContactAdaptation() if config.contact_adaptation else ContactAdaptation.off()
-    policy = make_policy(skill, config.mode, config.lookahead_s, config.time_limit_s, config.speed, stiffness,
+    policy = make_policy(skill, config.mode, config.lookahead_s, config.task.time_limit_s, config.speed, stiffness,
                          adaptation)
     return skill, env, policy
 
@@ -443,8 +455,8 @@ def record_from_dict(values: dict[str, Any]) -> EpisodeRecord:
 
 
 def journal_run(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> dict[str, Any]:
-    """What identifies an evaluation for its journal: the checkpoint (path and skill.json checksum) and
-    every config field that changes a record (not workers, backend, address or the wall-time limit).
+    """What identifies an evaluation for its journal: the checkpoint (path and skill.json checksum), the task and
+    every other config field that changes a record (not workers, backend, address or the wall-time limit).
 
     Raises:
         RFlowError: no skill.json in ``model_dir``.
@@ -456,9 +468,16 @@ def journal_run(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
         checksum = file_sha256(Path(model_dir) / SKILL_FILE)
     except OSError:
         raise RFlowError(f"no {SKILL_FILE} in checkpoint {model_dir} (not a `pih train` output?)") from None
-    settings = {k: v for k, v in asdict(config).items() if k not in ("workers", "unit_timeout_s", "backend", "ray_address")}
     return {"task": "pih evaluate", "model": str(Path(model_dir).resolve()), "skill_sha256": checksum,
-            "config": settings}
+            **run_settings(config)}
+
+
+def run_settings(config: EvaluationConfig) -> dict[str, Any]:
+    """{"config": the config's settings that change a record, its task (versioned) among them}: what a journal's run
+    holds of an evaluation (`journal_run`, envs.execution.evaluate_policy.policy_journal_run)."""
+    settings = {k: v for k, v in config.settings().items() if k not in ("workers", "unit_timeout_s", "backend",
+                                                                         "ray_address")}
+    return {"config": to_jsonable({**settings, "task": config.task.to_dict()})}
 
 
 def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = EvaluationConfig(),
@@ -496,7 +515,7 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, str(model_dir), skill.metadata,
                             to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
-                            outcome.workers, outcome.fault)
+                            outcome.workers, outcome.fault, task=config.task.with_scene(env_scene))
 
 
 def metadata_starts(metadata: dict[str, Any], source: str) -> dict[str, Any]:
@@ -602,6 +621,7 @@ __all__ = [
     "metadata_starts",
     "record_from_dict",
     "replay_episodes",
+    "run_settings",
     "run_episode",
     "run_episodes",
     "evaluation_starts",

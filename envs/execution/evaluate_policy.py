@@ -37,7 +37,7 @@ from envs.errors import EnvError
 from envs.execution.config import EvaluationConfig
 from envs.execution.episode import StartPose
 from envs.execution.evaluate import (EvaluationResult, build_env, evaluation_starts, metadata_starts, record_from_dict,
-                                     run_episodes)
+                                     run_episodes, run_settings)
 from envs.execution.policy_protocol import Policy, PolicyTask, is_policy, policy_task
 from envs.jsonable import to_jsonable
 from envs.poses import Pose
@@ -208,9 +208,8 @@ def _init_policy_worker(setup: _PolicySetup) -> dict[str, Any]:
 def policy_journal_run(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig) -> dict[str, Any]:
     """What identifies a policy evaluation for its journal: the spec and options, the demo file's checksum and every
     config field that changes a record."""
-    settings = {k: v for k, v in asdict(config).items() if k not in ("workers", "unit_timeout_s", "backend", "ray_address")}
     return {"task": "pih evaluate --policy", "policy": spec.to_dict(), "demo_sha256": metadata.get("demo_sha256"),
-            "config": to_jsonable(settings)}
+            **run_settings(config)}
 
 
 def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig = EvaluationConfig(),
@@ -236,7 +235,8 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
     wall = time.perf_counter()
     env, policy = build_policy_setup(spec, metadata, config)  # every check in this process first
     goal_mismatch_mm = norm(env.goal.pos - metadata["goal_pos"]) * 1e3
-    scene = to_jsonable(asdict(env.scene.config))
+    scene_config = env.scene.config
+    scene = to_jsonable(asdict(scene_config))
     if starts is None:
         starts = evaluation_starts(metadata_starts(metadata, "the demo file"), config)
     here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "privileged": spec.privileged}
@@ -246,4 +246,5 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
     return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, "", metadata, scene,
                             goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
-                            outcome.workers, outcome.fault, policy=spec.to_dict())
+                            outcome.workers, outcome.fault, policy=spec.to_dict(),
+                            task=config.task.with_scene(scene_config))

@@ -33,7 +33,7 @@ stopped and continued at any point with the same result.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -41,6 +41,7 @@ import numpy as np
 from envs.errors import EnvError
 from envs.execution.evaluate import EvaluationConfig, failure_kinds
 from envs.execution.statistics import wilson_interval
+from envs.task import Task
 
 REPLICATE_PREFIX = "seed-"
 PROTOCOL_FILE = "protocol.json"
@@ -56,15 +57,14 @@ class ProtocolConfig:
         start_seed_offset: replicate s evaluates with start seed s + offset; must keep every start seed apart from
             every demo seed.
         num_demos: demonstrations per replicate.
-        shape: peg and hole shape.
         epochs: training epochs (None: `pih train`'s default).
-        evaluation: the evaluation of every replicate (its ``seed`` is replaced per replicate).
+        evaluation: the evaluation of every replicate (its ``seed`` is replaced per replicate); its task is the
+            protocol's: the demos are recorded in its scene (its shape; None: square).
     """
 
     demo_seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
     start_seed_offset: int = 1000
     num_demos: int = 7
-    shape: str = "square"
     epochs: int | None = None
     evaluation: EvaluationConfig = field(default_factory=lambda: EvaluationConfig(episodes=200))
 
@@ -81,6 +81,12 @@ class ProtocolConfig:
             raise EnvError(f"num_demos={self.num_demos!r} must be an integer >= 1")
         if self.epochs is not None and (not isinstance(self.epochs, int) or self.epochs < 1):
             raise EnvError(f"epochs={self.epochs!r} must be an integer >= 1")
+
+    @property
+    def task(self) -> Task:
+        """The task of every replicate, its shape set (square unless the task says otherwise)."""
+        task = self.evaluation.task
+        return task if task.shape is not None else replace(task, shape="square")
 
     def start_seeds(self) -> list[int]:
         """The evaluation start seed of each replicate."""

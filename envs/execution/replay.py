@@ -22,8 +22,9 @@ import numpy as np
 
 from envs.errors import EnvError
 from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose
+from envs.execution.config import SCENE_FROM_TASK
 from envs.execution.evaluate import EvaluationConfig, evaluation_starts, iter_replays
-from envs.perturbation import PerturbationRanges
+from envs.task import Task
 
 #: Largest difference between a recorded and a redrawn start position (m) or quaternion component.
 START_TOL: float = 1e-12
@@ -36,7 +37,7 @@ class RecordedEvaluation:
     Attributes:
         path: the JSON file.
         model_dir: the checkpoint it evaluated.
-        config: its EvaluationConfig (run in one process for the replay).
+        config: its EvaluationConfig with the task the episodes ran (run in one process for the replay).
         scene: the scene it ran in (asdict of SceneConfig).
         skill: the checkpoint's metadata (demo starts, shape, clearance, ...).
         records: the per-episode records (dicts, as in the file).
@@ -50,32 +51,54 @@ class RecordedEvaluation:
     records: list[dict[str, Any]]
 
 
-def evaluation_config_from_dict(values: dict[str, Any], source: str) -> EvaluationConfig:
-    """The EvaluationConfig of an evaluation JSON's "config" (``asdict`` of the config; unknown keys, from other
-    versions, are an error because they may change an episode). Workers and backend become one local process.
+LEGACY_TASK_KEYS: tuple[str, ...] = ("pos_range_m", "rot_range_deg", "around", "time_limit_s", "clearance_m",
+                                      "chamfer_m", "peg_mode", "grasp_force_n", "perturbations", "force_limit_n",
+                                      "shape")
+"""Task fields an evaluation JSON's "config" held before task files (None in a scene field: the demos')."""
+
+
+def evaluation_config_from_dict(values: dict[str, Any], source: str, task: Any = None) -> EvaluationConfig:
+    """The EvaluationConfig of an evaluation JSON: its "config" (`EvaluationConfig.settings`) and its "task" (the
+    task the episodes ran, envs.task.Task.to_dict); a JSON of before task files has no "task" and the task's fields
+    in "config" (LEGACY_TASK_KEYS). Unknown keys, from other versions, are an error because they may change an
+    episode. Workers and backend become one local process.
 
     Raises:
-        EnvError: not an object, unknown keys, or values the config rejects.
+        EnvError: not an object, unknown keys, or values the config or the task rejects.
     """
     if not isinstance(values, dict):
         raise EnvError(f"{source}: 'config' must be a JSON object, got {type(values).__name__}")
-    known = {f.name for f in dataclasses.fields(EvaluationConfig)}
-    unknown = sorted(set(values) - known)
+    known = {f.name for f in dataclasses.fields(EvaluationConfig)} - {"task"}
+    legacy = set(LEGACY_TASK_KEYS) if task is None else set()
+    unknown = sorted(set(values) - known - legacy)
     if unknown:
         raise EnvError(f"{source}: 'config' has keys this version does not know: {unknown}")
-    fields = dict(values)
-    if isinstance(fields.get("perturbations"), dict):
-        try:
-            fields["perturbations"] = PerturbationRanges(**fields["perturbations"])
-        except TypeError as err:
-            raise EnvError(f"{source}: 'config.perturbations' is malformed ({err})") from None
+    fields = {k: v for k, v in values.items() if k in known}
+    if task is not None:
+        fields["task"] = Task.from_dict(task, f"{source}: task")
+    else:
+        fields.update(_legacy_task(values, source))
     fields.update(workers=1, backend="process", ray_address=None)
-    if "force_limit_n" in fields and fields["force_limit_n"] is None:
-        fields["force_limit_n"] = math.inf  # strict JSON writes "no limit" (inf) as null (envs.output)
     try:
         return EvaluationConfig(**fields)
     except TypeError as err:
         raise EnvError(f"{source}: 'config' is malformed ({err})") from None
+
+
+def _legacy_task(values: dict[str, Any], source: str) -> dict[str, Any]:
+    """The task and scene_from_task of a "config" of before task files (None in a scene field: the demos')."""
+    leaves = {k: values[k] for k in LEGACY_TASK_KEYS if k in values and k != "perturbations"}
+    ranges = values.get("perturbations")
+    if ranges is not None and not isinstance(ranges, dict):
+        raise EnvError(f"{source}: 'config.perturbations' is malformed ({ranges!r})")
+    leaves.update(ranges or {})
+    if "force_limit_n" in leaves and leaves["force_limit_n"] is None:
+        leaves["force_limit_n"] = math.inf  # strict JSON writes "no limit" (inf) as null (envs.output)
+    try:
+        task = Task().override(**leaves)
+    except TypeError as err:
+        raise EnvError(f"{source}: 'config' is malformed ({err})") from None
+    return {"task": task, "scene_from_task": tuple(k for k in SCENE_FROM_TASK if values.get(k) is not None)}
 
 
 def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[str] | None = None) -> RecordedEvaluation:
@@ -117,8 +140,8 @@ def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[s
     elif not Path(model_dir).is_dir():
         raise EnvError(f"--model {model_dir}: checkpoint folder not found")
     skill = data["skill"] if isinstance(data["skill"], dict) else {}
-    return RecordedEvaluation(src, Path(model_dir), evaluation_config_from_dict(data["config"], str(src)),
-                              data.get("scene") or {}, skill, records)
+    config = evaluation_config_from_dict(data["config"], str(src), data.get("task"))
+    return RecordedEvaluation(src, Path(model_dir), config, data.get("scene") or {}, skill, records)
 
 
 def recorded_starts(evaluation: RecordedEvaluation, indices: Sequence[int] | None = None) -> list[StartPose]:

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import itertools
 from collections import OrderedDict
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 
 from envs.errors import EnvError
 from envs.execution.episode import StartPose, run_episode
+from envs.execution.config import SCENE_FROM_TASK
 from envs.execution.evaluate import (
     EvaluationConfig,
     _failed_unit,
@@ -32,9 +33,9 @@ from envs.execution.evaluate import (
     finite_median,
     finite_min,
     record_from_dict,
+    run_settings,
 )
 from envs.execution.statistics import wilson_interval
-from envs.perturbation import PerturbationRanges
 
 AXES: tuple[str, ...] = ("clearance_m", "hole_error_m", "chamfer_m", "hole_error_deg", "pos_range_m", "stiffness")
 """Sweepable settings, in the order cells are enumerated (all numbers but "stiffness", a StiffnessSetting text)."""
@@ -77,19 +78,16 @@ class Cell:
 
 
 def cell_config(base: EvaluationConfig, settings: dict[str, float | str]) -> EvaluationConfig:
-    """``base`` with the cell's settings applied (validated by EvaluationConfig).
+    """``base`` with the cell's settings applied: the stiffness to the config, the others to its task (validated by
+    envs.task.Task); a swept scene field (clearance, chamfer) replaces the demos'.
 
     Raises:
         EnvError: an invalid value (negative, NaN, out of range), naming it.
     """
-    ranges = base.perturbations
-    ranges = PerturbationRanges(
-        hole_error_m=settings.get("hole_error_m", ranges.hole_error_m),
-        hole_error_deg=settings.get("hole_error_deg", ranges.hole_error_deg),
-        grasp_offset_m=ranges.grasp_offset_m,
-    )
-    scene = {k: settings[k] for k in ("clearance_m", "chamfer_m", "pos_range_m", "stiffness") if k in settings}
-    return replace(base, perturbations=ranges, **scene)
+    task = base.task.override(**{k: v for k, v in settings.items() if k != "stiffness"})
+    swept = [k for k in SCENE_FROM_TASK if k in settings and k not in base.scene_from_task]
+    extra = {"stiffness": settings["stiffness"]} if "stiffness" in settings else {}
+    return replace(base, task=task, scene_from_task=(*base.scene_from_task, *swept), **extra)
 
 
 def sweep_cells(base: EvaluationConfig, axes: SweepAxes) -> list[Cell]:
@@ -163,14 +161,16 @@ def failed_sweep_unit(key: str, unit: tuple[int, StartPose], reason: str) -> dic
     return record
 
 
-def cell_summary(cell: Cell, records: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Statistics of one cell (module docstring) from its episode records (dicts)."""
+def cell_summary(cell: Cell, records: Sequence[dict[str, Any]], task: Any = None) -> dict[str, Any]:
+    """Statistics of one cell (module docstring) from its episode records (dicts), with the task it ran (``task``,
+    default the cell config's; versioned, envs.task)."""
     parsed = [record_from_dict(r) for r in records]
     ok = [r for r in parsed if r.success]
     low, high = wilson_interval(len(ok), len(parsed))
     return {
         "cell": cell.index,
         "settings": cell.settings,
+        "task": (cell.config.task if task is None else task).to_dict(),
         "episodes": len(parsed),
         "successes": len(ok),
         "success_rate": len(ok) / max(len(parsed), 1),
@@ -190,14 +190,11 @@ def sweep_run(model_dir: str, cells: Sequence[Cell], checksum: str) -> dict[str,
     """What identifies a sweep for its journal (every setting that changes a record)."""
     from envs.jsonable import to_jsonable
 
-    base = asdict(cells[0].config)
-    for volatile in ("workers", "backend", "ray_address", "unit_timeout_s"):
-        base.pop(volatile, None)
     return to_jsonable({
         "kind": "pih sweep",
         "model": str(model_dir),
         "skill_sha256": checksum,
-        "base": base,
+        "base": run_settings(cells[0].config)["config"],
         "cells": [c.settings for c in cells],
     })
 
@@ -211,6 +208,7 @@ class SweepResult:
     model_dir: str
     cells: list[Cell]
     summaries: list[dict[str, Any]]
+    """Per cell: statistics and the task it ran, resolved against the demos' scene (`cell_summary`)."""
     records: dict[str, dict[str, Any]]
     complete: bool
     interrupted: bool
@@ -223,13 +221,13 @@ class SweepResult:
         """The JSON record of the sweep (sweep.json)."""
         from envs.jsonable import to_jsonable
 
-        base = asdict(self.cells[0].config) if self.cells else {}
+        base = self.cells[0].config.settings() if self.cells else {}
         return to_jsonable({
             "model": self.model_dir,
             "complete": self.complete,
             "interrupted": self.interrupted,
             "axes": sorted({k for c in self.cells for k in c.settings}, key=AXES.index),
-            "base_config": base,
+            "base_config": base,  # the task of each cell is in its summary
             "cells": self.summaries,
             "wall_s": self.wall_s,
             "fault": self.fault,
@@ -273,8 +271,11 @@ def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal:
 
     wall = time.perf_counter()
     skill = None
+    ran = {}
     for cell in cells:  # validate every cell's scene before any episode runs
-        skill, _, _ = build_setup(model_dir, cell.config)
+        skill, env, _ = build_setup(model_dir, cell.config)
+        ran[cell.index] = cell.config.task.with_scene(env.scene.config)
+        del env
     meta = skill.metadata.get("demo_starts") if skill is not None else None
     if not isinstance(meta, dict) or "pos" not in meta or "quat" not in meta:
         raise EnvError(f"checkpoint {model_dir} has no demo start poses (metadata 'demo_starts')")
@@ -291,7 +292,7 @@ def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal:
     by_cell: dict[int, list[dict[str, Any]]] = {c.index: [] for c in cells}
     for key, record in outcome.records.items():
         by_cell[int(record.get("cell", _key_order(key)[0]))].append(record)
-    summaries = [cell_summary(c, by_cell[c.index]) for c in cells]
+    summaries = [cell_summary(c, by_cell[c.index], ran[c.index]) for c in cells]
     earlier_s = journal.earlier_wall_s if journal is not None else 0.0
     return SweepResult(str(model_dir), list(cells), summaries, dict(outcome.records), outcome.complete,
                        outcome.interrupted, earlier_s + time.perf_counter() - wall, outcome.infrastructure_errors,
