@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -333,13 +333,20 @@ class EpisodeVideo:
             ...            # step, then video.capture(data)
         # file renamed into place on normal exit, deleted if an exception escaped
 
+    Args (besides the model, the path and the config):
+        goal: a pose drawn as a frame (config.goal_axis_length_m).
+        commanded_path: a polyline drawn over the scene (config.draw_path).
+        on_frame: called with every frame written (e.g. to sample frames for a dataset's statistics).
+
     Attributes:
         render_s, encode_s: wall-clock seconds spent rendering and encoding (for benchmarks).
     """
 
     def __init__(self, model: mujoco.MjModel, path: str | os.PathLike[str], config: VideoConfig = VideoConfig(),
-                 goal: Pose | None = None, commanded_path: npt.ArrayLike | None = None):
+                 goal: Pose | None = None, commanded_path: npt.ArrayLike | None = None,
+                 on_frame: Callable[[npt.NDArray[np.uint8]], None] | None = None):
         self.config = config
+        self.on_frame = on_frame
         self.goal = goal
         self._path_points: FloatArray | None = None
         self._path_segments: list[tuple[FloatArray, FloatArray]] = []
@@ -407,6 +414,8 @@ class EpisodeVideo:
         self._writer.append(frame)
         self.render_s += mid - start
         self.encode_s += time.perf_counter() - mid
+        if self.on_frame is not None:
+            self.on_frame(frame)
         return True
 
     def close(self) -> Path:

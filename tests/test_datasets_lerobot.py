@@ -15,6 +15,7 @@ import pytest
 import dataset_fixtures
 from dataset_fixtures import assert_read_back
 from envs.datasets.features import ExportEpisode, FEATURES, evaluation_meta
+from envs.datasets.frame_sample import FrameSample
 from envs.datasets.lerobot import LeRobotVideo, read_lerobot, video_file, video_key, write_lerobot
 from envs.errors import EnvError
 from envs.video import Mp4Writer
@@ -129,12 +130,14 @@ def write_with_video(root: Path, lengths: tuple[int, ...], video_frames: tuple[i
     meta = evaluation_meta("eval.json", 0.01, "square", 0.0002, {}, camera="front")
     path = video_file(root, video_key("front"))
     path.parent.mkdir(parents=True)
-    writer = Mp4Writer(path, fps=100)
+    writer, sample = Mp4Writer(path, fps=100), FrameSample()
     for _ in range(sum(video_frames)):
-        writer.append(np.full((32, 32, 3), 128, np.uint8))
+        frame = np.full((32, 32, 3), 128, np.uint8)
+        writer.append(frame)
+        sample.add(frame)
     writer.close()
     episodes = [fake_episode(i, t) for i, t in enumerate(lengths)]
-    return write_lerobot(root, meta, episodes, LeRobotVideo(video_key("front"), 32, 32, video_frames))
+    return write_lerobot(root, meta, episodes, LeRobotVideo(video_key("front"), 32, 32, video_frames, sample))
 
 
 def test_video_stream_is_declared_and_located_by_timestamps(tmp_path: Path) -> None:

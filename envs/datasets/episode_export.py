@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from envs.datasets.features import ExportEpisode, ExportMeta, episode_from_trace, evaluation_meta, fps_of
+from envs.datasets.frame_sample import FrameSample
 from envs.errors import EnvError
 from envs.jsonable import to_jsonable
 
@@ -34,6 +35,7 @@ class EpisodeExport:
         self.video_frames: list[int] = []
         self._frames_before = 0
         self.writer: Any = None
+        self.sample = FrameSample()  # LeRobot: the frames its video statistics are computed from
 
     def on_episode(self, _start: Any, env: Any) -> None:
         """Before each episode: the metadata and the frame sink on the first, a new clip on every one."""
@@ -68,7 +70,8 @@ class EpisodeExport:
             path.parent.mkdir(parents=True)
             self.video = EpisodeVideo(env.model, path, VideoConfig(width=width, height=height, fps=fps,
                                                                    camera=self.camera, draw_path=False,
-                                                                   goal_axis_length_m=0.0))
+                                                                   goal_axis_length_m=0.0),
+                                      on_frame=self.sample.add)
         else:
             from envs.video import OffscreenRenderer
 
@@ -110,7 +113,7 @@ class EpisodeExport:
             if self.video is not None:
                 self.video.close()
                 width, height = self.size
-                video = LeRobotVideo(video_key(self.camera), height, width, tuple(self.video_frames))
+                video = LeRobotVideo(video_key(self.camera), height, width, tuple(self.video_frames), self.sample)
             write_lerobot(self.root, self.meta, self.episodes, video)
         else:
             if self.video is not None:

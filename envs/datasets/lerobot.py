@@ -22,7 +22,8 @@
 A vector feature of n > 1 components is a fixed-size list column of n values (LeRobot's datasets.Sequence of
 that length), a feature of one component a scalar column. Poses and every other float feature are float64.
 The statistics are exact (numpy over all frames; LeRobot approximates quantiles with histograms); a video's are
-per channel over evenly spaced frames, scaled to [0, 1], of shape (3, 1, 1), as LeRobot keeps them.
+per channel over evenly spaced frames (envs.datasets.frame_sample: downsampled as LeRobot does), scaled to [0, 1],
+of shape (3, 1, 1), as LeRobot keeps them.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ import pyarrow.parquet as pq
 
 from envs.datasets.features import (FEATURE_BY_KEY, MARKER_FILE, ExportEpisode, ExportMeta, fps_of, read_meta,
                                     recorded_from_poses)
+from envs.datasets.frame_sample import FrameSample
 from envs.demo_import import RecordedDemos
 from envs.errors import EnvError
 from envs.output import write_json
@@ -62,8 +64,6 @@ INDEX_FEATURES: dict[str, dict[str, Any]] = {
     "index": {"dtype": "int64", "shape": [1], "names": None},
     "task_index": {"dtype": "int64", "shape": [1], "names": None},
 }
-#: Frames of a video that its statistics are computed from.
-VIDEO_STATS_FRAMES: int = 100
 
 
 @dataclass(frozen=True)
@@ -74,12 +74,14 @@ class LeRobotVideo:
         key: the feature key, ``observation.images.<camera>``.
         height, width: frame size in pixels.
         frames: frames of each episode, in export order (must equal the episodes' lengths).
+        sample: evenly spaced frames of the stream, taken as they were rendered, for the statistics.
     """
 
     key: str
     height: int
     width: int
     frames: tuple[int, ...]
+    sample: FrameSample
 
 
 def video_key(camera: str) -> str:
@@ -171,20 +173,11 @@ def _file_groups(lengths: Sequence[int], row_bytes: int) -> list[tuple[int, int]
     return out
 
 
-def _video_stats(path: Path) -> dict[str, list[Any]]:
-    """Per-channel statistics of evenly spaced frames of an MP4, scaled to [0, 1], shaped (3, 1, 1)."""
-    import imageio.v2 as imageio
-
-    reader = imageio.get_reader(path, format="FFMPEG")
-    try:
-        total = reader.count_frames()
-        pick = set(np.linspace(0, total - 1, min(total, VIDEO_STATS_FRAMES)).round().astype(int).tolist())
-        frames = [frame for i, frame in enumerate(reader) if i in pick]
-    finally:
-        reader.close()
-    pixels = np.stack(frames).reshape(-1, 3).astype(np.float64) / 255.0
-    flat = feature_stats(pixels)
-    return {k: ([[[v]] for v in values] if k != "count" else [len(frames)]) for k, values in flat.items()}
+def _video_stats(sample: FrameSample) -> dict[str, list[Any]]:
+    """Per-channel statistics of a video's sampled frames, scaled to [0, 1], shaped (3, 1, 1) as LeRobot keeps
+    them (computed from the rendered frames, as LeRobot computes them from the images before encoding)."""
+    flat = feature_stats(sample.pixels())
+    return {k: ([[[v]] for v in values] if k != "count" else [len(sample.kept)]) for k, values in flat.items()}
 
 
 def write_lerobot(root: Path, meta: ExportMeta, episodes: Sequence[ExportEpisode],
@@ -222,7 +215,7 @@ def write_lerobot(root: Path, meta: ExportMeta, episodes: Sequence[ExportEpisode
             writer.close()
     stats = {name: feature_stats(np.concatenate([c[name] for c in per_episode])) for name in schema.names}
     if video is not None:
-        stats[video.key] = _video_stats(video_file(root, video.key))
+        stats[video.key] = _video_stats(video.sample)
     _write_episodes(root, meta, episodes, per_episode, groups, schema.names, video)
     tasks_path = root / TASKS_PATH
     tasks_path.parent.mkdir(parents=True, exist_ok=True)
