@@ -80,7 +80,9 @@ def test_rotational_compliance_only_near_the_goal_and_off_switches_everything_of
 @pytest.mark.parametrize("kwargs", [{"push_limit_m": -1.0}, {"push_limit_m": float("nan")}, {"push_leak_s": 0.0},
                                     {"frame_limit_m": -0.001}, {"frame_limit_deg": float("nan")},
                                     {"radius_m": float("inf")},
-                                    {"rotational_stiffness": 0.0}])
+                                    {"rotational_stiffness": 0.0}, {"search_amplitude_m": -0.001},
+                                    {"search_period_s": 0.0}, {"search_band_m": float("nan")},
+                                    {"search_push_scale": 1.5}])
 def test_bad_adaptation_settings_are_rejected(kwargs) -> None:
     name = next(iter(kwargs))
     with pytest.raises(EnvError, match=name):
@@ -155,3 +157,46 @@ def test_policy_queries_the_flow_in_the_turned_frame() -> None:
     unturned = started_policy(skill)
     plain = unturned.command(0, Pose(measured.pos, quat_mul(quat_conj(turn), measured.quat)))
     assert command.twist[3:] == pytest.approx(rotate(turn, plain.twist[3:]), abs=1e-12)
+
+
+MOUTH_DEPTH_M = 0.03  # the goal lies 30 mm beyond the mouth along the (downward) axis
+
+
+def stalled_at_mouth(depth_below_mouth_m: float, steps: int, **kwargs) -> ContactAdapter:
+    """An adapter whose peg is held ``depth_below_mouth_m`` below the mouth while the flow asks 20 mm/s down."""
+    a = adapter(**kwargs)
+    a.reset(mouth_depth_m=MOUTH_DEPTH_M)
+    hold(a, GOAL + [0.0, 0.0, MOUTH_DEPTH_M - depth_below_mouth_m], np.array([0.0, 0.0, -0.02]), steps)
+    return a
+
+
+def test_stall_search_circles_the_axis_while_the_peg_stalls_at_the_mouth() -> None:
+    a = stalled_at_mouth(0.0009, 100, search_amplitude_m=0.002, search_period_s=1.0, search_push_m=0.005)
+    assert np.linalg.norm(a.push) > 0.005 and a.search_s > 0.0
+    radii, angles = [], []
+    for _ in range(200):  # two more turns
+        a.update(GOAL + [0.0, 0.0, MOUTH_DEPTH_M - 0.0009], np.array([0.0, 0.0, -0.02]), PERIOD_S)
+        radii.append(np.linalg.norm(a.search))
+        angles.append(np.arctan2(a.search[1], a.search[0]))
+        assert abs(a.search @ AXIS) < 1e-15  # sideways only
+    assert radii[-1] == pytest.approx(0.002) and max(radii) <= 0.002 + 1e-15
+    assert np.ptp(np.unwrap(angles)) > 2 * 2 * np.pi - 0.2  # it turned twice
+    assert np.allclose(a.offset, a.config.search_push_scale * a.push + a.search)  # less push while searching
+    assert np.allclose(a.frame, 0.0)  # the frame holds still while searching
+
+
+def test_stall_search_stays_off_below_the_mouth_without_a_mouth_and_when_off() -> None:
+    deep = stalled_at_mouth(0.005, 300)  # stalled 5 mm inside the hole (a jam): no search
+    assert np.linalg.norm(deep.push) > 0.005 and np.allclose(deep.search, 0.0)
+    blind = adapter()  # reset without the nominal mouth
+    hold(blind, GOAL + [0.0, 0.0, MOUTH_DEPTH_M], np.array([0.0, 0.0, -0.02]), 300)
+    assert np.allclose(blind.search, 0.0)
+    off = stalled_at_mouth(0.0009, 300, search_amplitude_m=0.0)
+    assert np.allclose(off.search, 0.0)
+
+
+def test_stall_search_ends_when_the_peg_drops_in() -> None:
+    a = stalled_at_mouth(0.0009, 300)
+    assert np.linalg.norm(a.search) > 0.0
+    a.update(GOAL + [0.0, 0.0, MOUTH_DEPTH_M - 0.004], np.array([0.0, 0.0, -0.02]), PERIOD_S)  # 4 mm in
+    assert np.allclose(a.search, 0.0) and a.search_s == 0.0

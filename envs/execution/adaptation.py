@@ -27,7 +27,18 @@ is split about the skill's insertion axis a (the goal's peg axis, z of R_goal):
     against a tilted hole (a traced failure is in the README). Letting the skill's frame turn with the walls
     removes the request, so the peg follows the hole's axis;
   - rotational compliance: within ``radius_m`` of the goal the commanded rotational stiffness is
-    ``rotational_stiffness`` (remote-centre compliance at the peg tip: the controlled frame is the tcp).
+    ``rotational_stiffness`` (remote-centre compliance at the peg tip: the controlled frame is the tcp);
+  - stall search: while the peg stalls at the hole's mouth (the axial push |u| beyond ``search_push_m`` with the
+    tip less than ``search_band_m`` below the nominal mouth), a lateral offset circles the axis,
+        s = A(t) (cos phi e_1 + sin phi e_2),  phi = 2 pi t / ``search_period_s``,  A(t) = ``search_amplitude_m``
+    min(1, t / ``search_period_s``) (t: time stalled), added to the push, which is scaled by
+    ``search_push_scale`` meanwhile, and the frame shift holds still. Why: a
+    peg that lands off the axis towards a corner of a triangular hole rests on two 45 deg chamfer faces whose
+    valley rises at atan(tan 45 deg cos 60 deg) = 26.6 deg, the friction angle of mu = 0.5, so no axial push
+    slides it in (traced: all contact on those two faces, 0.4-0.8 mm off towards the corner, 0.8-0.95 mm down the
+    1 mm chamfer, until the time limit). A sideways force overcomes the friction; its direction is not known
+    (the hole-pose error), so it turns: when it points towards the axis the chamfer leads the peg in, and the
+    search ends as the tip passes below the band.
 
 What each part contributes is measured in the README (the protocol figure and the ablation).
 `ContactAdaptation.off()` restores the bare flow (the ablation, `pih evaluate --no-contact-adaptation`).
@@ -59,6 +70,14 @@ class ContactAdaptation:
         radius_m: distance from the goal within which the frame may shift and turn and the wrist is compliant, m
             (35 mm: the hole mouth is 30 mm above the goal).
         rotational_stiffness: rotational stiffness within ``radius_m``, N m/rad; None keeps the controller's.
+        search_amplitude_m: radius A of the stall search's lateral circle, m (0: no search).
+        search_period_s: time of one turn of the search, s (also the ramp-up time of its radius).
+        search_push_m: axial push |u| beyond which a peg at the mouth counts as stalled, m.
+        search_band_m: the search runs while the tip is less than this below the nominal hole's mouth, m (the
+            1 mm chamfer plus margin).
+        search_push_scale: the axial push is scaled by this while the search runs, in [0, 1]: less axial force
+            means less normal force on the chamfer and less friction for the sideways force to overcome (with the
+            full push the peg ratchets up the fingers instead of sliding; traced on a development seed).
 
     Raises:
         EnvError: a negative, NaN or zero-where-positive field (one line naming it).
@@ -70,27 +89,39 @@ class ContactAdaptation:
     frame_limit_deg: float = 1.5
     radius_m: float = 0.035
     rotational_stiffness: float | None = 5.0
+    search_amplitude_m: float = 0.002
+    search_period_s: float = 1.0
+    search_push_m: float = 0.005
+    search_band_m: float = 0.002
+    search_push_scale: float = 0.3
 
     def __post_init__(self) -> None:
-        for name in ("push_limit_m", "frame_limit_m", "frame_limit_deg", "radius_m"):
+        for name in ("push_limit_m", "frame_limit_m", "frame_limit_deg", "radius_m", "search_amplitude_m",
+                     "search_push_m", "search_band_m"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0.0):
                 raise EnvError(f"contact adaptation {name}={value!r} must be a finite number >= 0")
         if not (isinstance(self.push_leak_s, (int, float)) and np.isfinite(self.push_leak_s) and self.push_leak_s > 0.0):
             raise EnvError(f"contact adaptation push_leak_s={self.push_leak_s!r} must be > 0")
+        if not (isinstance(self.search_push_scale, (int, float)) and 0.0 <= self.search_push_scale <= 1.0):
+            raise EnvError(f"contact adaptation search_push_scale={self.search_push_scale!r} must be in [0, 1]")
+        if not (isinstance(self.search_period_s, (int, float)) and np.isfinite(self.search_period_s)
+                and self.search_period_s > 0.0):
+            raise EnvError(f"contact adaptation search_period_s={self.search_period_s!r} must be > 0")
         k = self.rotational_stiffness
         if k is not None and not (isinstance(k, (int, float)) and np.isfinite(k) and k > 0.0):
             raise EnvError(f"contact adaptation rotational_stiffness={k!r} must be > 0 N m/rad (or None)")
 
     @classmethod
     def off(cls) -> "ContactAdaptation":
-        """No push, no frame shift or rotation, the controller's rotational stiffness: the bare learned flow."""
-        return cls(push_limit_m=0.0, frame_limit_m=0.0, frame_limit_deg=0.0, rotational_stiffness=None)
+        """No push, no frame shift or rotation, no search, the controller's rotational stiffness: the bare flow."""
+        return cls(push_limit_m=0.0, frame_limit_m=0.0, frame_limit_deg=0.0, rotational_stiffness=None,
+                   search_amplitude_m=0.0)
 
 
 class ContactAdapter:
     """The state of the contact adaptation along one episode: the integral e (its axial part, the push), the
-    frame shift delta and the frame rotation rho (module docstring).
+    frame shift delta, the frame rotation rho and the stall search s (module docstring).
 
     Args:
         config: the settings.
@@ -103,19 +134,30 @@ class ContactAdapter:
         self.goal_pos = np.asarray(goal_pos, dtype=np.float64).copy()
         a = np.asarray(axis, dtype=np.float64)
         self.axis = a / norm(a)
+        helper = np.array([1.0, 0.0, 0.0]) if abs(self.axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = helper - dot(helper, self.axis) * self.axis
+        self._search_plane = (e1 / norm(e1), np.cross(self.axis, e1 / norm(e1)))
+        self.mouth_depth_m: float | None = None
+        self.reset()
+
+    def reset(self, mouth_depth_m: float | None = None) -> None:
+        """Start an episode: no push, no frame shift, rotation or search. ``mouth_depth_m``: how far the goal lies
+        beyond the nominal hole's mouth along the axis, a^T (g_p - mouth), m (None: no stall search)."""
         self.push = np.zeros(3)
         self.frame = np.zeros(3)
         self.rotation = np.zeros(3)
+        self.search = np.zeros(3)
+        self.search_s = 0.0
+        self.mouth_depth_m = mouth_depth_m
         self._previous: FloatArray | None = None
         self._previous_quat: list[float] | None = None
 
-    def reset(self) -> None:
-        """Start an episode: no push, no frame shift or rotation."""
-        self.push = np.zeros(3)
-        self.frame = np.zeros(3)
-        self.rotation = np.zeros(3)
-        self._previous = None
-        self._previous_quat = None
+    @property
+    def offset(self) -> FloatArray:
+        """u + s: the axial push and the stall search's lateral offset, added to the led anchor (m, world)."""
+        if self.search_s > 0.0:
+            return self.config.search_push_scale * self.push + self.search
+        return self.push + self.search
 
     @property
     def rotation_quat(self) -> list[float]:
@@ -144,8 +186,26 @@ class ContactAdapter:
         axial = dot(a, error)
         lateral = error - axial * a
         self.push = _saturate(max(0.0, 1.0 - period_s / cfg.push_leak_s) * self.push + axial * a, cfg.push_limit_m)
+        if self._update_search(here, period_s):
+            return  # the frame holds still while the search moves the peg
         if cfg.frame_limit_m > 0.0 and self.near_goal(here):
             self.frame = _saturate(self.frame - lateral, cfg.frame_limit_m)
+
+    def _update_search(self, here: FloatArray, period_s: float) -> bool:
+        """Advance (or end) the stall search at measured position ``here``; whether it runs."""
+        cfg = self.config
+        stalled = (cfg.search_amplitude_m > 0.0 and self.mouth_depth_m is not None
+                   and norm(self.push) > cfg.search_push_m
+                   and dot(self.axis, here - self.goal_pos) + self.mouth_depth_m < cfg.search_band_m)
+        if not stalled:
+            self.search, self.search_s = np.zeros(3), 0.0
+            return False
+        self.search_s += period_s
+        phase = 2.0 * np.pi * self.search_s / cfg.search_period_s
+        radius = cfg.search_amplitude_m * min(1.0, self.search_s / cfg.search_period_s)
+        e1, e2 = self._search_plane
+        self.search = radius * (np.cos(phase) * e1 + np.sin(phase) * e2)
+        return True
 
 
     def update_rotation(self, pos: npt.ArrayLike, quat: npt.ArrayLike, omega_d: npt.ArrayLike, period_s: float) -> None:

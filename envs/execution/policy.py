@@ -267,9 +267,15 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         self._flow_period_s = 0.0
         self._step = 0
 
+    def reset(self, observation: Observation, period_s: float) -> None:
+        """`Policy.reset`: as `reset_at`, and the stall search learns where the nominal hole's mouth is."""
+        self.reset_at(observation.tcp, period_s)
+        below = self.adapter.goal_pos - np.asarray(observation.nominal_hole.pos, dtype=np.float64)
+        self.adapter.mouth_depth_m = float(np.dot(self.adapter.axis, below))
+
     def reset_at(self, start: Pose, period_s: float) -> None:
-        """Start an episode: no push or frame shift; the stiffness state (stiffness skills) starts at the
-        skill's start stiffness."""
+        """Start an episode: no push, frame shift or search (which needs `reset`'s nominal hole); the stiffness
+        state (stiffness skills) starts at the skill's start stiffness."""
         self._step = 0
         self._flow_period_s = float(period_s) * self.speed
         self._period_s = float(period_s)
@@ -310,7 +316,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
             self.stiffness_state = skill_state_step(self.skill, query, query_quat, k, self._flow_period_s)[2]
         self.adapter.update(measured.pos, self.speed * twist[:3], self._period_s)
         self.adapter.update_rotation(measured.pos, measured.quat, self.speed * twist[3:], self._period_s)
-        push = np.concatenate([self.adapter.push, np.zeros(3)])
+        push = np.concatenate([self.adapter.offset, np.zeros(3)])
         anchor = Pose(pos=here.pos + delta, quat=on_goal_hemisphere(measured.quat, q1) if turned else here.quat)
         return Action(Pose(pos=p1 + delta, quat=q1), _commanded_stiffness(self.stiffness, learned),
                       self.adapter.rotational_stiffness(measured.pos), self.speed * twist, self.speed**2 * accel,
