@@ -1,8 +1,9 @@
 """The RiemannianFlow skill's episodes are unchanged by the Policy protocol, field for field.
 
-The fixture tests/data/policy_records_a767f0d.json was written by `tests/policy_record_cases.py` running on the code
-of commit a767f0d (the contact adaptation's frame rotation on the loop before the Policy protocol, when the episode
-loop called ``policy.command(step, tcp_pose)``):
+The fixture tests/data/policy_records_ec6ea04.json was written by `tests/policy_record_cases.py` running on the code
+of commit ec6ea04 (the contact adaptation's stall search); the first fixture, written at a767f0d on the loop before
+the Policy protocol (when the episode loop called ``policy.command(step, tcp_pose)``), pinned the protocol refactor,
+and its open-loop records are still equal bit for bit:
 three settings (closed loop with the controller's stiffness, closed loop at 500 N/m, open loop) x two starts that
 reach the chamfer under a 1 mm / 1 deg hole-pose error. The same function runs here on today's loop, which drives
 the skill through ``reset(observation, period_s)`` / ``act(observation)``. Every record field but the wall time must
@@ -34,7 +35,7 @@ def test_the_skill_trains_as_it_did_for_the_fixture(cases) -> None:
                     f"{stored['fingerprint'][:3]}): records cannot be compared")
 
 
-def test_records_equal_those_of_a767f0d_field_for_field(cases) -> None:
+def test_records_equal_those_of_the_fixture_field_for_field(cases) -> None:
     stored, now = cases
     if now["fingerprint"] != stored["fingerprint"]:
         pytest.skip("the tiny skill trains to other weights on this machine")
