@@ -1,8 +1,8 @@
 """The peg-in-hole episode: the one place that owns the simulator state (MjData) of an episode.
 
 Each ``step`` holds one commanded pose of the ``tcp`` (the nominal peg_tip on the hand, see envs.scene) for one
-control period (default 10 ms = 10 physics steps at 1 kHz, i.e. commands at 100 Hz) while the Cartesian
-impedance controller runs at the physics rate:
+control period (default 10 ms = 10 physics steps at 1 kHz, i.e. commands at 100 Hz) while the controller runs
+at the physics rate (any controllers.protocol.Controller; by default the Cartesian impedance controller):
 
     tau = J^T (K e - D v) + nullspace(q_ref) + c(q, qdot)      (controllers.impedance)
 
@@ -41,6 +41,7 @@ import numpy.typing as npt
 from controllers.errors import ControllerError
 from controllers.ik import IKConfig, NullspaceReference, solve_ik
 from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
+from controllers.protocol import Controller
 from envs.errors import EnvError
 from envs.perturbation import Perturbation, PerturbationRanges, perturbed_frame, sample_perturbation
 from envs.poses import (
@@ -269,16 +270,26 @@ class PegInHoleEnv:
 
     def __init__(self, scene_config: SceneConfig = SceneConfig(),
                  controller_config: ImpedanceConfig = ImpedanceConfig(),
-                 episode_config: EpisodeConfig = EpisodeConfig(), scene: Scene | None = None):
+                 episode_config: EpisodeConfig = EpisodeConfig(), scene: Scene | None = None,
+                 controller: Controller | None = None):
         """Args:
             scene_config: what to build (ignored when ``scene`` is given).
-            controller_config: impedance gains and torque limits.
+            controller_config: impedance gains and torque limits of the default controller (ignored when
+                ``controller`` is given).
             episode_config: control period, time limit, success, force limit, perturbations.
             scene: an already built scene to reuse (its peg must be grasped or welded).
+            controller: the controller of the arm's tcp (controllers.protocol.Controller), built on
+                ``scene.model``; default a CartesianImpedanceController with ``controller_config``.
 
         Raises:
-            EnvError: a free-peg scene, or a control period that is not a multiple of the timestep.
+            EnvError: a free-peg scene, a control period that is not a multiple of the timestep, or a controller
+                that is not a Controller or comes without the scene it was built on.
         """
+        if controller is not None and not isinstance(controller, Controller):
+            raise EnvError(f"controller must implement controllers.protocol.Controller (start, set_tool_load, "
+                           f"checked_stiffness, step), got {type(controller).__name__}")
+        if controller is not None and scene is None:
+            raise EnvError("a controller is built on a model: pass the scene whose model it drives (scene=)")
         self.scene = scene if scene is not None else build_scene(scene_config)
         if self.scene.config.peg_mode not in ("grasped", "welded"):
             raise EnvError(f"PegInHoleEnv needs a grasped or welded peg, got peg_mode={self.scene.config.peg_mode!r}")
@@ -307,7 +318,8 @@ class PegInHoleEnv:
         self.arm_model = self.scene.arm_model
         self._grip_opening = key_qpos[self._finger_qpos].copy() if self.grasped else np.zeros(0)
         try:
-            self.controller = CartesianImpedanceController(self.model, self.tcp_site, controller_config)
+            self.controller: Controller = controller if controller is not None else \
+                CartesianImpedanceController(self.model, self.tcp_site, controller_config)
             self.nullspace = NullspaceReference(self.arm_model, "tcp", self.q_nominal,
                                                 iterations=episode_config.nullspace_iterations,
                                                 config=episode_config.ik)
@@ -453,7 +465,7 @@ class PegInHoleEnv:
         depth = self._deepest_penetration()
         if depth > self.config.start_penetration_m:
             raise EnvError(f"start pose {format_pose(start)} is in collision ({depth * 1e3:.1f} mm penetration)")
-        self.controller.reset(data.qfrc_bias[self.controller.dof_slice])
+        self.controller.start(data)
         q_ref = q.copy()
         self.nullspace.reset(q_ref)
         self._warning_counts = self._bad_warning_counts()
@@ -519,10 +531,9 @@ class PegInHoleEnv:
             self.nullspace_failures += 1
         problem: str | None = None
         force_limited = False
-        q_arm = q_ref
         try:
             with np.errstate(all="ignore"):
-                ran = self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_arm, self.n_substeps,
+                ran = self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_ref, self.n_substeps,
                                            after_substep=self._sense)
             force_limited = ran < self.n_substeps or self.stats.force_limit_time_s is not None  # also on the last substep
         except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
