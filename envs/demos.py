@@ -62,7 +62,9 @@ from controllers.impedance import ImpedanceConfig, full_stiffness
 from envs.jsonable import to_jsonable
 from envs.contact import ContactConfig
 from envs.demo_file import DemoSet
-from envs.env import EpisodeConfig, PegInHoleEnv, StepResult
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
+from envs.observation import StepResult
 from envs.errors import EnvError
 from envs.poses import (
     Pose,

@@ -11,7 +11,8 @@ import pytest
 
 from controllers.impedance import CartesianImpedanceController
 from controllers.protocol import Controller
-from envs.env import EpisodeConfig, PegInHoleEnv
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.scene import SceneConfig, build_scene
 

@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from envs.env import EpisodeConfig, PegInHoleEnv
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.execution.evaluate import (
     EpisodeRecord,

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from envs.demos import ExpertConfig, collect_demos
-from envs.env import EpisodeConfig, PegInHoleEnv
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.execution.episode import StartPose, run_episode
 from envs.execution.expert_policy import ScriptedExpertPolicy

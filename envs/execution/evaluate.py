@@ -320,7 +320,7 @@ class EvaluationResult:
     def summary_table(self) -> str:
         """A short plain-text table of the result (the force limit acts on the force held for its window, so a
         success's single-sample peak may exceed it)."""
-        from envs.env import EpisodeConfig
+        from envs.episode_config import EpisodeConfig
 
         low, high = self.interval
         s = self.statistics()
@@ -389,7 +389,8 @@ def build_env(metadata: dict[str, Any], goal: Pose, config: EvaluationConfig) ->
     Raises:
         EnvError: shape mismatch, invalid scene, unreachable goal.
     """
-    from envs.env import EpisodeConfig, PegInHoleEnv
+    from envs.env import PegInHoleEnv
+    from envs.episode_config import EpisodeConfig
 
     env = PegInHoleEnv(scene_config_for(metadata, config, goal), episode_config=EpisodeConfig.from_task(config.task))
     if config.hole_at_goal:

@@ -2,7 +2,7 @@
 
 At ``reset`` the recording (times t_i, poses x_i, optional translational stiffness K_i) is resampled to the control
 period, one command per period: the command of period k is the recording at time (k + 1) T (positions linearly,
-orientations by slerp, stiffness along Log-Euclidean geodesics), as envs.env.replay_trajectory does. After the
+orientations by slerp, stiffness along Log-Euclidean geodesics), as envs.trajectory.replay_trajectory does. After the
 recording's end it holds its last pose at rest.
 
 A recording starts where it was recorded, not where the episode starts. With ``blend_s`` > 0 the difference at the
