@@ -90,7 +90,8 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         extra: dict[str, Any] = {"flow_in_loop": False}
     else:
         from envs.execution.episode import run_episode
-        from envs.execution.evaluate import EvaluationConfig, build_setup, evaluation_starts
+        from envs.execution.evaluate import EvaluationConfig, build_setup
+        from envs.execution.starts import evaluation_starts
         from envs.execution.profile import profile_periods
 
         config = EvaluationConfig(episodes=2 if quick else 5)

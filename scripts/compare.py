@@ -138,7 +138,7 @@ def main(args: argparse.Namespace) -> int:
 
 def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
     """One EvaluationResult of the first ``pairs`` episodes of consecutive chunk results of one model."""
-    from envs.execution.evaluate import EvaluationResult
+    from envs.execution.result import EvaluationResult
 
     records = [r for result in results for r in result.records][:pairs]
     first = results[0]
@@ -150,7 +150,8 @@ def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
 
 def run_sequential(args: argparse.Namespace) -> int:
     """Sequential mode (module docstring)."""
-    from envs.execution.evaluate import evaluate, evaluation_starts
+    from envs.execution.evaluate import evaluate
+    from envs.execution.starts import evaluation_starts
     from rflow.skill_io import load_skill
 
     config = evaluate_cli.checked_config(args)
