@@ -35,7 +35,8 @@ import mujoco
 import numpy as np
 
 from controllers.benchmark import physics_state, replayed_step_rate
-from envs.demos import ExpertConfig, demo_episode_config, plan_expert_path
+from envs.demos import demo_episode_config
+from envs.expert import ExpertConfig, plan_expert_path
 from envs.env import PegInHoleEnv
 from envs.errors import EnvError
 from envs.output import MiB, check_output, write_json

@@ -25,7 +25,8 @@ from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera, 
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator loads in main(), never for --help
-    from envs.demos import DemoAttempt, ExpertConfig
+    from envs.demos import DemoAttempt
+    from envs.expert import ExpertConfig
     from envs.scene import SceneConfig
 
 
@@ -94,7 +95,8 @@ def main(args: argparse.Namespace) -> int:
     """Record demos (or run the success-rate check, or import recorded demos); returns the exit status."""
     if args.import_file is not None:
         return run_import(args)
-    from envs.demos import ExpertConfig, collect_demos, demo_episode_config
+    from envs.demos import collect_demos, demo_episode_config
+    from envs.expert import ExpertConfig
     from envs.env import PegInHoleEnv
     from envs.scene import SceneConfig
 

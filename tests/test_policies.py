@@ -8,7 +8,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from envs.demos import ExpertConfig, collect_demos
+from envs.demos import collect_demos
+from envs.expert import ExpertConfig
 from envs.env import PegInHoleEnv
 from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
