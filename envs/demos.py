@@ -65,7 +65,7 @@ from envs.poses import (
     quat_to_rotvec,
     resample_trajectory,
 )
-from envs.scene import SceneConfig
+from envs.scene_config import SceneConfig
 from envs.stiffness_schedule import expert_stiffness
 from envs.task import Task
 from rflow.small_linalg import norm

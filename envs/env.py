@@ -46,7 +46,8 @@ from envs.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUC
                               Observer, StepResult, site_pose)
 from envs.perturbation import Perturbation, perturbed_frame, sample_perturbation
 from envs.poses import Pose, format_pose, nominal_start, rotate, sample_start_poses, validate_pose
-from envs.scene import Scene, SceneConfig, build_scene, goal_from_hole
+from envs.scene import Scene, build_scene
+from envs.scene_config import SceneConfig, goal_from_hole
 from envs.sensing import ContactStats, EpisodeSensing, PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
 from envs.success import Assessment, EpisodeHoles, PegFootprint, SuccessTracker

@@ -77,7 +77,7 @@ from envs.episode_config import EpisodeConfig
 from envs.observation import REASON_TIME_LIMIT, Observation
 from envs.errors import EnvError
 from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
-from envs.scene import SceneConfig
+from envs.scene_config import SceneConfig
 from envs.task import Task
 from rflow.small_linalg import norm
 

@@ -40,7 +40,8 @@ from envs.expert import ExpertConfig, plan_expert_path
 from envs.env import PegInHoleEnv
 from envs.errors import EnvError
 from envs.output import MiB, check_output, write_json
-from envs.scene import SceneConfig, build_scene
+from envs.scene import build_scene
+from envs.scene_config import SceneConfig
 from envs.video import EpisodeVideo, VideoConfig
 
 Benchmark = tuple[str, Callable[[bool], dict[str, Any]]]

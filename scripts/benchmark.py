@@ -131,7 +131,7 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
     from envs.demos import collect_demos
     from envs.execution.episode import record_from_dict
     from envs.execution.evaluate import evaluate, journal_run
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
     from scripts.train import skill_train_config, train_skill
 
     folder.mkdir(exist_ok=True)

@@ -27,7 +27,7 @@ from scripts.task_options import add_task_arguments, task_from_args  # noqa: E40
 if TYPE_CHECKING:  # the simulator loads in main(), never for --help
     from envs.demos import DemoAttempt
     from envs.expert import ExpertConfig
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -98,7 +98,7 @@ def main(args: argparse.Namespace) -> int:
     from envs.demos import collect_demos, demo_episode_config
     from envs.expert import ExpertConfig
     from envs.env import PegInHoleEnv
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
 
     task = task_from_args(args)
     scene = SceneConfig.from_task(task, shape=task.shape or "square")

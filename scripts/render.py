@@ -26,7 +26,7 @@ from envs.trajectory import replay_trajectory
 from envs.errors import EnvError
 from envs.output import MiB, check_output
 from envs.poses import Pose
-from envs.scene import SceneConfig
+from envs.scene_config import SceneConfig
 from envs.video import EpisodeVideo, VideoConfig
 from scripts.options import MAX_DEMOS, check_camera, count, number
 

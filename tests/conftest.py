@@ -16,7 +16,7 @@ def paper_checkpoint(tmp_path_factory):
     from envs.demo_file import save_demos
     from envs.demos import collect_demos
     from envs.expert import ExpertConfig
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
     from envs.task import preset
     from scripts.train import skill_train_config, train_skill
 

@@ -12,7 +12,8 @@ from envs.episode_config import EpisodeConfig
 from envs.observation import REASON_FORCE_LIMIT
 from envs.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import SceneConfig, build_scene
+from envs.scene import build_scene
+from envs.scene_config import SceneConfig
 from envs.shapes import PEG_LENGTH_M
 
 

@@ -14,7 +14,8 @@ from controllers.protocol import Controller
 from envs.env import PegInHoleEnv
 from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.scene import SceneConfig, build_scene
+from envs.scene import build_scene
+from envs.scene_config import SceneConfig
 
 
 class JointHold:

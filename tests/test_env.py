@@ -11,7 +11,8 @@ from envs.observation import REASON_INSTABILITY, REASON_TIME_LIMIT
 from envs.trajectory import replay_trajectory
 from envs.errors import EnvError
 from envs.poses import Pose, quat_from_rotvec, quat_mul
-from envs.scene import SceneConfig, build_scene
+from envs.scene import build_scene
+from envs.scene_config import SceneConfig
 
 
 @pytest.fixture(scope="module")

@@ -54,7 +54,7 @@ def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: P
     Raises:
         EnvError: a scene shape different from the demos' shape, or an invalid scene.
     """
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
 
     task = config.task
     demo_shape = metadata.get("shape")
