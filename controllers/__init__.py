@@ -1,6 +1,7 @@
 """Torque-level Cartesian impedance control and inverse kinematics (mink's, and its compiled twin) for the Panda.
 
-Modules: `impedance` (CartesianImpedanceController, ImpedanceConfig), `ik` (solve_ik, NullspaceReference,
-IKConfig), `benchmark` (measure_control_rate, measure_ik_rate for `pih bench`), `validation` (input checks),
-`errors` (ControllerError). Nothing is imported here, so `controllers.errors` stays cheap to import.
+Modules: `protocol` (Controller: what the episode stepping needs of a controller), `impedance`
+(CartesianImpedanceController, ImpedanceConfig), `ik` (solve_ik, NullspaceReference, IKConfig), `benchmark`
+(measure_control_rate, measure_ik_rate for `pih bench`), `validation` (input checks), `errors` (ControllerError).
+Nothing is imported here, so `controllers.errors` stays cheap to import.
 """

@@ -72,10 +72,12 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 from controllers.impedance import ImpedanceConfig
-from envs.env import REASON_TIME_LIMIT, EpisodeConfig, Observation, PegInHoleEnv
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
+from envs.observation import REASON_TIME_LIMIT, Observation
 from envs.errors import EnvError
 from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
-from envs.scene import SceneConfig
+from envs.scene_config import SceneConfig
 from envs.task import Task
 from rflow.small_linalg import norm
 

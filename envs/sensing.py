@@ -13,12 +13,14 @@ Contacts. The environment's normal forces on the peg (contacts of peg geoms with
 their sum of magnitudes (opposing walls add up, they do not cancel) and the largest single one. With an
 elliptic friction cone the first row of a contact's constraint force is its normal force.
 
-Both are read every physics step, so their arithmetic is compiled (envs.sensing_kernel).
+Both are read every physics step, so their arithmetic is compiled (envs.sensing_kernel). `EpisodeSensing` is that
+per-step work for one episode: the compiled update of a small state (peaks, the force window, the time above the
+force limit) after every physics step, copied into the episode's `ContactStats` at the end of a control period.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -125,3 +127,126 @@ class PegContacts:
         """(sum of normal-force magnitudes, largest single normal force) in N, now."""
         contact = data.contact
         return kernel.normal_forces(contact.geom, contact.efc_address, data.efc_force, self._counted, self._scratch)
+
+
+@dataclass
+class ContactStats:
+    """Peaks over an episode at the physics rate, and control-rate samples for medians (the peaks are copied from
+    the compiled sense state, envs.sensing_kernel, at the end of every control period).
+
+    Attributes:
+        peak_contact_force_n: largest sum of the environment's normal-force magnitudes on the peg.
+        peak_single_contact_n: largest single normal force on the peg.
+        peak_wrist_force_n, peak_wrist_torque_nm: largest |F_ext| and |tau_ext| of the wrist sensor.
+        peak_sustained_wrist_force_n: largest |F_ext| held for the force limit's whole window (the largest
+            minimum of |F_ext| over any window of ``force_limit_window_s``): what the force limit compares.
+        wrist_force_samples, wrist_torque_samples: |F_ext|, |tau_ext| at the end of every control period.
+        force_limit_time_s: physics time the force first stayed above the limit for the window (None: never).
+    """
+
+    peak_contact_force_n: float = 0.0
+    peak_single_contact_n: float = 0.0
+    peak_wrist_force_n: float = 0.0
+    peak_wrist_torque_nm: float = 0.0
+    peak_sustained_wrist_force_n: float = 0.0
+    wrist_force_samples: list[float] = field(default_factory=list)
+    wrist_torque_samples: list[float] = field(default_factory=list)
+    force_limit_time_s: float | None = None
+
+    def summary(self) -> dict[str, float | None]:
+        """Peaks and medians, JSON-ready."""
+        def median(values: list[float]) -> float | None:
+            return float(np.median(values)) if values else None
+
+        return {
+            "peak_contact_force_n": self.peak_contact_force_n,
+            "peak_single_contact_n": self.peak_single_contact_n,
+            "peak_wrist_force_n": self.peak_wrist_force_n,
+            "peak_sustained_wrist_force_n": self.peak_sustained_wrist_force_n,
+            "median_wrist_force_n": median(self.wrist_force_samples),
+            "peak_wrist_torque_nm": self.peak_wrist_torque_nm,
+            "median_wrist_torque_nm": median(self.wrist_torque_samples),
+        }
+
+
+@dataclass(frozen=True)
+class SenseInputs:
+    """The arguments of ``sensing_kernel.sense_substep`` that stay the same for an MjData (all but its contacts):
+    views of the data, built once.
+
+    Attributes:
+        wrist_rot, wrist_pos: the F/T site's rotation (9,) and position (3,) (views; `WristSensor.kernel_inputs`).
+        xipos: the bodies' centres of mass (view).
+        force, torque: the F/T sensor's readings (views).
+        bodies, load: the carried bodies and [M, g, m_b] of the tool load.
+        counted, scratch: the counted contact pairs and the forces' buffer (`PegContacts.kernel_inputs`).
+        limits: [force_limit_n, force_limit_window_s, timestep] (sensing_kernel.LIMIT_*).
+        state: the sense state (sensing_kernel.sense_state): peaks, force window, time above the force limit.
+    """
+
+    wrist_rot: FloatArray
+    wrist_pos: FloatArray
+    xipos: FloatArray
+    force: FloatArray
+    torque: FloatArray
+    bodies: npt.NDArray[np.int64]
+    load: FloatArray
+    counted: npt.NDArray[np.bool_]
+    scratch: FloatArray
+    limits: FloatArray
+    state: FloatArray
+
+
+class EpisodeSensing:
+    """The physics-rate sensing of an episode on one MjData: `reset` at the start of an episode, `start_period` at
+    the start of a control period, `substep` after each of its physics steps and `copy_peaks` at its end; ``stats``
+    holds the episode's figures."""
+
+    def __init__(self, data: mujoco.MjData, wrist: WristSensor, contacts: PegContacts, force_limit_n: float,
+                 force_limit_window_s: float, timestep: float) -> None:
+        """Args:
+            data: the episode's MjData (views of it are kept).
+            wrist, contacts: the sensors.
+            force_limit_n, force_limit_window_s: a wrist force above the limit for the window hits the force limit.
+            timestep: the physics timestep (s); the force window holds ``force_limit_window_s / timestep``
+                readings (at least one).
+        """
+        window = max(1, int(round(force_limit_window_s / timestep)))
+        limits = np.array([force_limit_n, force_limit_window_s, timestep], dtype=np.float64)
+        self.data = data
+        self.inputs = SenseInputs(*wrist.kernel_inputs(data), *contacts.kernel_inputs(), limits,
+                                  kernel.sense_state(window))
+        self.stats = ContactStats()
+        self._period_start_s = 0.0
+
+    def reset(self) -> None:
+        """New figures for a new episode (the earlier episode's ``stats`` object is left as it was)."""
+        self.stats = ContactStats()
+        self.inputs.state[:] = 0.0
+
+    def start_period(self, time_s: float) -> None:
+        """A control period starts at episode time ``time_s`` (the time a force limit hit in it is recorded at)."""
+        self._period_start_s = time_s
+
+    def substep(self) -> bool:
+        """Update the peaks, the force window and the time above the force limit after a physics step
+        (sensing_kernel.sense_substep); True when the force limit hits, whose time is then the start of the control
+        period unless it hit earlier."""
+        i, data = self.inputs, self.data
+        contact = data.contact
+        if not kernel.sense_substep(i.wrist_rot, i.wrist_pos, i.xipos, i.force, i.torque, i.bodies, i.load,
+                                    contact.geom, contact.efc_address, data.efc_force, i.counted, i.scratch,
+                                    i.limits, i.state):
+            return False
+        stats = self.stats
+        stats.force_limit_time_s = stats.force_limit_time_s or self._period_start_s
+        return True
+
+    def copy_peaks(self) -> None:
+        """Copy the peaks of the sense state into ``stats``."""
+        state, stats = self.inputs.state, self.stats
+        stats.peak_contact_force_n = float(state[kernel.PEAK_CONTACT])
+        stats.peak_single_contact_n = float(state[kernel.PEAK_SINGLE])
+        stats.peak_wrist_force_n = float(state[kernel.PEAK_FORCE])
+        stats.peak_wrist_torque_nm = float(state[kernel.PEAK_TORQUE])
+        stats.peak_sustained_wrist_force_n = float(state[kernel.PEAK_SUSTAINED])

@@ -1,4 +1,4 @@
-"""The physics-rate sensing of an episode (envs.sensing, envs.env), compiled with numba (no Python work per step).
+"""The physics-rate sensing of an episode (envs.sensing.EpisodeSensing), compiled with numba (no Python work per step).
 
 Every physics step (1 kHz) the episode reads the wrist F/T sensor and the peg's contacts, keeps their peaks and
 checks the force limit. In numpy that was ~30 Python-level calls per step, costing about half of the physics step;
@@ -15,7 +15,7 @@ with m_b, c_b the carried bodies' masses and centres of mass, M = sum_b m_b and 
 Contacts (envs.sensing): over the contacts whose geom pair is counted and that have constraint rows (efc_address
 >= 0), the sum and the largest of |f_n| = |efc_force[efc_address]| (the normal row of an elliptic cone).
 
-Per physics step (envs.env), with |F| = |F_ext| and h the timestep:
+Per physics step (envs.sensing.EpisodeSensing.substep), with |F| = |F_ext| and h the timestep:
 
     peaks     <- max(peaks, (contact sum, single contact, |F|, |tau_ext|))
     window    <- the last W = max(1, round(force_limit_window_s / h)) values of |F| (a ring buffer)

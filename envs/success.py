@@ -30,6 +30,7 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, as_vector, edge_lines, twist_angle_deg
+from envs.poses import rotate
 from envs.shapes import CrossSection
 from envs.task import SuccessConfig  # the tolerances are part of the task
 from rflow.quaternion import quat_to_mat
@@ -293,6 +294,42 @@ def frame_assessment(pos: FloatArray, rot: FloatArray, frames: Mapping[str, Hole
                      if shape != target and _inside(_hole_offset(pos, frame), frame.spec)[2]), None)
     inserted = hole == target and criteria_hold(state, target_depth_m, config)
     return Assessment(hole, state, inserted)
+
+
+class EpisodeHoles:
+    """The holes of one episode (where its perturbation put them) with their frames built once, and the scoring of a
+    peg_tip against them (`assess`).
+
+    Shortcut, exact: a peg_tip is in a hole only deeper than MIN_ENTRY_DEPTH_M below its opening, so while it is
+    above every opening (depth_h = -(p - p_h) . z_h <= MIN_ENTRY_DEPTH_M for all holes h) only the target hole's
+    state is computed, and otherwise only the holes it is below the opening of.
+    """
+
+    def __init__(self, holes: Mapping[str, HoleSpec], target: str, target_depth_m: float, config: SuccessConfig,
+                 peg: PegFootprint) -> None:
+        """Args:
+            holes: every hole of the fixture, by shape; ``target`` among them.
+            target, target_depth_m, config, peg: as in `frame_assessment`.
+
+        Raises:
+            EnvError: a target that is not among the holes.
+        """
+        if target not in holes:
+            raise EnvError(f"target hole {target!r} is not among the holes {sorted(holes)}")
+        self.target, self.target_depth_m, self.config, self.peg = target, target_depth_m, config, peg
+        self.frames = {shape: HoleFrame.of(spec) for shape, spec in holes.items()}
+        self._pos = np.array([spec.pos for spec in holes.values()])
+        self._axes = np.array([rotate(spec.quat, [0.0, 0.0, 1.0]) for spec in holes.values()])  # out of the holes
+
+    def assess(self, pos: FloatArray, rot: FloatArray, speed_m_s: float) -> Assessment:
+        """`assess_insertion` of a checked peg_tip position (3,) and rotation matrix (3, 3) (class docstring)."""
+        depths = -np.einsum("hi,hi->h", pos - self._pos, self._axes)
+        if np.all(depths <= MIN_ENTRY_DEPTH_M):
+            return Assessment(None, frame_state(pos, rot, self.frames[self.target], speed_m_s=speed_m_s), False)
+        candidates = {shape: frame for (shape, frame), depth in zip(self.frames.items(), depths)
+                      if depth > MIN_ENTRY_DEPTH_M or shape == self.target}  # only these can hold the peg_tip
+        return frame_assessment(pos, rot, candidates, self.target, self.target_depth_m, self.config, self.peg,
+                                speed_m_s)
 
 
 class SuccessTracker:

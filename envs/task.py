@@ -104,7 +104,7 @@ class SuccessConfig:
 
 @dataclass(frozen=True)
 class StartRange:
-    """Where an evaluation's episodes start (envs.execution.evaluate.sample_starts): a centre pose, the mean demo
+    """Where an evaluation's episodes start (envs.execution.starts.sample_starts): a centre pose, the mean demo
     start ("mean") or a random demo's start ("demo"), its position moved uniformly in the box
     [-pos_range_m, pos_range_m]^3 and turned by a rotation vector drawn uniformly from the ball of radius
     rot_range_deg.

@@ -35,11 +35,13 @@ import mujoco
 import numpy as np
 
 from controllers.benchmark import physics_state, replayed_step_rate
-from envs.demos import ExpertConfig, demo_episode_config, plan_expert_path
+from envs.demos import demo_episode_config
+from envs.expert import ExpertConfig, plan_expert_path
 from envs.env import PegInHoleEnv
 from envs.errors import EnvError
 from envs.output import MiB, check_output, write_json
-from envs.scene import SceneConfig, build_scene
+from envs.scene import build_scene
+from envs.scene_config import SceneConfig
 from envs.video import EpisodeVideo, VideoConfig
 
 Benchmark = tuple[str, Callable[[bool], dict[str, Any]]]
@@ -90,7 +92,8 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         extra: dict[str, Any] = {"flow_in_loop": False}
     else:
         from envs.execution.episode import run_episode
-        from envs.execution.evaluate import EvaluationConfig, build_setup, evaluation_starts
+        from envs.execution.evaluate import EvaluationConfig, build_setup
+        from envs.execution.starts import evaluation_starts
         from envs.execution.profile import profile_periods
 
         config = EvaluationConfig(episodes=2 if quick else 5)

@@ -129,8 +129,9 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
     from batch import Journal
     from envs.demo_file import save_demos
     from envs.demos import collect_demos
-    from envs.execution.evaluate import evaluate, journal_run, record_from_dict
-    from envs.scene import SceneConfig
+    from envs.execution.episode import record_from_dict
+    from envs.execution.evaluate import evaluate, journal_run
+    from envs.scene_config import SceneConfig
     from scripts.train import skill_train_config, train_skill
 
     folder.mkdir(exist_ok=True)

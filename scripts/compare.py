@@ -9,7 +9,7 @@ start / task options; refused, one line naming the first differing episode, othe
 rates with Wilson intervals, the paired counts, the difference with Newcombe's paired interval, McNemar's exact
 p, Barnard's unpaired p for reference, the finer paired metrics (progress, time to seat, held force) and the
 decision: "regression" when the one-sided (1 - alpha) upper bound of p_cand - p_base lies below -margin
-(envs/execution/statistics.py, envs/execution/comparison.py).
+(envs/execution/statistics.py, sequential.py, pairing.py, comparison.py).
 
 Sequential mode runs the episodes itself: it draws the starts once from the base model's demo starts, runs both
 models on the same starts, --chunk episodes at a time, feeds the pairs in episode order to anytime-valid
@@ -34,7 +34,9 @@ import scripts.evaluate as evaluate_cli
 from envs.errors import EnvError
 from envs.output import write_json
 from envs.execution.comparison import compare_evaluations, load_evaluation, sequential_differences
-from envs.execution.statistics import DECISIONS, SequentialComparison, pair_records
+from envs.execution.pairing import pair_records
+from envs.execution.sequential import SequentialComparison
+from envs.execution.statistics import DECISIONS
 
 KIND = "pih compare"
 EXIT_REGRESSION = 1
@@ -138,7 +140,7 @@ def main(args: argparse.Namespace) -> int:
 
 def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
     """One EvaluationResult of the first ``pairs`` episodes of consecutive chunk results of one model."""
-    from envs.execution.evaluate import EvaluationResult
+    from envs.execution.result import EvaluationResult
 
     records = [r for result in results for r in result.records][:pairs]
     first = results[0]
@@ -150,7 +152,8 @@ def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
 
 def run_sequential(args: argparse.Namespace) -> int:
     """Sequential mode (module docstring)."""
-    from envs.execution.evaluate import evaluate, evaluation_starts
+    from envs.execution.evaluate import evaluate
+    from envs.execution.starts import evaluation_starts
     from rflow.skill_io import load_skill
 
     config = evaluate_cli.checked_config(args)

@@ -25,8 +25,9 @@ from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera, 
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator loads in main(), never for --help
-    from envs.demos import DemoAttempt, ExpertConfig
-    from envs.scene import SceneConfig
+    from envs.demos import DemoAttempt
+    from envs.expert import ExpertConfig
+    from envs.scene_config import SceneConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -94,9 +95,10 @@ def main(args: argparse.Namespace) -> int:
     """Record demos (or run the success-rate check, or import recorded demos); returns the exit status."""
     if args.import_file is not None:
         return run_import(args)
-    from envs.demos import ExpertConfig, collect_demos, demo_episode_config
+    from envs.demos import collect_demos, demo_episode_config
+    from envs.expert import ExpertConfig
     from envs.env import PegInHoleEnv
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
 
     task = task_from_args(args)
     scene = SceneConfig.from_task(task, shape=task.shape or "square")

@@ -11,7 +11,7 @@ factory(task, **options), envs/execution/evaluate_policy.py) in the demos' scene
 perturbations the skill trained on those demos meets, with the same success check (scripts/evaluate_policy.py).
 
 Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range-mm (box)
-and +-rot-range-deg (ball) -- see envs/execution/evaluate.py. Success is the physics check on the measured
+and +-rot-range-deg (ball) -- see envs/execution/starts.py. Success is the physics check on the measured
 peg_tip pose. Prints a summary table.
 
 Long runs: each finished episode is appended to a journal (--journal, default <json>.journal.jsonl), so
@@ -42,7 +42,8 @@ from scripts.evaluate_policy import add_policy_arguments, check_policy_args, pol
 from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
-    from envs.execution.evaluate import EvaluationResult, StartPose
+    from envs.execution.evaluate import StartPose
+    from envs.execution.result import EvaluationResult
 
 GOAL_MISMATCH_WARN_MM = 5.0
 EXIT_FAULT = 1
@@ -331,7 +332,8 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         {"video": path or None, "figure": path or None, "stiffness_figure": path or None, "replayed": [...]}
         for the summary.
     """
-    from envs.execution.evaluate import evaluation_starts, replay_episodes
+    from envs.execution.evaluate import replay_episodes
+    from envs.execution.starts import evaluation_starts
     from envs.execution.policy import generate_plan
     from envs.video import EpisodeVideo, VideoConfig
     from rflow.skill_io import load_skill

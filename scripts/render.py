@@ -19,11 +19,14 @@ import numpy.typing as npt
 
 from envs.demo_file import load_demos
 from envs.demos import scene_config_from_demos
-from envs.env import EpisodeConfig, PegInHoleEnv, StepResult, replay_trajectory
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
+from envs.observation import StepResult
+from envs.trajectory import replay_trajectory
 from envs.errors import EnvError
 from envs.output import MiB, check_output
 from envs.poses import Pose
-from envs.scene import SceneConfig
+from envs.scene_config import SceneConfig
 from envs.video import EpisodeVideo, VideoConfig
 from scripts.options import MAX_DEMOS, check_camera, count, number
 

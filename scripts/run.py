@@ -86,7 +86,7 @@ def main(args: argparse.Namespace) -> int:
     from envs.demos import collect_demos
     from envs.execution.evaluate import EvaluationConfig, evaluate
     from envs.execution.figures import plot_outcomes
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
     from scripts.evaluate import choose_episodes, render_and_plot
     from scripts.train import skill_train_config, train_skill
 

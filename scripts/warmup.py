@@ -26,7 +26,8 @@ def main(args: argparse.Namespace) -> int:
     from envs.execution.episode import StartPose, run_episode
     from envs.execution.evaluate import EvaluationConfig
     from envs.execution.policy import generate_plan, make_policy
-    from envs.env import EpisodeConfig, PegInHoleEnv
+    from envs.env import PegInHoleEnv
+    from envs.episode_config import EpisodeConfig
     from envs.perturbation import Perturbation
     from envs.poses import Pose
     from rflow.bench import synthetic_pose_demos

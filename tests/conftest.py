@@ -14,8 +14,9 @@ def paper_checkpoint(tmp_path_factory):
     hole where the demos ended), trained once per session: 7 scripted demos of 400 samples, 40 epochs. It seats
     20 of 20 closed-loop starts of seed 1 (tests/test_end_to_end.py)."""
     from envs.demo_file import save_demos
-    from envs.demos import ExpertConfig, collect_demos
-    from envs.scene import SceneConfig
+    from envs.demos import collect_demos
+    from envs.expert import ExpertConfig
+    from envs.scene_config import SceneConfig
     from envs.task import preset
     from scripts.train import skill_train_config, train_skill
 

@@ -201,6 +201,14 @@ def _definitions(name: str) -> list[str]:
     ("SuccessConfig", "envs.task"),
     ("StartRange", "envs.task"),
     ("check_force_limit", "envs.task"),
+    ("Controller", "controllers.protocol"),  # what the episode stepping needs of a controller
+    ("EpisodeConfig", "envs.episode_config"),
+    ("SceneConfig", "envs.scene_config"),
+    ("EpisodeSensing", "envs.sensing"),
+    ("ExpertConfig", "envs.expert"),
+    ("EvaluationResult", "envs.execution.result"),
+    ("record_from_dict", "envs.execution.episode"),
+    ("pair_records", "envs.execution.pairing"),
 ])
 def test_a_concept_with_one_owner_is_defined_once(name: str, owner: str) -> None:
     assert _definitions(name) == [owner]

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from envs.demo_file import DemoSet, load_demos, save_demos
-from envs.scene import SceneConfig, build_scene
+from envs.scene import build_scene
+from envs.scene_config import SceneConfig
 from scripts.cli import main
 
 

@@ -7,10 +7,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.env import REASON_FORCE_LIMIT, EpisodeConfig, PegInHoleEnv
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
+from envs.observation import REASON_FORCE_LIMIT
 from envs.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import SceneConfig, build_scene
+from envs.scene import build_scene
+from envs.scene_config import SceneConfig
 from envs.shapes import PEG_LENGTH_M
 
 

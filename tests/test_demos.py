@@ -11,14 +11,13 @@ import envs.demos as demos_module
 from envs.demo_file import load_demos, save_demos
 from envs.demos import (
     DemoAttempt,
-    ExpertConfig,
     collect_demos,
     demo_episode_config,
     execute_demo,
     finalize_demo,
-    plan_expert_path,
     scene_config_from_demos,
 )
+from envs.expert import ExpertConfig, plan_expert_path
 from envs.env import PegInHoleEnv
 from envs.errors import EnvError
 from controllers.impedance import full_stiffness

@@ -7,19 +7,20 @@ import json
 import numpy as np
 import pytest
 
-from envs.env import EpisodeConfig, PegInHoleEnv
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.execution.evaluate import (
     EpisodeRecord,
     EvaluationConfig,
-    EvaluationResult,
     StartPose,
     _failed_unit,
     evaluate,
     run_episode,
-    sample_starts,
     scene_config_for,
 )
+from envs.execution.result import EvaluationResult
+from envs.execution.starts import sample_starts
 from envs.execution.statistics import wilson_interval
 from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad

@@ -217,7 +217,7 @@ def test_a_fault_is_one_error_line_with_the_resume_command_and_exit_1(model, tmp
     """A batch stopped by a fault (the Ray head lost) ends `pih evaluate` with exit 1, the fault on one line
     and how to resume; the summary counts the workers that ran, not the --workers asked for."""
     import envs.execution.evaluate as evaluate_module
-    from envs.execution.evaluate import EvaluationResult
+    from envs.execution.result import EvaluationResult
 
     def lost_head(model_dir, config, progress=True, journal=None):
         return EvaluationResult(config, [], 1.0, str(model_dir), complete=False, workers=2,

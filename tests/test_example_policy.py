@@ -18,7 +18,8 @@ REPO = Path(__file__).resolve().parents[1]
 def exported(tmp_path_factory) -> tuple[Path, Path]:
     """Two scripted demos (400 samples) and their LeRobot export."""
     from envs.demo_file import save_demos
-    from envs.demos import ExpertConfig, collect_demos
+    from envs.demos import collect_demos
+    from envs.expert import ExpertConfig
 
     folder = tmp_path_factory.mktemp("example")
     demos = save_demos(folder / "demos.npz", collect_demos(2, seed=0, expert=ExpertConfig(num_samples=400)).demos)

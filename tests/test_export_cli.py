@@ -90,7 +90,8 @@ def test_evaluation_episodes_are_exported_from_their_replay(tmp_path: Path) -> N
     an unreachable start is skipped; the video has a frame per row."""
     import json
 
-    from envs.execution.evaluate import EvaluationConfig, evaluate, evaluation_starts, replay_episodes
+    from envs.execution.evaluate import EvaluationConfig, evaluate, replay_episodes
+    from envs.execution.starts import evaluation_starts
     from envs.task import Task
     from rflow.skill_io import save_skill
     from skill_fixtures import tiny_skill

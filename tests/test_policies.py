@@ -8,8 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from envs.demos import ExpertConfig, collect_demos
-from envs.env import EpisodeConfig, PegInHoleEnv
+from envs.demos import collect_demos
+from envs.expert import ExpertConfig
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.execution.episode import StartPose, run_episode
 from envs.execution.expert_policy import ScriptedExpertPolicy

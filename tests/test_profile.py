@@ -9,7 +9,8 @@ import json
 import pytest
 
 from envs.execution.episode import run_episode
-from envs.execution.evaluate import EvaluationConfig, build_setup, evaluation_starts
+from envs.execution.evaluate import EvaluationConfig, build_setup
+from envs.execution.starts import evaluation_starts
 from envs.execution.profile import PARTS, profile_periods
 from envs.task import Task
 from rflow.skill_io import save_skill

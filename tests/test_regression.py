@@ -9,7 +9,9 @@ import json
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.evaluate import EvaluationConfig, EvaluationResult, evaluate, record_from_dict
+from envs.execution.episode import record_from_dict
+from envs.execution.evaluate import EvaluationConfig, evaluate
+from envs.execution.result import EvaluationResult
 from envs.execution.regression import assert_no_regression
 from envs.task import preset
 from evaluation_fixtures import synthetic_evaluation

@@ -1,5 +1,6 @@
-"""envs.execution.statistics: Wilson interval, paired success comparison, finer metrics, the sequential e-processes,
-and their error rates, power and coverage on synthetic Bernoulli pairs (fixed seeds)."""
+"""envs.execution.statistics, .sequential and .pairing: Wilson interval, paired success comparison, finer metrics,
+the sequential e-processes, the pairing of records, and their error rates, power and coverage on synthetic
+Bernoulli pairs (fixed seeds)."""
 
 from __future__ import annotations
 
@@ -10,16 +11,14 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
+from envs.execution.pairing import pair_records
+from envs.execution.sequential import SequentialComparison, SequentialPairedTest, betting_log_wealth
 from envs.execution.statistics import (
     PairedCounts,
-    SequentialComparison,
-    SequentialPairedTest,
-    betting_log_wealth,
     compare_metric,
     compare_success,
     mcnemar_exact,
     noninferiority_decision,
-    pair_records,
     paired_difference_interval,
     unpaired_exact_test,
     wilson_interval,

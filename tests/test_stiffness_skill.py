@@ -215,7 +215,8 @@ def test_pih_evaluate_bad_stiffness_exits_2_before_any_episode(tmp_path, capsys,
 
 
 def test_episode_records_the_learned_stiffness_it_commanded(trained):
-    from envs.env import EpisodeConfig, PegInHoleEnv
+    from envs.env import PegInHoleEnv
+    from envs.episode_config import EpisodeConfig
     from envs.execution.episode import StartPose, run_episode
     from skill_fixtures import GOAL_POS, GOAL_QUAT
 

@@ -10,6 +10,7 @@ from envs.geometry import R_FLIP_X, rot_z
 from rflow.quaternion import mat_to_quat, quat_to_mat
 from envs.shapes import hole_inradius_m, hole_polygon, peg_cross_section
 from envs.success import (
+    EpisodeHoles,
     HoleFrame,
     HoleSpec,
     PegFootprint,
@@ -226,6 +227,21 @@ def test_precomputed_frames_score_exactly_like_the_public_functions():
         assert got.hole == expected.hole and got.inserted == expected.inserted
         assert np.array_equal(np.array(astuple(got.state), dtype=float), np.array(astuple(expected.state), dtype=float),
                               equal_nan=True)
+
+
+def test_the_episode_holes_score_like_assess_insertion_above_and_in_the_holes():
+    """EpisodeHoles' shortcut (only the holes whose opening the peg_tip is below) finds the same hole, insertion and
+    depth as assess_insertion over every hole, above the openings, in the target hole and in another one."""
+    holes = EpisodeHoles(HOLES, "square", TARGET_DEPTH_M, CONFIG, PegFootprint.of(SQUARE))
+    rng = np.random.default_rng(5)
+    for shape in ("square", "triangle"):
+        for _ in range(40):
+            offset = rng.uniform([-0.002, -0.002, -0.045], [0.002, 0.002, 0.02])
+            pos, quat = peg_tip(HOLES[shape], offset, rng.uniform(0, 3), rng.uniform(-20, 20))
+            expected = assess((pos, quat), speed=0.001)
+            got = holes.assess(pos, quat_to_mat(quat), 0.001)
+            assert (got.hole, got.inserted, got.state.depth_m) == (expected.hole, expected.inserted,
+                                                                   expected.state.depth_m)
 
 
 def test_wrap_symmetric_deg_matches_numpy_mod_and_isclose_bit_for_bit():

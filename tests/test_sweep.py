@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.evaluate import EvaluationConfig, evaluation_starts
+from envs.execution.evaluate import EvaluationConfig
+from envs.execution.starts import evaluation_starts
 from envs.execution.sweep import SweepAxes, cell_summary, sweep_cells, sweep_units, unit_key
 from envs.perturbation import PerturbationRanges
 from envs.task import Task

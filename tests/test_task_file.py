@@ -223,7 +223,7 @@ def checkpoints(tmp_path_factory) -> dict[str, Path]:
 
 
 def test_the_checkpoint_records_the_demos_task_with_their_scene(checkpoints) -> None:
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
 
     recorded = json.loads((checkpoints["with"] / "skill.json").read_text())["metadata"]["task"]
     scene = SceneConfig(shape="square", clearance_m=0.001)  # the synthetic demos' (no scene recorded)
@@ -232,7 +232,7 @@ def test_the_checkpoint_records_the_demos_task_with_their_scene(checkpoints) -> 
 
 
 def test_a_demo_file_without_a_task_gives_the_default_task_with_its_scene(checkpoints) -> None:
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
 
     recorded = json.loads((checkpoints["without"] / "skill.json").read_text())["metadata"]["task"]
     assert Task.from_dict(recorded) == Task().with_scene(SceneConfig(shape="square", clearance_m=0.001))
@@ -265,7 +265,7 @@ def test_an_old_checkpoint_without_a_task_still_evaluates(tmp_path: Path) -> Non
 
 
 def result_scene(result):
-    from envs.scene import SceneConfig
+    from envs.scene_config import SceneConfig
 
     return SceneConfig(**{k: result.scene[k] for k in ("shape", "clearance_m", "chamfer_m", "hole_depth_m", "peg_mode",
                                                        "grasp_force_n")})

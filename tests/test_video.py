@@ -8,7 +8,8 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from envs.env import EpisodeConfig, PegInHoleEnv
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.poses import Pose
 from envs.video import PATH_RGBA, EpisodeVideo, Mp4Writer, OffscreenRenderer, VideoConfig, add_polyline

@@ -2,7 +2,7 @@
 
 An evaluation (the JSON of `pih evaluate --json`, its dict, or an EvaluationResult) holds one record per episode.
 Two evaluations run with the same --seed, --episodes and start / task options meet the same starts and hole-pose
-errors, so their episodes pair up by index (envs.execution.statistics.pair_records refuses them otherwise).
+errors, so their episodes pair up by index (envs.execution.pairing.pair_records refuses them otherwise).
 Compared, pair by pair (the statistics in envs.execution.statistics):
   * success: rates, the 2x2 table of paired outcomes, McNemar, the paired difference and its interval, the
     non-inferiority decision with a margin, and Barnard's unpaired test for reference;
@@ -36,8 +36,8 @@ from envs.execution.statistics import (
     SuccessComparison,
     compare_metric,
     compare_success,
-    pair_records,
 )
+from envs.execution.pairing import pair_records
 
 METRICS: dict[str, tuple[str, bool]] = {
     "progress": ("insertion progress (0-1)", True),

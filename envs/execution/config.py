@@ -1,6 +1,6 @@
 """The settings of skill execution, apart from the code that runs it, so that a command line can be built
 (and checked) without loading torch or MuJoCo: the policy modes and lookahead, the commanded stiffness, and
-`EvaluationConfig` (what `evaluate` runs; see envs/execution/evaluate.py for the starts and statistics).
+`EvaluationConfig` (what `evaluate` runs; see envs/execution/starts.py and result.py for the starts and statistics).
 """
 
 from __future__ import annotations

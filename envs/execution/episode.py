@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import time
 import traceback
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable
 
@@ -116,6 +116,20 @@ class EpisodeRecord:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (NaN becomes None)."""
         return {k: _finite_or_none(v) for k, v in asdict(self).items()}
+
+
+def record_from_dict(values: dict[str, Any]) -> EpisodeRecord:
+    """An EpisodeRecord from its ``to_dict`` (as read back from JSON); keys it does not know are dropped, so
+    journals and files of other versions of the record still load. None stands for NaN.
+
+    Raises:
+        EnvError: a field without a default is missing.
+    """
+    known = {f.name for f in fields(EpisodeRecord)}
+    try:
+        return EpisodeRecord(**{k: v for k, v in values.items() if k in known})
+    except TypeError as err:
+        raise EnvError(f"episode record {values.get('index', '?')} is incomplete: {err}") from None
 
 
 def _finite_or_none(value: Any) -> Any:

@@ -13,7 +13,7 @@ policy must not rely on state from the parent process.
 
 The same episodes. The scene is the demos' (shape, clearance, chamfer, peg mount, hole depth, from the demo file's
 recorded scene, as `pih train` keeps it for the skill) with the task options given; the starts are drawn around the
-demo file's start poses with the same seed and ranges (envs.execution.evaluate.evaluation_starts), each with its
+demo file's start poses with the same seed and ranges (envs.execution.starts.evaluation_starts), each with its
 hole-pose error and grasp offset; success is the same physics check. So a policy evaluated on the demos a skill was
 trained on meets exactly the skill's starts and perturbations (`pih compare` pairs the two JSONs episode by episode).
 
@@ -36,8 +36,10 @@ from batch import Journal
 from envs.errors import EnvError
 from envs.execution.config import EvaluationConfig
 from envs.execution.episode import StartPose
-from envs.execution.evaluate import (EvaluationResult, build_env, evaluation_starts, metadata_starts, record_from_dict,
-                                     run_episodes, run_settings)
+from envs.execution.episode import record_from_dict
+from envs.execution.evaluate import build_env, run_episodes, run_settings
+from envs.execution.result import EvaluationResult
+from envs.execution.starts import evaluation_starts, metadata_starts
 from envs.execution.policy_protocol import Policy, PolicyTask, is_policy, policy_task
 from envs.jsonable import to_jsonable
 from envs.poses import Pose

@@ -1,6 +1,6 @@
 """The scripted expert of envs.demos as a `Policy`: a privileged teacher, scored like any other policy.
 
-At ``reset`` it plans the expert's path (envs.demos.plan_expert_path: align above the hole, slow entry, seat, hold)
+At ``reset`` it plans the expert's path (envs.expert.plan_expert_path: align above the hole, slow entry, seat, hold)
 from the measured start pose into the TRUE hole, which only a privileged observation carries
 (``run_episode(..., privileged=True)``, `pih evaluate --policy envs.execution.expert_policy:make --privileged`);
 without it ``reset`` raises. Each ``act`` commands the plan's next sample with the plan's twist and acceleration as
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from envs.demos import ExpertConfig, plan_expert_path, plan_twists
+from envs.expert import ExpertConfig, plan_expert_path, plan_twists
 from envs.errors import EnvError
 from envs.execution.policy_protocol import Action, Observation, PolicyTask
 from envs.poses import Pose

@@ -39,7 +39,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from envs.errors import EnvError
-from envs.execution.evaluate import EvaluationConfig, failure_kinds
+from envs.execution.config import EvaluationConfig
+from envs.execution.result import failure_kinds
 from envs.execution.statistics import wilson_interval
 from envs.task import Task
 

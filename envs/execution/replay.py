@@ -23,7 +23,8 @@ import numpy as np
 from envs.errors import EnvError
 from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose
 from envs.execution.config import SCENE_FROM_TASK
-from envs.execution.evaluate import EvaluationConfig, evaluation_starts, iter_replays
+from envs.execution.evaluate import EvaluationConfig, iter_replays
+from envs.execution.starts import evaluation_starts
 from envs.task import Task
 
 #: Largest difference between a recorded and a redrawn start position (m) or quaternion component.

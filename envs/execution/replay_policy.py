@@ -2,7 +2,7 @@
 
 At ``reset`` the recording (times t_i, poses x_i, optional translational stiffness K_i) is resampled to the control
 period, one command per period: the command of period k is the recording at time (k + 1) T (positions linearly,
-orientations by slerp, stiffness along Log-Euclidean geodesics), as envs.env.replay_trajectory does. After the
+orientations by slerp, stiffness along Log-Euclidean geodesics), as envs.trajectory.replay_trajectory does. After the
 recording's end it holds its last pose at rest.
 
 A recording starts where it was recorded, not where the episode starts. With ``blend_s`` > 0 the difference at the
@@ -12,7 +12,7 @@ recording and faded out with the minimum-jerk weight w(t) = 1 - s(t / blend_s):
 so the replay begins at the measured pose and joins the recorded path after ``blend_s``.
 
 With ``feedforward`` the action carries the replayed path's twist and acceleration (central differences,
-envs.demos.plan_twists), which the episode loop turns into the impedance controller's lead, so the compliant arm
+envs.expert.plan_twists), which the episode loop turns into the impedance controller's lead, so the compliant arm
 follows the path instead of lagging behind it (the demos were recorded with the same lead).
 """
 
@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from envs.demos import plan_twists
+from envs.expert import plan_twists
 from envs.errors import EnvError
 from envs.execution.policy_protocol import Action, Observation
 from envs.poses import (Pose, make_continuous, minimum_jerk, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec,

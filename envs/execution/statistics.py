@@ -5,7 +5,8 @@ Success rate. p = k/n with its Wilson score interval (scipy.stats.binomtest(k, n
 
 Paired comparison. Two evaluations with the same --seed and --episodes run every episode from the same start
 and the same hole-pose error, so episode i of the base skill and episode i of the candidate form a pair
-(`pair_records` checks it). With s_b, s_c in {0, 1} the successes of a pair, the pairs fall into the 2x2 table
+(envs.execution.pairing.pair_records checks it). With s_b, s_c in {0, 1} the successes of a pair, the pairs fall
+into the 2x2 table
     both = #(s_b = s_c = 1),  base_only = #(s_b = 1, s_c = 0),  cand_only = #(s_b = 0, s_c = 1),  neither,
 and the rates are p_b = (both + base_only)/n, p_c = (both + cand_only)/n. The comparison (`compare_success`):
   * McNemar's exact test: under H0 p_c = p_b a discordant pair is base-only with probability 1/2, so given
@@ -25,32 +26,16 @@ time to seat, held force): median, a percentile bootstrap interval of the median
 seed), counts of better / worse / tied pairs, and Wilcoxon's signed-rank p-values (scipy.stats.wilcoxon, zero
 differences dropped).
 
-Sequential test (`SequentialPairedTest`, `SequentialComparison`). Pairs are fed one at a time and the test may
-stop after any of them without losing its error guarantee. For a paired difference d_t in [-1, 1] (success:
-d = s_c - s_b in {-1, 0, 1}; a finer metric scaled to [0, 1]: d = x_c - x_b) and margin M in [0, 1) two
-test supermartingales are kept,
-    regression:     H0 E[d_t | past] >= -M,   K_t = prod_{i<=t} (1 + l_i (-M - d_i)),
-    no regression:  H0 E[d_t | past] <= -M,   K_t = prod_{i<=t} (1 + l_i (d_i + M)),
-with bets l_i in [0, c / B] chosen from the pairs before i (B = 1 + M resp. 1 - M bounds the loss of a pair, so
-every factor is >= 1 - c > 0; c = 1/2). Under its H0 each factor has conditional mean <= 1, so K is a
-nonnegative supermartingale with K_0 = 1 and Ville's inequality P(sup_t K_t >= 1/alpha) <= alpha bounds the
-error of rejecting at the first t with K_t >= 1/alpha, whenever one looks and stops. With M = 0 the success
-bet only moves on discordant pairs, where it is a bet on "base-only" with P(base-only | discordant) <= 1/2
-under H0, i.e. a sequential McNemar test. The bet is the truncated approximate GRAPA plug-in of Waudby-Smith
-and Ramdas, "Estimating means of bounded random variables by betting", JRSS B 86(1), 2024 (arXiv 2010.09686):
-    l_t = clip( S_{t-1} / (1 + Q_{t-1}), 0, c / B ),   S = sum of the past y_i,  Q = sum of the past y_i^2,
-the growth-rate optimal fraction E[y]/E[y^2] of the past with one pseudo-observation y^2 = 1 (`betting_log_wealth`).
-Several metrics decide together: "regression" when any metric's regression e-process reaches k/alpha (Bonferroni
-over the k metrics), "no regression" when every metric's no-regression e-process reaches 1/alpha (an
-intersection-union test, which needs no correction); each decision errs with probability <= alpha.
+The sequential test of paired comparisons is envs.execution.sequential; the pairing of two evaluations' records,
+envs.execution.pairing.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -61,10 +46,6 @@ from envs.errors import EnvError
 FloatArray = npt.NDArray[np.float64]
 
 DECISIONS: tuple[str, str] = ("regression", "no regression")
-START_FIELDS: tuple[str, ...] = ("start_pos", "start_quat")
-PAIRING_TOLERANCE: float = 1e-9
-BET_CAP: float = 0.5
-"""c of the sequential test: a bet risks at most this fraction of the wealth on one pair."""
 BOOTSTRAP_RESAMPLES: int = 2000
 BOOTSTRAP_SEED: int = 0
 
@@ -347,243 +328,16 @@ def compare_metric(base: npt.ArrayLike, candidate: npt.ArrayLike, higher_is_bett
                             p, p_worse)
 
 
-# ------------------------------------------------------------------------------------------ sequential
-
-
-def betting_log_wealth(y: npt.ArrayLike, loss_bound: float, cap: float = BET_CAP) -> FloatArray:
-    """log K_t of the betting e-process for H0 E[y_t | past] <= 0 with y_t >= -loss_bound, t along the last axis.
-
-    K_t = prod_{i<=t} (1 + l_i y_i) with the predictable truncated aGRAPA bet
-    l_i = clip(S_{i-1} / (1 + Q_{i-1}), 0, cap / loss_bound) (module docstring). Vectorised over leading axes
-    (independent sequences).
-
-    Raises:
-        EnvError: loss_bound <= 0, cap outside (0, 1), or a y below -loss_bound.
-    """
-    if not loss_bound > 0.0:
-        raise EnvError(f"loss_bound={loss_bound!r} must be > 0")
-    if not 0.0 < cap < 1.0:
-        raise EnvError(f"cap={cap!r} must lie in (0, 1)")
-    y = np.asarray(y, dtype=np.float64)
-    if np.any(~np.isfinite(y)) or np.any(y < -loss_bound - 1e-12):
-        raise EnvError(f"bets need finite outcomes >= {-loss_bound:g}")
-    zero = np.zeros(y.shape[:-1] + (1,))
-    past_sum = np.concatenate([zero, np.cumsum(y, axis=-1)[..., :-1]], axis=-1)
-    past_squares = np.concatenate([zero, np.cumsum(y * y, axis=-1)[..., :-1]], axis=-1)
-    bet = np.clip(past_sum / (1.0 + past_squares), 0.0, cap / loss_bound)
-    return np.cumsum(np.log1p(bet * y), axis=-1)
-
-
-@dataclass
-class SequentialPairedTest:
-    """The two e-processes of one paired metric with differences d in [-1, 1] (module docstring).
-
-    Attributes:
-        margin: M in [0, 1).
-        differences: the d fed so far, in order.
-    """
-
-    margin: float = 0.0
-    differences: list[float] = field(default_factory=list)
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.margin, (int, float)) and 0.0 <= self.margin < 1.0):
-            raise EnvError(f"margin={self.margin!r} must lie in [0, 1)")
-
-    def update(self, difference: float) -> None:
-        """Feed the next pair's d = x_c - x_b. Raises EnvError outside [-1, 1] or NaN."""
-        if not (isinstance(difference, (int, float, np.floating, np.integer)) and -1.0 <= float(difference) <= 1.0):
-            raise EnvError(f"a paired difference must lie in [-1, 1], got {difference!r}")
-        self.differences.append(float(difference))
-
-    def _e_value(self, y: FloatArray, loss_bound: float) -> float:
-        return float(np.exp(betting_log_wealth(y, loss_bound)[-1])) if y.size else 1.0
-
-    @property
-    def e_regression(self) -> float:
-        """K_t of H0 "not worse than -margin" (large: evidence of a regression)."""
-        return self._e_value(-self.margin - np.asarray(self.differences), 1.0 + self.margin)
-
-    @property
-    def e_no_regression(self) -> float:
-        """K_t of H0 "worse than -margin" (large: evidence of no regression)."""
-        return self._e_value(np.asarray(self.differences) + self.margin, 1.0 - self.margin)
-
-
-@dataclass
-class SequentialComparison:
-    """Several paired metrics tested together pair by pair; stops at the first decision (module docstring).
-
-    Attributes:
-        margins: metric name -> margin M (the metrics fed to ``update``).
-        alpha: error bound of each decision.
-        decision: None until decided, then "regression" or "no regression" (kept from then on).
-        decided_at: number of pairs at the decision (None before).
-    """
-
-    margins: Mapping[str, float]
-    alpha: float = 0.05
-    decision: str | None = None
-    decided_at: int | None = None
-    tests: dict[str, SequentialPairedTest] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if not self.margins:
-            raise EnvError("a sequential comparison needs at least one metric")
-        for name, margin in self.margins.items():
-            check_margin_alpha(margin, self.alpha)
-            self.tests[name] = SequentialPairedTest(float(margin))
-
-    @property
-    def pairs(self) -> int:
-        """Pairs fed so far."""
-        return len(next(iter(self.tests.values())).differences)
-
-    @property
-    def regression_threshold(self) -> float:
-        """k / alpha (Bonferroni over the k metrics)."""
-        return len(self.tests) / self.alpha
-
-    def update(self, differences: Mapping[str, float]) -> str | None:
-        """Feed one pair (a difference per metric) unless already decided; returns the decision so far.
-
-        Raises:
-            EnvError: the metrics differ from ``margins`` or a difference lies outside [-1, 1].
-        """
-        if set(differences) != set(self.tests):
-            raise EnvError(f"a pair needs the metrics {sorted(self.tests)}, got {sorted(differences)}")
-        if self.decision is not None:
-            return self.decision
-        for name, test in self.tests.items():
-            test.update(differences[name])
-        if any(t.e_regression >= self.regression_threshold for t in self.tests.values()):
-            self.decision = DECISIONS[0]
-        elif all(t.e_no_regression >= 1.0 / self.alpha for t in self.tests.values()):
-            self.decision = DECISIONS[1]
-        if self.decision is not None:
-            self.decided_at = self.pairs
-        return self.decision
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready record: decision, pairs, thresholds and each metric's e-values."""
-        return {
-            "decision": self.decision,
-            "decided_at_pair": self.decided_at,
-            "pairs": self.pairs,
-            "alpha": self.alpha,
-            "regression_threshold": self.regression_threshold,
-            "no_regression_threshold": 1.0 / self.alpha,
-            "metrics": {name: {"margin": t.margin, "e_regression": t.e_regression,
-                               "e_no_regression": t.e_no_regression} for name, t in self.tests.items()},
-            "method": "betting e-processes, truncated aGRAPA bets (Waudby-Smith & Ramdas 2024), Ville's inequality",
-        }
-
-
-# ------------------------------------------------------------------------------------------ pairing
-
-
-def _numbers(value: Any, length: int) -> FloatArray | None:
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        return None
-    return array if array.shape == (length,) else None
-
-
-def _short(values: FloatArray) -> str:
-    return "[" + ", ".join(f"{v:.6g}" for v in values) + "]"
-
-
-def _check_record(record: Any, side: str) -> Mapping[str, Any]:
-    if not isinstance(record, Mapping):
-        raise EnvError(f"{side}: an episode record must be a JSON object, got {type(record).__name__}")
-    for key, length in (("start_pos", 3), ("start_quat", 4)):
-        if _numbers(record.get(key), length) is None:
-            raise EnvError(f"{side}: episode {record.get('index', '?')} has no numeric {key} of length {length}")
-    if not isinstance(record.get("index"), int) or not isinstance(record.get("success"), bool):
-        raise EnvError(f"{side}: an episode record needs an integer 'index' and a boolean 'success'")
-    if not isinstance(record.get("perturbation", {}), Mapping):
-        raise EnvError(f"{side}: episode {record['index']} has a perturbation that is not an object")
-    return record
-
-
-def _by_index(records: Sequence[Any], side: str) -> dict[int, Mapping[str, Any]]:
-    out: dict[int, Mapping[str, Any]] = {}
-    for record in records:
-        r = _check_record(record, side)
-        if r["index"] in out:
-            raise EnvError(f"{side} holds episode {r['index']} twice")
-        out[r["index"]] = r
-    return out
-
-
-def _perturbation_difference(base: Mapping[str, Any], cand: Mapping[str, Any], tolerance: float) -> str | None:
-    """What differs between two perturbation dicts (None: equal); an empty one (an episode that never ran:
-    worker_died, wall_timeout) carries none and is not compared."""
-    if not base or not cand:
-        return None
-    for key in sorted(set(base) | set(cand)):
-        if key not in base or key not in cand:
-            return f"perturbation {key} is missing in the {'base' if key not in base else 'candidate'}"
-        x, y = base[key], cand[key]
-        if x is None or y is None:
-            if x is not y:
-                return f"perturbation {key} differs ({x} vs {y})"
-            continue
-        if not (isinstance(x, (int, float)) and isinstance(y, (int, float))) or abs(x - y) > tolerance:
-            return f"perturbation {key} differs ({x} vs {y})"
-    return None
-
-
-def pair_records(base: Sequence[Any], candidate: Sequence[Any], tolerance: float = PAIRING_TOLERANCE,
-                 ) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]]:
-    """Match two evaluations' episode records (``EpisodeRecord.to_dict()``) by episode index.
-
-    Returns:
-        (base records, candidate records), both sorted by index, record i of each from the same episode.
-
-    Raises:
-        EnvError (one line, naming the first differing episode and field): a malformed record, an index twice,
-        different episode sets, or a start pose (start_pos, start_quat) or perturbation differing by more
-        than ``tolerance``: then the evaluations did not run the same episodes and are not paired.
-    """
-    b, c = _by_index(base, "base"), _by_index(candidate, "candidate")
-    if not b:
-        raise EnvError("the base evaluation has no episodes")
-    if set(b) != set(c):
-        first = min(set(b) ^ set(c))
-        raise EnvError(f"the episode sets differ: episode {first} is only in the {'base' if first in b else 'candidate'} "
-                       f"({len(b)} vs {len(c)} episodes; run both with the same --episodes and --seed)")
-    for index in sorted(b):
-        for key, length in (("start_pos", 3), ("start_quat", 4)):
-            x, y = _numbers(b[index][key], length), _numbers(c[index][key], length)
-            assert x is not None and y is not None  # checked in _check_record
-            if np.max(np.abs(x - y)) > tolerance:
-                raise EnvError(f"episode {index}: {key} differs ({_short(x)} vs {_short(y)}): the evaluations "
-                               "did not start from the same poses (same --seed and start options?)")
-        what = _perturbation_difference(b[index].get("perturbation") or {}, c[index].get("perturbation") or {},
-                                        tolerance)
-        if what is not None:
-            raise EnvError(f"episode {index}: {what}: the evaluations did not use the same hole-pose errors "
-                           "(same --seed and task options?)")
-    order = sorted(b)
-    return [b[i] for i in order], [c[i] for i in order]
-
-
 __all__ = [
     "DECISIONS",
     "MetricComparison",
     "PairedCounts",
-    "SequentialComparison",
-    "SequentialPairedTest",
     "SuccessComparison",
-    "betting_log_wealth",
     "check_margin_alpha",
     "compare_metric",
     "compare_success",
     "mcnemar_exact",
     "noninferiority_decision",
-    "pair_records",
     "paired_difference_interval",
     "unpaired_exact_test",
     "wilson_interval",

@@ -24,17 +24,9 @@ from typing import Any, Sequence
 from envs.errors import EnvError
 from envs.execution.episode import StartPose, run_episode
 from envs.execution.config import SCENE_FROM_TASK
-from envs.execution.evaluate import (
-    EvaluationConfig,
-    _failed_unit,
-    build_setup,
-    failure_kinds,
-    finite_max,
-    finite_median,
-    finite_min,
-    record_from_dict,
-    run_settings,
-)
+from envs.execution.episode import record_from_dict
+from envs.execution.evaluate import EvaluationConfig, _failed_unit, build_setup, run_settings
+from envs.execution.result import failure_kinds, finite_max, finite_median, finite_min
 from envs.execution.statistics import wilson_interval
 
 AXES: tuple[str, ...] = ("clearance_m", "hole_error_m", "chamfer_m", "hole_error_deg", "pos_range_m", "stiffness")
@@ -245,7 +237,7 @@ def _key_order(key: str) -> tuple[int, int]:
 
 def sweep_units(cells: Sequence[Cell], demo_starts: dict[str, Any]) -> list[tuple[str, tuple[int, StartPose]]]:
     """Every (key, (cell, start)) unit; each cell's starts come from its own config (the same seeds in all)."""
-    from envs.execution.evaluate import evaluation_starts
+    from envs.execution.starts import evaluation_starts
 
     units = []
     for cell in cells:

@@ -1,0 +1,154 @@
+"""What an episode (envs.env.PegInHoleEnv) exposes: the observation after a reset or a step (`Observation`, read
+from the simulator state by an `Observer`), the outcome of a control period (`StepResult`) and why an episode ended.
+
+The insertion is scored from the peg's simulated pose and speed against the episode's holes (envs.success: seated,
+inside the walls, at rest, held for hold_s); the commanded pose is never consulted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from envs.geometry import all_finite
+from envs.poses import Pose
+from envs.scene import SceneIds
+from envs.sensing import ContactStats, PegContacts, WristSensor
+from envs.success import Assessment, EpisodeHoles, InsertionState, SuccessTracker
+from rflow.quaternion import quat_to_mat
+from rflow.small_linalg import norm
+
+FloatArray = npt.NDArray[np.float64]
+
+REASON_SUCCESS = "success"
+REASON_TIME_LIMIT = "time_limit"
+REASON_FORCE_LIMIT = "force_limit"
+REASON_INSTABILITY = "instability"
+"""End reasons; an instability reason reads 'instability: <what was detected>'."""
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What the episode exposes after a reset or a step (world frame, SI units).
+
+    Attributes:
+        time_s: simulated time since the reset.
+        qpos, qvel: arm joint positions (rad) and velocities (rad/s), (7,).
+        gripper_width_m: opening between the finger pads (0 when the peg is welded).
+        flange: measured flange pose (pos m, quat w, x, y, z).
+        tcp: the nominal peg_tip measured through the arm's kinematics (what the robot knows; the skill's frame).
+        peg_tip: the peg's own peg_tip pose (simulator truth: it differs from ``tcp`` by the grasp offset and
+            any slip or tilt in the grasp).
+        wrist_wrench: (6,) [force N; torque N m] the environment exerts on the tool, from the wrist F/T sensor
+            zeroed for the tool load, in the sensor frame (envs.sensing).
+        contact_force_n: sum of the environment's contact normal-force magnitudes on the peg, now.
+        insertion: the peg_tip relative to the target hole (depth, lateral, tilt, yaw, in_hole, wall
+            penetration, speed).
+        hole: the hole the peg_tip is in (None: none; another shape: wrong hole).
+        inserted: the success criteria hold at this instant.
+        success: the success tracker has declared success (criteria held for hold_s).
+    """
+
+    time_s: float
+    qpos: FloatArray
+    qvel: FloatArray
+    gripper_width_m: float
+    flange: Pose
+    tcp: Pose
+    peg_tip: Pose
+    wrist_wrench: FloatArray
+    contact_force_n: float
+    insertion: InsertionState
+    hole: str | None
+    inserted: bool
+    success: bool
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """Outcome of one control period: the observation, whether the episode ended and why, and extras.
+
+    ``info`` holds "target" (the commanded Pose), "q_ref" (the nullspace joint reference) and "step"
+    (index of the control step, from 1).
+    """
+
+    obs: Observation
+    done: bool
+    reason: str | None
+    info: dict[str, Any]
+
+
+def site_pose(data: mujoco.MjData, site_id: int) -> Pose:
+    """The world pose of a site (a copy of its position, its rotation as a quaternion w, x, y, z)."""
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, data.site_xmat[site_id])
+    return Pose(pos=data.site_xpos[site_id].copy(), quat=quat)
+
+
+class Observer:
+    """Reads the Observation of an episode from its MjData (module docstring)."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, ids: SceneIds, arm_dof: slice, grasped: bool,
+                 wrist: WristSensor, contacts: PegContacts) -> None:
+        """Args:
+            model, data: the episode's model and data.
+            ids: the scene's sites and addresses.
+            arm_dof: the arm's joints in ``data.qvel``.
+            grasped: the fingers hold the peg (else it is welded: no gripper width).
+            wrist, contacts: the sensors.
+        """
+        self.model, self.data, self.grasped, self.wrist, self.contacts = model, data, grasped, wrist, contacts
+        self.flange_site, self.tcp_site, self.peg_tip_site = ids.flange_site, ids.tcp_site, ids.peg_tip_site
+        self.arm_qpos, self.arm_dof = np.asarray(ids.arm_qpos_adr), arm_dof
+        self.finger_qpos = np.asarray(ids.finger_qpos_adr, dtype=int)
+        self._velocity = np.zeros(6)
+
+    def peg_speed_m_s(self) -> float:
+        """Linear speed of the peg's peg_tip (m/s), from the simulated state."""
+        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self.peg_tip_site,
+                                 self._velocity, 0)
+        return norm(self._velocity[3:])
+
+    def assess(self, holes: EpisodeHoles, pos: FloatArray, rot: FloatArray, speed_m_s: float | None) -> Assessment:
+        """A checked peg_tip position (3,) and rotation matrix (3, 3) scored against ``holes``, at ``speed_m_s``
+        (None: the simulated peg's)."""
+        return holes.assess(pos, rot, self.peg_speed_m_s() if speed_m_s is None else speed_m_s)
+
+    def observe(self, time_s: float, holes: EpisodeHoles, tracker: SuccessTracker, stats: ContactStats | None,
+                track: bool = True) -> Observation:
+        """The observation at episode time ``time_s``; the success ``tracker`` is updated (with "not inserted" unless
+        ``track``) and the wrist force and torque are appended to the samples of ``stats`` (None: not sampled)."""
+        data = self.data
+        flange = site_pose(data, self.flange_site)
+        tcp = site_pose(data, self.tcp_site)
+        peg_tip = site_pose(data, self.peg_tip_site)
+        if all_finite(peg_tip.pos) and all_finite(peg_tip.quat) and norm(peg_tip.quat) > 0.5:
+            assessment = self.assess(holes, peg_tip.pos, quat_to_mat(peg_tip.quat), None)
+        else:
+            nan_state = InsertionState(np.nan, np.nan, np.nan, np.nan, False)
+            assessment = Assessment(None, nan_state, False)
+        success = tracker.update(time_s, assessment.inserted and track)
+        wrench = self.wrist.wrench(data)
+        if stats is not None:
+            stats.wrist_force_samples.append(norm(wrench[:3]))
+            stats.wrist_torque_samples.append(norm(wrench[3:]))
+        width = float(np.add.reduce(data.qpos[self.finger_qpos])) if self.grasped else 0.0
+        return Observation(
+            time_s=time_s,
+            qpos=data.qpos[self.arm_qpos].copy(),
+            qvel=data.qvel[self.arm_dof].copy(),
+            gripper_width_m=width,
+            flange=flange,
+            tcp=tcp,
+            peg_tip=peg_tip,
+            wrist_wrench=wrench,
+            contact_force_n=self.contacts.normal_forces(data)[0],
+            insertion=assessment.state,
+            hole=assessment.hole,
+            inserted=assessment.inserted,
+            success=success,
+        )
