@@ -54,7 +54,7 @@ from envs.poses import (Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec,
 from rflow.errors import RFlowError
 from rflow.generate import next_point, rollout
 from rflow.skill_io import PoseSkill
-from rflow.small_linalg import norm
+from rflow.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -271,7 +271,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         """`Policy.reset`: as `reset_at`, and the stall search learns where the nominal hole's mouth is."""
         self.reset_at(observation.tcp, period_s)
         below = self.adapter.goal_pos - np.asarray(observation.nominal_hole.pos, dtype=np.float64)
-        self.adapter.mouth_depth_m = float(np.dot(self.adapter.axis, below))
+        self.adapter.mouth_depth_m = dot(self.adapter.axis, below)
 
     def reset_at(self, start: Pose, period_s: float) -> None:
         """Start an episode: no push, frame shift or search (which needs `reset`'s nominal hole); the stiffness
