@@ -155,9 +155,9 @@ class ContactAdapter:
     @property
     def offset(self) -> FloatArray:
         """u + s: the axial push and the stall search's lateral offset, added to the led anchor (m, world)."""
-        if self.search_s > 0.0:
-            return self.config.search_push_scale * self.push + self.search
-        return self.push + self.search
+        if self.search_s == 0.0:
+            return self.push  # no search: s = 0 (no new array on the control path)
+        return self.config.search_push_scale * self.push + self.search
 
     @property
     def rotation_quat(self) -> list[float]:
@@ -198,7 +198,8 @@ class ContactAdapter:
                    and norm(self.push) > cfg.search_push_m
                    and dot(self.axis, here - self.goal_pos) + self.mouth_depth_m < cfg.search_band_m)
         if not stalled:
-            self.search, self.search_s = np.zeros(3), 0.0
+            if self.search_s > 0.0:  # the search ends
+                self.search, self.search_s = np.zeros(3), 0.0
             return False
         self.search_s += period_s
         phase = 2.0 * np.pi * self.search_s / cfg.search_period_s

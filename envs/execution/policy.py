@@ -268,18 +268,18 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         self._step = 0
 
     def reset(self, observation: Observation, period_s: float) -> None:
-        """`Policy.reset`: as `reset_at`, and the stall search learns where the nominal hole's mouth is."""
-        self.reset_at(observation.tcp, period_s)
+        """`Policy.reset`: `reset_at` the measured tcp pose, with the nominal hole's mouth for the stall search."""
         below = self.adapter.goal_pos - np.asarray(observation.nominal_hole.pos, dtype=np.float64)
-        self.adapter.mouth_depth_m = dot(self.adapter.axis, below)
+        self.reset_at(observation.tcp, period_s, mouth_depth_m=dot(self.adapter.axis, below))
 
-    def reset_at(self, start: Pose, period_s: float) -> None:
-        """Start an episode: no push, frame shift or search (which needs `reset`'s nominal hole); the stiffness
-        state (stiffness skills) starts at the skill's start stiffness."""
+    def reset_at(self, start: Pose, period_s: float, mouth_depth_m: float | None = None) -> None:
+        """Start an episode: no push, frame shift or search; ``mouth_depth_m``: how far the goal lies beyond the
+        nominal hole's mouth along the axis (None: no stall search); the stiffness state (stiffness skills) starts
+        at the skill's start stiffness."""
         self._step = 0
         self._flow_period_s = float(period_s) * self.speed
         self._period_s = float(period_s)
-        self.adapter.reset()
+        self.adapter.reset(mouth_depth_m)
         self.stiffness_state = self.skill.start_stiffness if self.skill.has_stiffness else None
         self.stiffness_clipped_steps = 0
 
