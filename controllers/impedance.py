@@ -429,23 +429,31 @@ class CartesianImpedanceController:
         """
         if int(n_substeps) < 1:
             raise ControllerError(f"n_substeps={n_substeps!r} must be >= 1")
-        k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
-        _, qpos, qvel, bias, site_pos, site_mat, ctrl = self._data_views(data)
-        fns, m, d, site = self._fns, self.model._address, data._address, self.site_id
-        jac, jac_minv, target, params, last_tau, work, vec = (self._jac, self._jac_minv, self._target, self._params,
-                                                              self._last_tau, self._work, self._vec)
-        tool, point, jac_tool, jac_tool_arm = self._tool, self._tool_point, self._jac_tool, self._jac_tool_arm
-        applied = data.qfrc_applied[self.dof_slice]
+        arguments = self.substep_arguments(data, target_pos, target_quat, stiffness, q_nullspace)
         substep = kernel.impedance_substep
         for done in range(1, int(n_substeps) + 1):
             if before_substep is not None:
                 before_substep()
-            if substep(fns, m, d, site, jac, jac_minv, qpos, qvel, bias, site_pos, site_mat, target, k, params,
-                       last_tau, ctrl, work, vec, tool, point, jac_tool, jac_tool_arm, applied) != kernel.STATUS_OK:
+            if substep(*arguments) != kernel.STATUS_OK:
                 raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed); the arm is singular")
             if after_substep is not None and after_substep():
                 return done
         return int(n_substeps)
+
+    def substep_arguments(self, data: mujoco.MjData, target_pos: npt.ArrayLike, target_quat: npt.ArrayLike,
+                          stiffness: npt.ArrayLike | None = None, q_nullspace: npt.ArrayLike | None = None) -> tuple:
+        """The arguments of ``impedance_kernel.impedance_substep`` for ``data`` toward this command (validated and
+        stored in the kernel's buffers), for `step` and for a compiled loop that runs several substeps in one call
+        (envs.period_kernel).
+
+        Raises:
+            ControllerError: bad inputs (as `compute_torque`).
+        """
+        k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
+        _, qpos, qvel, bias, site_pos, site_mat, ctrl = self._data_views(data)
+        return (self._fns, self.model._address, data._address, self.site_id, self._jac, self._jac_minv, qpos, qvel,
+                bias, site_pos, site_mat, self._target, k, self._params, self._last_tau, ctrl, self._work, self._vec,
+                self._tool, self._tool_point, self._jac_tool, self._jac_tool_arm, data.qfrc_applied[self.dof_slice])
 
     def _validate(
         self,

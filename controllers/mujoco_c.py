@@ -114,3 +114,40 @@ def call_integrate_pos(typingctx, fn, m, qpos, qvel, dt):  # type: ignore[no-unt
         _jump(builder, args[0], list(args[1:]), "pppd")
         return context.get_dummy_value()
     return types.none(types.int64, types.int64, types.int64, types.int64, types.float64), codegen
+
+
+def _load(builder: ir.IRBuilder, address: ir.Value, kind: ir.Type) -> ir.Value:
+    return builder.load(builder.inttoptr(address, kind.as_pointer()))
+
+
+@intrinsic
+def load_i32(typingctx, address):  # type: ignore[no-untyped-def]
+    """The C int at ``address`` (e.g. mjData.ncon at its controllers.mujoco_layout offset)."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return builder.sext(_load(builder, args[0], _I32), _I64)
+    return types.int64(types.int64), codegen
+
+
+@intrinsic
+def load_pointer(typingctx, address):  # type: ignore[no-untyped-def]
+    """The pointer at ``address``, as an int64 (e.g. mjData.contact)."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return _load(builder, args[0], _I64)
+    return types.int64(types.int64), codegen
+
+
+
+@intrinsic
+def int32_pointer(typingctx, address):  # type: ignore[no-untyped-def]
+    """``address`` as an int32* (for numba.carray over a C array, e.g. mjData.contact read as ints)."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return builder.inttoptr(args[0], _I32.as_pointer())
+    return types.CPointer(types.int32)(types.int64), codegen
+
+
+@intrinsic
+def float64_pointer(typingctx, address):  # type: ignore[no-untyped-def]
+    """``address`` as a double* (for numba.carray over a C array, e.g. mjData.efc_force)."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return builder.inttoptr(args[0], _F64.as_pointer())
+    return types.CPointer(types.float64)(types.int64), codegen

@@ -37,6 +37,7 @@ import numpy.typing as npt
 from controllers.errors import ControllerError
 from controllers.ik import NullspaceReference, solve_ik
 from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
+from controllers.impedance_kernel import STATUS_OK
 from controllers.protocol import Controller
 from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
@@ -44,6 +45,7 @@ from envs.geometry import as_vector
 from envs.instability import InstabilityCheck
 from envs.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUCCESS, REASON_TIME_LIMIT, Observation,
                               Observer, StepResult, site_pose)
+from envs.period_kernel import controlled_period
 from envs.perturbation import Perturbation, perturbed_frame, sample_perturbation
 from envs.poses import Pose, format_pose, nominal_start, rotate, sample_start_poses, validate_pose
 from envs.scene import Scene, build_scene
@@ -342,8 +344,7 @@ class PegInHoleEnv:
         self.sensing.start_period(self._steps * self.control_period_s)
         try:
             with np.errstate(all="ignore"):
-                ran = self.controller.step(self.data, pose.pos, pose.quat, stiffness, q_ref, self.n_substeps,
-                                           after_substep=self._sense)
+                ran = self._run_period(pose, stiffness, q_ref)
             force_limited = ran < self.n_substeps or self.stats.force_limit_time_s is not None  # also on the last substep
         except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
             problem = f"controller failed ({type(err).__name__}: {err})"
@@ -366,6 +367,27 @@ class PegInHoleEnv:
             self._done, self._reason = True, reason
         return StepResult(obs=obs, done=reason is not None, reason=reason,
                           info={"target": pose, "q_ref": q_ref, "step": self._steps})
+
+    def _run_period(self, pose: Pose, stiffness: FloatArray | None, q_ref: FloatArray) -> int:
+        """The period's physics steps toward ``pose``, each followed by the sensing; the number completed.
+
+        The impedance controller runs them in one compiled call (envs.period_kernel: the same kernels as its
+        ``step`` with the `_sense` hook, without Python between physics steps); any other Controller through its
+        ``step`` with the hook.
+
+        Raises:
+            ControllerError: the controller failed (bad command, singular arm).
+        """
+        controller = self.controller
+        if not isinstance(controller, CartesianImpedanceController):
+            return controller.step(self.data, pose.pos, pose.quat, stiffness, q_ref, self.n_substeps,
+                                   after_substep=self._sense)
+        arguments = controller.substep_arguments(self.data, pose.pos, pose.quat, stiffness, q_ref)
+        ran, status, limit_hit = controlled_period(self.n_substeps, *arguments, *self.sensing.period_arguments())
+        self.sensing.after_period(limit_hit)
+        if status != STATUS_OK:
+            raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed); the arm is singular")
+        return int(ran)
 
     def _sense(self) -> bool:
         """The hook after every physics step (envs.sensing.EpisodeSensing.substep: peaks, force window, force limit);

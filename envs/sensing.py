@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from controllers.mujoco_layout import check_layout
 from envs import sensing_kernel as kernel
 from envs.errors import EnvError
 
@@ -182,6 +183,7 @@ class SenseInputs:
         counted, scratch: the counted contact pairs and the forces' buffer (`PegContacts.kernel_inputs`).
         limits: [force_limit_n, force_limit_window_s, timestep] (sensing_kernel.LIMIT_*).
         state: the sense state (sensing_kernel.sense_state): peaks, force window, time above the force limit.
+        layout: where the mjData keeps its contacts (controllers.mujoco_layout, checked on this data).
     """
 
     wrist_rot: FloatArray
@@ -195,6 +197,12 @@ class SenseInputs:
     scratch: FloatArray
     limits: FloatArray
     state: FloatArray
+    layout: npt.NDArray[np.int64]
+
+    def kernel_arguments(self) -> tuple:
+        """The arguments of ``sensing_kernel.sense_substep_at`` after the mjData's address."""
+        return (self.layout, self.wrist_rot, self.wrist_pos, self.xipos, self.force, self.torque, self.bodies,
+                self.load, self.counted, self.scratch, self.limits, self.state)
 
 
 class EpisodeSensing:
@@ -215,7 +223,8 @@ class EpisodeSensing:
         limits = np.array([force_limit_n, force_limit_window_s, timestep], dtype=np.float64)
         self.data = data
         self.inputs = SenseInputs(*wrist.kernel_inputs(data), *contacts.kernel_inputs(), limits,
-                                  kernel.sense_state(window))
+                                  kernel.sense_state(window), check_layout(data))
+        self._arguments = self.inputs.kernel_arguments()
         self.stats = ContactStats()
         self._period_start_s = 0.0
 
@@ -230,17 +239,21 @@ class EpisodeSensing:
 
     def substep(self) -> bool:
         """Update the peaks, the force window and the time above the force limit after a physics step
-        (sensing_kernel.sense_substep); True when the force limit hits, whose time is then the start of the control
-        period unless it hit earlier."""
-        i, data = self.inputs, self.data
-        contact = data.contact
-        if not kernel.sense_substep(i.wrist_rot, i.wrist_pos, i.xipos, i.force, i.torque, i.bodies, i.load,
-                                    contact.geom, contact.efc_address, data.efc_force, i.counted, i.scratch,
-                                    i.limits, i.state):
-            return False
-        stats = self.stats
-        stats.force_limit_time_s = stats.force_limit_time_s or self._period_start_s
-        return True
+        (sensing_kernel.sense_substep_at); True when the force limit hits (`after_period` records its time)."""
+        return self.after_period(kernel.sense_substep_at(self.data._address, *self._arguments))
+
+    def period_arguments(self) -> tuple:
+        """The arguments of ``sensing_kernel.sense_substep_at`` after the mjData's address, for a compiled loop that
+        senses after each of its physics steps itself (envs.period_kernel)."""
+        return self._arguments
+
+    def after_period(self, limit_hit: bool) -> bool:
+        """Record a force limit hit in this control period (at the period's start unless it hit earlier); returns
+        ``limit_hit``."""
+        if limit_hit:
+            stats = self.stats
+            stats.force_limit_time_s = stats.force_limit_time_s or self._period_start_s
+        return bool(limit_hit)
 
     def copy_peaks(self) -> None:
         """Copy the peaks of the sense state into ``stats``."""

@@ -35,6 +35,9 @@ import math
 import numba
 import numpy as np
 
+from controllers.mujoco_c import float64_pointer, int32_pointer, load_i32, load_pointer
+from controllers.mujoco_layout import (LAYOUT_CONTACT, LAYOUT_CONTACT_SIZE, LAYOUT_EFC_ADDRESS, LAYOUT_EFC_FORCE,
+                                       LAYOUT_GEOM, LAYOUT_NCON, LAYOUT_NEFC)
 from envs.errors import EnvError
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -259,3 +262,28 @@ def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, forc
     above = state[ABOVE_LIMIT_S] + limits[LIMIT_TIMESTEP] if f > limits[LIMIT_FORCE] else 0.0
     state[ABOVE_LIMIT_S] = above
     return above >= limits[LIMIT_WINDOW_S] - 1e-12 and above > 0.0
+
+
+@_jit
+def contacts_at(d: int, layout: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Views of the contacts of the mjData at address ``d`` now: (geom (ncon, 2), efc_address (ncon,),
+    efc_force (nefc,)), the arrays `normal_forces` reads, read through the offsets of controllers.mujoco_layout
+    (so a compiled loop needs no Python between physics steps to get them)."""
+    ncon = load_i32(d + layout[LAYOUT_NCON])
+    nefc = load_i32(d + layout[LAYOUT_NEFC])
+    words = layout[LAYOUT_CONTACT_SIZE] // 4
+    table = numba.carray(int32_pointer(load_pointer(d + layout[LAYOUT_CONTACT])), (ncon, words))
+    g, e = layout[LAYOUT_GEOM] // 4, layout[LAYOUT_EFC_ADDRESS] // 4
+    efc_force = numba.carray(float64_pointer(load_pointer(d + layout[LAYOUT_EFC_FORCE])), (nefc,))
+    return table[:, g:g + 2], table[:, e], efc_force
+
+
+@_jit
+def sense_substep_at(d: int, layout: np.ndarray, rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray,
+                     force: np.ndarray, torque: np.ndarray, bodies: np.ndarray, load: np.ndarray, counted: np.ndarray,
+                     scratch: np.ndarray, limits: np.ndarray, state: np.ndarray) -> bool:
+    """`sense_substep` on the contacts of the mjData at address ``d`` (`contacts_at`); True when the force limit
+    is hit."""
+    geom, efc_address, efc_force = contacts_at(d, layout)
+    return sense_substep(rot, site_pos, xipos, force, torque, bodies, load, geom, efc_address, efc_force, counted,
+                         scratch, limits, state)

@@ -181,6 +181,10 @@ CREATE_ATTEMPTS: int = 5
 a unique violation); the loser looks again, up to this many times."""
 
 
+CREATED_ELSEWHERE = ("42P07", "42710")
+"""PostgreSQL SQLSTATEs of a table or type that another process created first (duplicate_table, duplicate_object)."""
+
+
 def open_study(storage: str, study_name: str, sampler_seed: int | None = 0, startup_trials: int = 5) -> Any:
     """Create or load the study ``study_name`` at the SQLAlchemy URL ``storage`` (TPE, median pruner, minimise).
 
@@ -189,7 +193,7 @@ def open_study(storage: str, study_name: str, sampler_seed: int | None = 0, star
     """
     import time
 
-    from sqlalchemy.exc import IntegrityError
+    from sqlalchemy.exc import IntegrityError, ProgrammingError
 
     optuna = _import_optuna()
     sampler = optuna.samplers.TPESampler(seed=sampler_seed)
@@ -198,7 +202,11 @@ def open_study(storage: str, study_name: str, sampler_seed: int | None = 0, star
         try:
             return optuna.create_study(storage=storage, study_name=study_name, sampler=sampler, pruner=pruner,
                                        direction="minimize", load_if_exists=True)
-        except IntegrityError:  # another process created the same tables or study a moment earlier: look again
+        except (IntegrityError, ProgrammingError) as err:
+            # another process created the same tables (PostgreSQL: duplicate table 42P07 or type 42710, a
+            # ProgrammingError) or study (a unique violation) a moment earlier: look again
+            if isinstance(err, ProgrammingError) and getattr(err.orig, "sqlstate", None) not in CREATED_ELSEWHERE:
+                raise RFlowError(f"cannot open storage {storage}: {str(err).strip().splitlines()[0]}") from None
             if attempt == CREATE_ATTEMPTS - 1:
                 raise RFlowError(f"study {study_name!r} at {storage}: could not create or load it after "
                                  f"{CREATE_ATTEMPTS} attempts (other processes creating it)") from None
