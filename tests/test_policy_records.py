@@ -44,7 +44,8 @@ def test_records_equal_those_of_the_fixture_field_for_field(cases) -> None:
         assert (new["mode"], new["stiffness"]) == (old["mode"], old["stiffness"])
         for key, value in old["record"].items():
             assert new["record"][key] == value, f"{old['mode']} {old['stiffness']} episode {old['record']['index']}: {key}"
-        assert new["record"].keys() == old["record"].keys()
+        assert new["record"].keys() - old["record"].keys() <= {"failure"}  # fields added since the fixture
+        assert old["record"].keys() <= new["record"].keys()
         assert new["trace_sha256"] == old["trace_sha256"]
 
 

@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from envs.execution.failure import ProgressWindow
 from envs.execution.feedforward import command_stiffness, led_pose, translational_stiffness
 from envs.execution.policy_protocol import Action, Policy, observe
 from envs.perturbation import Perturbation
@@ -58,6 +59,8 @@ class EpisodeRecord:
         success: the physics check declared success.
         reason: "success", "time_limit (...)", "force_limit (...)", "instability: ...", "unreachable start: ...",
             "error: ...".
+        failure: what went wrong when it failed (envs.execution.failure: "jammed", "free_space_timeout",
+            "left_grasp", "time_limit", "force_limit", "instability", "unreachable_start", "error"); None on success.
         perturbation: the episode's hole-pose error and grasp offset (mm, deg).
         time_to_insert_s: simulated time until success (None on failure).
         final_pos_error_mm: ||p_final - g_p|| against the real (perturbed) hole's goal.
@@ -87,6 +90,7 @@ class EpisodeRecord:
     start_quat: list[float]
     success: bool = False
     reason: str = "not run"
+    failure: str | None = None
     perturbation: dict[str, float] = field(default_factory=dict)
     time_to_insert_s: float | None = None
     final_pos_error_mm: float = float("nan")
@@ -201,11 +205,13 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
         try:
             obs = env.reset(start_pose=start.pose, perturbation=start.perturbation)
         except EnvError as err:
-            rec.reason = f"unreachable start: {err}"
+            rec.reason, rec.failure = f"unreachable start: {err}", "unreachable_start"
             return rec, None
         period = env.control_period_s
         policy.reset(observe(env, privileged), period)
         rows.append((obs, obs.tcp))
+        progress = ProgressWindow(period)
+        _add_progress(progress, obs)
         if on_step is not None:
             on_step(env)
         step = 0
@@ -219,6 +225,7 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
             target = led_pose(env, action, feedforward_gain, stiffness)  # = feedforward_pose, stiffness made once
             result = env.step(target, stiffness)
             commanded.append(translational_stiffness(action, default_k))
+            _add_progress(progress, result.obs)
             step += 1
             if record_trace:
                 rows.append((result.obs, target))
@@ -236,6 +243,7 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
             rec.reason = (f"{reason} (depth {ins.depth_m * 1e3:.1f} mm, lateral {ins.lateral_m * 1e3:.2f} mm, "
                           f"tilt {ins.tilt_deg:.1f} deg, yaw {ins.yaw_error_deg:.1f} deg, "
                           f"speed {ins.speed_m_s * 1e3:.1f} mm/s, hole {obs.hole})")
+            rec.failure = progress.failure(reason)
         rec.final_pos = obs.peg_tip.pos.tolist()
         rec.final_quat = obs.peg_tip.quat.tolist()
         rec.final_pos_error_mm = norm(obs.peg_tip.pos - env.goal.pos) * 1e3
@@ -255,7 +263,7 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
     except Exception as err:  # an episode must never abort the batch
         last = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         where = f" at {Path(last.filename).name}:{last.lineno}" if last else ""
-        rec.success = False
+        rec.success, rec.failure = False, "error"
         rec.reason = f"error: {type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}{where}"
     finally:
         rec.wall_s = time.perf_counter() - wall
@@ -264,6 +272,11 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
         k = np.stack(commanded[:1] + commanded) if commanded else np.full((len(rows), 3, 3), np.nan)
         trace = _trace_of(rows, k[:len(rows)])
     return rec, trace
+
+
+def _add_progress(progress: ProgressWindow, obs: Any) -> None:
+    """One period of the failure judge (envs.execution.failure): depth, contact force, |peg_tip - tcp|."""
+    progress.add(obs.insertion.depth_m, obs.contact_force_n, norm(obs.peg_tip.pos - obs.tcp.pos))
 
 
 def _trace_of(rows: list[tuple[Any, Pose]], stiffness: FloatArray) -> EpisodeTrace:

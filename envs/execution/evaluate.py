@@ -25,7 +25,7 @@ import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 from batch import Journal, run_batch
 from envs.errors import EnvError
@@ -33,11 +33,13 @@ from envs.execution.adaptation import ContactAdaptation
 from envs.execution.config import EvaluationConfig, StiffnessSetting
 from envs.execution.episode import EpisodeRecord, EpisodeTrace, StartPose, record_from_dict, run_episode
 from envs.execution.policy import make_policy
-from envs.execution.result import EvaluationResult
 from envs.execution.starts import evaluation_starts, metadata_starts, sample_starts
 from envs.jsonable import to_jsonable
 from envs.poses import Pose, format_pose
 from rflow.small_linalg import norm
+
+if TYPE_CHECKING:  # the result (with scipy.stats, ~0.7 s to import) is built in the parent only, never in a worker
+    from envs.execution.result import EvaluationResult
 
 
 # --------------------------------------------------------------------------------------------- set-up
@@ -217,6 +219,8 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     del env, policy  # workers build their own
     outcome, records, earlier_s = run_episodes(starts, _Setup(str(model_dir), config), _init_worker, here, config,
                                                progress, journal, f"evaluate ({config.mode})")
+    from envs.execution.result import EvaluationResult
+
     return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, str(model_dir), skill.metadata,
                             to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,

@@ -42,11 +42,13 @@ def finite_min(values: Iterable[float | None]) -> float | None:
 
 
 def failure_kinds(records: Iterable[EpisodeRecord]) -> dict[str, int]:
-    """Failed episodes counted by kind: the reason up to its first ':' or ' (' ("time_limit", "force_limit", ...)."""
+    """Failed episodes counted by kind: the record's failure kind (envs.execution.failure: "jammed",
+    "free_space_timeout", ...), else (records of the batch runner, older files) the reason up to its first ':' or ' ('
+    ("wall_timeout", "infrastructure", ...)."""
     kinds: dict[str, int] = {}
     for r in records:
         if not r.success:
-            kind = r.reason.split(":")[0].split(" (")[0]
+            kind = r.failure or r.reason.split(":")[0].split(" (")[0]
             kinds[kind] = kinds.get(kind, 0) + 1
     return kinds
 
