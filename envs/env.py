@@ -21,7 +21,8 @@ an instability; physics failures are recorded as the end reason, never raised. T
 envs.episode_config.EpisodeConfig; commanding whole trajectories, envs.trajectory.
 
 ``reset`` applies a per-episode perturbation (envs.perturbation): the sorter is moved by a hole-pose error
-(mocap) and the peg is placed in the grasp with an offset along its axis, then the grasp settles for
+(mocap), the episode's frictions are written into the model (envs.friction) and the peg is placed in the grasp with an
+offset along its axis, then the grasp settles for
 ``grasp_settle_s`` with the arm holding the start pose before the episode clock starts.
 """
 
@@ -41,6 +42,7 @@ from controllers.impedance_kernel import STATUS_OK
 from controllers.protocol import Controller
 from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
+from envs.friction import EpisodeFriction
 from envs.geometry import as_vector
 from envs.instability import InstabilityCheck
 from envs.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUCCESS, REASON_TIME_LIMIT, Observation,
@@ -143,6 +145,8 @@ class PegInHoleEnv:
         load = ids.hand_subtree + ((ids.peg_body,) if self.grasped else ())
         self.wrist = WristSensor(self.model, ids.ft_site, ids.wrist_force_adr, ids.wrist_torque_adr, ToolLoad(load))
         self.contacts = PegContacts(self.model, ids.peg_geoms, ids.finger_geoms)
+        self.friction = EpisodeFriction(self.model, ids.sorter_geoms, ids.finger_geoms if self.grasped else (),
+                                        ids.peg_geoms)
         self.observer = Observer(self.model, self.data, ids, self._arm_dof, self.grasped, self.wrist, self.contacts)
         if self.grasped:  # the peg's weight, a known tool load compensated by the controller (module docstring)
             self.controller.set_tool_load(float(self.model.body_mass[ids.peg_body]), PEG_LENGTH_M / 2)
@@ -270,6 +274,7 @@ class PegInHoleEnv:
         data.qpos[self._arm_qpos] = q
         data.qvel[:] = 0.0
         self._set_hole_error(perturbation)
+        self.friction.apply(perturbation)
         if self.grasped:
             self._place_peg_in_grasp(perturbation.grasp_offset_m)
         mujoco.mj_forward(model, data)

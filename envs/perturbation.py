@@ -9,6 +9,11 @@ keeps the demonstrated goal, so the peg meets the hole off by up to R and A.
 
 Grasp offset. The peg sits in the fingers shifted along its own axis by g uniform in [-G, G] (positive: the
 peg_tip sticks out farther from the hand); the skill still commands the nominal grasp.
+
+Friction (envs.friction). The sliding friction coefficient of the peg against the sorter, mu_hole, and against the
+finger pads, mu_pad, each uniform in its [min, max] (0: the scene's, 0.5 and 1.0). Their draws come from a generator
+seeded by the episode's six draws above, so a task with friction ranges keeps the hole errors, grasp offsets and
+starts of the same task without them, episode for episode (paired comparisons of one imperfection).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ FloatArray = npt.NDArray[np.float64]
 MAX_HOLE_ERROR_M: float = 0.01
 MAX_HOLE_ERROR_DEG: float = 10.0
 MAX_GRASP_OFFSET_M: float = 0.01
+MAX_FRICTION: float = 2.0
 
 
 def _check_range(name: str, value: float, maximum: float) -> float:
@@ -42,19 +48,38 @@ class PerturbationRanges:
         hole_error_m: radius R of the horizontal hole offset, in [0, 10 mm].
         hole_error_deg: bound A of the yaw about the hole axis and of the tilt, in [0, 10 deg].
         grasp_offset_m: bound G of the peg's shift along its axis in the grasp, in [0, 10 mm].
+        hole_friction_min, hole_friction_max: range of the peg-sorter sliding friction per episode (both 0: the
+            scene's); 0 < min <= max <= 2.
+        pad_friction_min, pad_friction_max: the same for the peg against the finger pads.
 
     Raises:
-        EnvError: a negative, NaN or too large range (one line naming it).
+        EnvError: a negative, NaN or too large range, or a friction range that is not 0 < min <= max (one line
+            naming it).
     """
 
     hole_error_m: float = 0.0
     hole_error_deg: float = 0.0
     grasp_offset_m: float = 0.0
+    hole_friction_min: float = 0.0
+    hole_friction_max: float = 0.0
+    pad_friction_min: float = 0.0
+    pad_friction_max: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("hole_error_m", self.hole_error_m, MAX_HOLE_ERROR_M)
         _check_range("hole_error_deg", self.hole_error_deg, MAX_HOLE_ERROR_DEG)
         _check_range("grasp_offset_m", self.grasp_offset_m, MAX_GRASP_OFFSET_M)
+        for name in ("hole_friction", "pad_friction"):
+            low = _check_range(f"{name}_min", getattr(self, f"{name}_min"), MAX_FRICTION)
+            high = _check_range(f"{name}_max", getattr(self, f"{name}_max"), MAX_FRICTION)
+            if (low, high) != (0.0, 0.0) and not 0.0 < low <= high:
+                raise EnvError(f"{name}_min={low:g}, {name}_max={high:g}: a friction range needs 0 < min <= max "
+                               f"(both 0: the scene's friction)")
+
+    @property
+    def randomises_friction(self) -> bool:
+        """A friction range is set."""
+        return self.hole_friction_max > 0.0 or self.pad_friction_max > 0.0
 
 
 @dataclass(frozen=True)
@@ -67,6 +92,8 @@ class Perturbation:
         hole_tilt_deg: tilt of the hole axis.
         hole_tilt_dir_deg: direction phi of the tilt axis in the hole's x-y plane.
         grasp_offset_m: shift of the peg along its axis in the grasp.
+        hole_friction, pad_friction: sliding friction of the peg against the sorter and the finger pads (0: the
+            scene's).
     """
 
     hole_dx_m: float = 0.0
@@ -75,11 +102,15 @@ class Perturbation:
     hole_tilt_deg: float = 0.0
     hole_tilt_dir_deg: float = 0.0
     grasp_offset_m: float = 0.0
+    hole_friction: float = 0.0
+    pad_friction: float = 0.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
             if not np.isfinite(value):
                 raise EnvError(f"Perturbation.{name}={value!r} must be finite")
+        if min(self.hole_friction, self.pad_friction) < 0.0:
+            raise EnvError(f"Perturbation frictions ({self.hole_friction}, {self.pad_friction}) must be >= 0")
 
     @property
     def hole_offset_m(self) -> float:
@@ -97,7 +128,9 @@ class Perturbation:
         return np.array([self.hole_dx_m, self.hole_dy_m, 0.0]), matmul(r_tilt, r_yaw)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready fields plus the horizontal offset magnitude, in mm and deg."""
+        """JSON-ready fields plus the horizontal offset magnitude, in mm and deg; the frictions only where set."""
+        frictions = {k: v for k, v in (("hole_friction", self.hole_friction), ("pad_friction", self.pad_friction))
+                     if v != 0.0}
         return {
             "hole_dx_mm": self.hole_dx_m * 1e3,
             "hole_dy_mm": self.hole_dy_m * 1e3,
@@ -106,15 +139,22 @@ class Perturbation:
             "hole_tilt_deg": self.hole_tilt_deg,
             "hole_tilt_dir_deg": self.hole_tilt_dir_deg,
             "grasp_offset_mm": self.grasp_offset_m * 1e3,
+            **frictions,
         }
 
 
 def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) -> Perturbation:
     """One seeded draw within ``ranges`` (distributions in the module docstring).
 
-    Always consumes the same number of draws from ``rng`` (6), whatever the ranges.
+    Always consumes the same number of draws from ``rng`` (6), whatever the ranges; the frictions come from a
+    generator seeded by those six.
     """
     u = rng.random(6)
+    hole_friction = pad_friction = 0.0
+    if ranges.randomises_friction:
+        v = np.random.default_rng(np.frombuffer(u.tobytes(), dtype=np.uint64)).random(2)
+        hole_friction = ranges.hole_friction_min + (ranges.hole_friction_max - ranges.hole_friction_min) * v[0]
+        pad_friction = ranges.pad_friction_min + (ranges.pad_friction_max - ranges.pad_friction_min) * v[1]
     radius = ranges.hole_error_m * np.sqrt(u[0])
     angle = 2.0 * np.pi * u[1]
     return Perturbation(
@@ -124,6 +164,8 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
         hole_tilt_deg=float(ranges.hole_error_deg * u[3]),
         hole_tilt_dir_deg=float(360.0 * u[4]),
         grasp_offset_m=float(ranges.grasp_offset_m * (2.0 * u[5] - 1.0)),
+        hole_friction=float(hole_friction),
+        pad_friction=float(pad_friction),
     )
 
 

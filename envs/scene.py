@@ -289,6 +289,7 @@ def _attach_peg(
     frame.add("freejoint")
     for _, pad, _ in fingers:  # rubber pads with the scene's stiff contact (soft defaults let a 70 N grasp sink)
         pad.solref, pad.solimp = list(config.contact.solref), list(config.contact.solimp)
+        pad.priority = 1  # a peg-pad contact takes the pad's friction (envs.friction), as max-mixing did
     # The Franka hand's fingers are mechanically coupled: they open and close symmetrically about the hand axis.
     root.equality.add("joint", name="finger_coupling", joint1="finger_joint1", joint2="finger_joint2",
                       solref=[0.005, 1.0])

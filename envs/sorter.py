@@ -364,7 +364,9 @@ def build_sorter(layout: SorterLayout, contact: ContactConfig) -> mjcf.RootEleme
     from dm_control import mjcf
 
     sorter = mjcf.RootElement(model="sorter")
-    attributes = dict(contact.geom_attributes(), rgba=SORTER_RGBA)
+    # priority 1 over the peg's 0: a peg-sorter contact takes the sorter's friction (MuJoCo: the higher-priority
+    # geom's parameters), so an episode's hole friction is set on the sorter alone (envs.friction)
+    attributes = dict(contact.geom_attributes(), rgba=SORTER_RGBA, priority=1)
     size_x, size_y = layout.size_xy_m
     sorter.worldbody.add(
         "geom", name="base", type="box", size=[size_x / 2.0, size_y / 2.0, BASE_HEIGHT_M / 2.0],
