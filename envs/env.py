@@ -28,6 +28,7 @@ offset along its axis, then the grasp settles for
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Sequence
 
@@ -44,12 +45,13 @@ from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.friction import EpisodeFriction
 from envs.geometry import as_vector
+from envs.model_error import ModelError
 from envs.instability import InstabilityCheck
 from envs.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUCCESS, REASON_TIME_LIMIT, Observation,
                               Observer, StepResult, site_pose)
 from envs.period_kernel import controlled_period
 from envs.perturbation import Perturbation, perturbed_frame, sample_perturbation
-from envs.poses import Pose, format_pose, nominal_start, rotate, sample_start_poses, validate_pose
+from envs.poses import Pose, format_pose, quat_mul_one, nominal_start, rotate, sample_start_poses, validate_pose
 from envs.scene import Scene, build_scene
 from envs.scene_config import SceneConfig, goal_from_hole
 from envs.sensing import ContactStats, EpisodeSensing, PegContacts, ToolLoad, WristSensor
@@ -61,6 +63,14 @@ FloatArray = npt.NDArray[np.float64]
 
 MAX_START_DRAWS = 100
 """reset(seed) redraws unreachable or colliding starts at most this many times."""
+
+
+def _axis_quat(axis: int, angle_deg: float) -> list[float]:
+    """The unit quaternion [w, x, y, z] of a rotation by ``angle_deg`` about the frame's ``axis`` (0, 1, 2)."""
+    half = math.radians(angle_deg) / 2.0
+    quat = [math.cos(half), 0.0, 0.0, 0.0]
+    quat[1 + axis] = math.sin(half)
+    return quat
 
 
 def _block(indices: Sequence[int]) -> slice:
@@ -147,6 +157,7 @@ class PegInHoleEnv:
         self.contacts = PegContacts(self.model, ids.peg_geoms, ids.finger_geoms)
         self.friction = EpisodeFriction(self.model, ids.sorter_geoms, ids.finger_geoms if self.grasped else (),
                                         ids.peg_geoms)
+        self.model_error = ModelError(self.model, ids.peg_body, tuple(ids.arm_dof_adr))
         self.observer = Observer(self.model, self.data, ids, self._arm_dof, self.grasped, self.wrist, self.contacts)
         if self.grasped:  # the peg's weight, a known tool load compensated by the controller (module docstring)
             self.controller.set_tool_load(float(self.model.body_mass[ids.peg_body]), PEG_LENGTH_M / 2)
@@ -275,8 +286,9 @@ class PegInHoleEnv:
         data.qvel[:] = 0.0
         self._set_hole_error(perturbation)
         self.friction.apply(perturbation)
+        self.model_error.apply(perturbation)
         if self.grasped:
-            self._place_peg_in_grasp(perturbation.grasp_offset_m)
+            self._place_peg_in_grasp(perturbation)
         mujoco.mj_forward(model, data)
         depth = self._deepest_penetration()
         if depth > self.config.start_penetration_m:
@@ -298,16 +310,20 @@ class PegInHoleEnv:
         self._obs = self._observe()
         return self._obs
 
-    def _place_peg_in_grasp(self, offset_m: float) -> None:
-        """Peg frame = tcp frame shifted by L back and ``offset_m`` out along the peg axis; fingers on its sides."""
+    def _place_peg_in_grasp(self, perturbation: Perturbation) -> None:
+        """Peg frame = tcp frame shifted by L back and the grasp offset out along the peg axis, then (the in-hand
+        pose error, envs.perturbation) shifted along the hand's x, tilted about its y (the fingers' closing axis)
+        about the peg's top and turned about the peg's own axis; the fingers on its sides."""
         data = self.data
         mujoco.mj_kinematics(self.model, data)
         rot = data.site_xmat[self.tcp_site].reshape(3, 3)
         adr = self.scene.ids.peg_qpos_adr
-        data.qpos[adr:adr + 3] = data.site_xpos[self.tcp_site] + rot[:, 2] * (offset_m - PEG_LENGTH_M)
+        top = data.site_xpos[self.tcp_site] + rot[:, 2] * (perturbation.grasp_offset_m - PEG_LENGTH_M)
+        data.qpos[adr:adr + 3] = top + rot[:, 0] * perturbation.grasp_lateral_m
+        in_hand = quat_mul_one(_axis_quat(1, perturbation.grasp_tilt_deg), _axis_quat(2, perturbation.grasp_yaw_deg))
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, data.site_xmat[self.tcp_site])
-        data.qpos[adr + 3:adr + 7] = quat
+        data.qpos[adr + 3:adr + 7] = quat if in_hand == [1.0, 0.0, 0.0, 0.0] else quat_mul_one(quat.tolist(), in_hand)
         data.qpos[self._finger_qpos] = self._grip_opening
         data.qfrc_applied[self._finger_dof] = -self.scene.config.grasp_force_n
 

@@ -10,10 +10,21 @@ keeps the demonstrated goal, so the peg meets the hole off by up to R and A.
 Grasp offset. The peg sits in the fingers shifted along its own axis by g uniform in [-G, G] (positive: the
 peg_tip sticks out farther from the hand); the skill still commands the nominal grasp.
 
-Friction (envs.friction). The sliding friction coefficient of the peg against the sorter, mu_hole, and against the
-finger pads, mu_pad, each uniform in its [min, max] (0: the scene's, 0.5 and 1.0). Their draws come from a generator
-seeded by the episode's six draws above, so a task with friction ranges keeps the hole errors, grasp offsets and
-starts of the same task without them, episode for episode (paired comparisons of one imperfection).
+The cell's imperfections (issue #25), each off at 0:
+
+- friction (envs.friction): the sliding friction of the peg against the sorter, mu_hole, and against the finger
+  pads, mu_pad, each uniform in its [min, max] (0: the scene's, 0.5 and 1.0);
+- in-hand pose: the peg sits in the fingers shifted by l uniform in [-L, L] along the hand's x axis (in the pads'
+  plane), tilted by t uniform in [-T, T] about the fingers' closing axis (the hand's y; about the peg's top) and
+  turned by y uniform in [-Y, Y] about its own axis;
+- payload: the simulated peg's mass is m (1 + e), e uniform in [-E, E], while the controller's tool load and the
+  wrist sensor's zeroing keep the nominal m (a payload the cell's model gets wrong);
+- joint friction: Coulomb friction with stiction (MuJoCo's frictionloss) of f uniform in [min, max] N m on each
+  arm joint, which the controller does not know.
+
+Their draws come from a generator seeded by the episode's six draws above, so a task with imperfections keeps the
+hole errors, grasp offsets and starts of the same task without them, episode for episode (paired comparisons of one
+imperfection).
 """
 
 from __future__ import annotations
@@ -32,6 +43,12 @@ MAX_HOLE_ERROR_M: float = 0.01
 MAX_HOLE_ERROR_DEG: float = 10.0
 MAX_GRASP_OFFSET_M: float = 0.01
 MAX_FRICTION: float = 2.0
+MAX_GRASP_LATERAL_M: float = 0.005
+MAX_GRASP_ANGLE_DEG: float = 5.0
+MAX_PAYLOAD_ERROR: float = 0.5
+MAX_JOINT_FRICTION_NM: float = 5.0
+IMPERFECTION_DRAWS: int = 7
+"""Uniform draws of the imperfections' generator per episode (their order: mu_hole, mu_pad, l, t, y, e, f)."""
 
 
 def _check_range(name: str, value: float, maximum: float) -> float:
@@ -51,6 +68,12 @@ class PerturbationRanges:
         hole_friction_min, hole_friction_max: range of the peg-sorter sliding friction per episode (both 0: the
             scene's); 0 < min <= max <= 2.
         pad_friction_min, pad_friction_max: the same for the peg against the finger pads.
+        grasp_lateral_m: bound L of the peg's shift in the pads' plane, in [0, 5 mm].
+        grasp_tilt_deg, grasp_yaw_deg: bounds T, Y of its tilt about the closing axis and turn about its own axis,
+            in [0, 5 deg].
+        payload_mass_error: bound E of the simulated peg's relative mass error, in [0, 0.5].
+        joint_friction_min_nm, joint_friction_max_nm: range of each arm joint's Coulomb friction (both 0: none);
+            0 < min <= max <= 5 N m.
 
     Raises:
         EnvError: a negative, NaN or too large range, or a friction range that is not 0 < min <= max (one line
@@ -64,22 +87,36 @@ class PerturbationRanges:
     hole_friction_max: float = 0.0
     pad_friction_min: float = 0.0
     pad_friction_max: float = 0.0
+    grasp_lateral_m: float = 0.0
+    grasp_tilt_deg: float = 0.0
+    grasp_yaw_deg: float = 0.0
+    payload_mass_error: float = 0.0
+    joint_friction_min_nm: float = 0.0
+    joint_friction_max_nm: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("hole_error_m", self.hole_error_m, MAX_HOLE_ERROR_M)
         _check_range("hole_error_deg", self.hole_error_deg, MAX_HOLE_ERROR_DEG)
         _check_range("grasp_offset_m", self.grasp_offset_m, MAX_GRASP_OFFSET_M)
-        for name in ("hole_friction", "pad_friction"):
-            low = _check_range(f"{name}_min", getattr(self, f"{name}_min"), MAX_FRICTION)
-            high = _check_range(f"{name}_max", getattr(self, f"{name}_max"), MAX_FRICTION)
+        _check_range("grasp_lateral_m", self.grasp_lateral_m, MAX_GRASP_LATERAL_M)
+        _check_range("grasp_tilt_deg", self.grasp_tilt_deg, MAX_GRASP_ANGLE_DEG)
+        _check_range("grasp_yaw_deg", self.grasp_yaw_deg, MAX_GRASP_ANGLE_DEG)
+        _check_range("payload_mass_error", self.payload_mass_error, MAX_PAYLOAD_ERROR)
+        for low_name, high_name, top in (("hole_friction_min", "hole_friction_max", MAX_FRICTION),
+                                         ("pad_friction_min", "pad_friction_max", MAX_FRICTION),
+                                         ("joint_friction_min_nm", "joint_friction_max_nm", MAX_JOINT_FRICTION_NM)):
+            low = _check_range(low_name, getattr(self, low_name), top)
+            high = _check_range(high_name, getattr(self, high_name), top)
             if (low, high) != (0.0, 0.0) and not 0.0 < low <= high:
-                raise EnvError(f"{name}_min={low:g}, {name}_max={high:g}: a friction range needs 0 < min <= max "
-                               f"(both 0: the scene's friction)")
+                raise EnvError(f"{low_name}={low:g}, {high_name}={high:g}: a friction range needs 0 < min <= max "
+                               f"(both 0: off)")
 
     @property
-    def randomises_friction(self) -> bool:
-        """A friction range is set."""
-        return self.hole_friction_max > 0.0 or self.pad_friction_max > 0.0
+    def imperfect(self) -> bool:
+        """Some imperfection of the cell is set (its draws are made)."""
+        return any(getattr(self, name) > 0.0 for name in (
+            "hole_friction_max", "pad_friction_max", "grasp_lateral_m", "grasp_tilt_deg", "grasp_yaw_deg",
+            "payload_mass_error", "joint_friction_max_nm"))
 
 
 @dataclass(frozen=True)
@@ -94,6 +131,9 @@ class Perturbation:
         grasp_offset_m: shift of the peg along its axis in the grasp.
         hole_friction, pad_friction: sliding friction of the peg against the sorter and the finger pads (0: the
             scene's).
+        grasp_lateral_m, grasp_tilt_deg, grasp_yaw_deg: the peg's in-hand pose error (module docstring).
+        payload_mass_error: relative error e of the simulated peg's mass.
+        joint_friction_nm: Coulomb friction of each arm joint (N m).
     """
 
     hole_dx_m: float = 0.0
@@ -104,13 +144,21 @@ class Perturbation:
     grasp_offset_m: float = 0.0
     hole_friction: float = 0.0
     pad_friction: float = 0.0
+    grasp_lateral_m: float = 0.0
+    grasp_tilt_deg: float = 0.0
+    grasp_yaw_deg: float = 0.0
+    payload_mass_error: float = 0.0
+    joint_friction_nm: float = 0.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
             if not np.isfinite(value):
                 raise EnvError(f"Perturbation.{name}={value!r} must be finite")
-        if min(self.hole_friction, self.pad_friction) < 0.0:
-            raise EnvError(f"Perturbation frictions ({self.hole_friction}, {self.pad_friction}) must be >= 0")
+        if min(self.hole_friction, self.pad_friction, self.joint_friction_nm) < 0.0:
+            raise EnvError(f"Perturbation frictions ({self.hole_friction}, {self.pad_friction}, "
+                           f"{self.joint_friction_nm} N m) must be >= 0")
+        if self.payload_mass_error <= -1.0:
+            raise EnvError(f"Perturbation.payload_mass_error={self.payload_mass_error} must be > -1 (a mass > 0)")
 
     @property
     def hole_offset_m(self) -> float:
@@ -128,9 +176,12 @@ class Perturbation:
         return np.array([self.hole_dx_m, self.hole_dy_m, 0.0]), matmul(r_tilt, r_yaw)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready fields plus the horizontal offset magnitude, in mm and deg; the frictions only where set."""
-        frictions = {k: v for k, v in (("hole_friction", self.hole_friction), ("pad_friction", self.pad_friction))
-                     if v != 0.0}
+        """JSON-ready fields plus the horizontal offset magnitude, in mm and deg; the imperfections only where set."""
+        imperfections = {k: v for k, v in (
+            ("hole_friction", self.hole_friction), ("pad_friction", self.pad_friction),
+            ("grasp_lateral_mm", self.grasp_lateral_m * 1e3), ("grasp_tilt_deg", self.grasp_tilt_deg),
+            ("grasp_yaw_deg", self.grasp_yaw_deg), ("payload_mass_error", self.payload_mass_error),
+            ("joint_friction_nm", self.joint_friction_nm)) if v != 0.0}
         return {
             "hole_dx_mm": self.hole_dx_m * 1e3,
             "hole_dy_mm": self.hole_dy_m * 1e3,
@@ -139,22 +190,23 @@ class Perturbation:
             "hole_tilt_deg": self.hole_tilt_deg,
             "hole_tilt_dir_deg": self.hole_tilt_dir_deg,
             "grasp_offset_mm": self.grasp_offset_m * 1e3,
-            **frictions,
+            **imperfections,
         }
 
 
 def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) -> Perturbation:
     """One seeded draw within ``ranges`` (distributions in the module docstring).
 
-    Always consumes the same number of draws from ``rng`` (6), whatever the ranges; the frictions come from a
-    generator seeded by those six.
+    Always consumes the same number of draws from ``rng`` (6), whatever the ranges; the imperfections come from a
+    generator seeded by those six (IMPERFECTION_DRAWS of them, whichever are set).
     """
     u = rng.random(6)
-    hole_friction = pad_friction = 0.0
-    if ranges.randomises_friction:
-        v = np.random.default_rng(np.frombuffer(u.tobytes(), dtype=np.uint64)).random(2)
-        hole_friction = ranges.hole_friction_min + (ranges.hole_friction_max - ranges.hole_friction_min) * v[0]
-        pad_friction = ranges.pad_friction_min + (ranges.pad_friction_max - ranges.pad_friction_min) * v[1]
+    v = np.full(IMPERFECTION_DRAWS, 0.5)  # 0.5: the middle of a symmetric range, 0
+    if ranges.imperfect:
+        v = np.random.default_rng(np.frombuffer(u.tobytes(), dtype=np.uint64)).random(IMPERFECTION_DRAWS)
+
+    def within(low: float, high: float, draw: float) -> float:
+        return float(low + (high - low) * draw) if high > 0.0 else 0.0
     radius = ranges.hole_error_m * np.sqrt(u[0])
     angle = 2.0 * np.pi * u[1]
     return Perturbation(
@@ -164,8 +216,13 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
         hole_tilt_deg=float(ranges.hole_error_deg * u[3]),
         hole_tilt_dir_deg=float(360.0 * u[4]),
         grasp_offset_m=float(ranges.grasp_offset_m * (2.0 * u[5] - 1.0)),
-        hole_friction=float(hole_friction),
-        pad_friction=float(pad_friction),
+        hole_friction=within(ranges.hole_friction_min, ranges.hole_friction_max, v[0]),
+        pad_friction=within(ranges.pad_friction_min, ranges.pad_friction_max, v[1]),
+        grasp_lateral_m=float(ranges.grasp_lateral_m * (2.0 * v[2] - 1.0)),
+        grasp_tilt_deg=float(ranges.grasp_tilt_deg * (2.0 * v[3] - 1.0)),
+        grasp_yaw_deg=float(ranges.grasp_yaw_deg * (2.0 * v[4] - 1.0)),
+        payload_mass_error=float(ranges.payload_mass_error * (2.0 * v[5] - 1.0)),
+        joint_friction_nm=within(ranges.joint_friction_min_nm, ranges.joint_friction_max_nm, v[6]),
     )
 
 

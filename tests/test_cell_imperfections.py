@@ -1,0 +1,89 @@
+"""The imperfections of the cell (envs.perturbation, envs.model_error, the in-hand pose of envs.env) have the physical
+effect they model: an in-hand offset and tilt stay in the grasp, a payload error sags the arm by e m g / K and shows
+on the zeroed wrist sensor, joint friction stops a compliant arm short of its target."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from envs.env import PegInHoleEnv
+from envs.episode_config import EpisodeConfig
+from envs.perturbation import Perturbation
+from envs.poses import Pose
+from envs.scene import build_scene
+from envs.scene_config import SceneConfig
+from rflow.quaternion import quat_to_mat
+
+GRAVITY_M_S2 = 9.81
+
+
+@pytest.fixture(scope="module")
+def env() -> PegInHoleEnv:
+    return PegInHoleEnv(scene=build_scene(SceneConfig()), episode_config=EpisodeConfig(time_limit_s=5.0))
+
+
+def _above(env: PegInHoleEnv) -> Pose:
+    return Pose(env.nominal_goal.pos + 0.06 * env.hole_axis, env.nominal_goal.quat)
+
+
+def _peg_in_hand(env: PegInHoleEnv) -> tuple[np.ndarray, float, float]:
+    """(the peg top's offset in the tcp frame (m), tilt about the hand's y (deg), turn about its axis (deg))."""
+    data, adr = env.data, env.scene.ids.peg_qpos_adr
+    hand = data.site_xmat[env.tcp_site].reshape(3, 3)
+    relative = hand.T @ quat_to_mat(data.qpos[adr + 3:adr + 7])
+    offset = hand.T @ (data.qpos[adr:adr + 3] - data.site_xpos[env.tcp_site])
+    return (offset, math.degrees(math.atan2(relative[0, 2], relative[2, 2])),
+            math.degrees(math.atan2(relative[1, 0], relative[0, 0])))
+
+
+def test_an_in_hand_offset_and_tilt_stay_in_the_grasp(env) -> None:
+    start = _above(env)
+    env.reset(start_pose=start)
+    nominal, _, _ = _peg_in_hand(env)
+    env.reset(start_pose=start, perturbation=Perturbation(grasp_lateral_m=0.002, grasp_tilt_deg=3.0,
+                                                          grasp_yaw_deg=2.0))
+    for _ in range(100):  # 1 s held in free space after the grasp settled
+        env.step(start)
+    offset, tilt, yaw = _peg_in_hand(env)
+    assert offset[0] - nominal[0] == pytest.approx(0.002, abs=2e-5)
+    assert abs(offset[1] - nominal[1]) < 1e-4  # across the pads: the yawed peg rests on its corners
+    assert tilt == pytest.approx(3.0, abs=0.02)
+    assert 1.8 < yaw <= 2.0  # the flat pads turn a yawed square peg back a little (3.0 -> 2.9 deg measured)
+
+
+@pytest.mark.parametrize("error", [0.5, -0.3])
+def test_a_payload_error_sags_the_arm_by_e_m_g_over_k_and_shows_on_the_sensor(env, error) -> None:
+    start, k_n_m = _above(env), 500.0
+    stiffness = np.diag([k_n_m] * 3 + [50.0] * 3)
+    mass_kg = env.model_error.mass_kg
+    heights = []
+    for e in (0.0, error):
+        env.reset(start_pose=start, perturbation=Perturbation(payload_mass_error=e))
+        for _ in range(150):
+            env.step(start, stiffness)
+        heights.append(env.observation.tcp.pos[2])
+        sensor = env.data.site_xmat[env.scene.ids.ft_site].reshape(3, 3) @ env.observation.wrist_wrench[:3]
+    weight_n = error * mass_kg * GRAVITY_M_S2
+    assert heights[1] - heights[0] == pytest.approx(-weight_n / k_n_m, rel=0.02)
+    assert sensor[2] == pytest.approx(-weight_n, rel=0.02)  # the sensor was zeroed for the nominal payload
+    env.model_error.apply(Perturbation())
+    assert env.model.body_mass[env.scene.ids.peg_body] == mass_kg
+
+
+def test_joint_friction_stops_a_compliant_arm_short_of_its_target(env) -> None:
+    """A 10 mm move at 300 N/m: within 0.2 mm without friction, more than 5 mm short with 0.5 N m per joint."""
+    start = _above(env)
+    target = Pose(start.pos + [0.01, 0.0, 0.0], start.quat)
+    stiffness = np.diag([300.0] * 3 + [30.0] * 3)
+    errors = []
+    for friction in (0.0, 0.5):
+        env.reset(start_pose=start, perturbation=Perturbation(joint_friction_nm=friction))
+        for _ in range(200):
+            env.step(target, stiffness)
+        errors.append(float(np.linalg.norm(env.observation.tcp.pos - target.pos)))
+    assert errors[0] < 2e-4 and errors[1] > 5e-3
+    env.model_error.apply(Perturbation())
+    assert not env.model.dof_frictionloss.any()
