@@ -56,6 +56,7 @@ from envs.scene import Scene, build_scene
 from envs.scene_config import SceneConfig, goal_from_hole
 from envs.sensing import ContactStats, EpisodeSensing, PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
+from envs.wrist_sensor import episode_generator
 from envs.success import Assessment, EpisodeHoles, PegFootprint, SuccessTracker
 from rflow.quaternion import quat_to_mat
 
@@ -162,7 +163,8 @@ class PegInHoleEnv:
         if self.grasped:  # the peg's weight, a known tool load compensated by the controller (module docstring)
             self.controller.set_tool_load(float(self.model.body_mass[ids.peg_body]), PEG_LENGTH_M / 2)
         self.sensing = EpisodeSensing(self.data, self.wrist, self.contacts, episode_config.force_limit_n,
-                                      episode_config.force_limit_window_s, timestep)
+                                      episode_config.force_limit_window_s, timestep, self.n_substeps,
+                                      episode_config.wrist_sensor)
         self.stability = InstabilityCheck(self.data, self._arm_dof, episode_config.max_joint_speed_rad_s)
         nominal_hole_pos, nominal_hole_quat = self.scene.hole_pose(self.shape)
         self.nominal_hole = Pose(pos=nominal_hole_pos, quat=nominal_hole_quat)
@@ -301,7 +303,7 @@ class PegInHoleEnv:
             self._settle_grasp(start, q_ref)
         self.perturbation = perturbation
         self.tracker.reset()
-        self.sensing.reset()
+        self.sensing.reset(episode_generator(perturbation))
         self.nullspace_failures = 0
         self._steps = 0
         self._done = False
@@ -456,4 +458,4 @@ class PegInHoleEnv:
     def _observe(self, track: bool = True) -> Observation:
         """The observation now (envs.observation.Observer), the success tracker updated unless not ``track``."""
         return self.observer.observe(self._steps * self.control_period_s, self.holes, self.tracker,
-                                     self.stats if self._steps > 0 else None, track)
+                                     self.stats if self._steps > 0 else None, track, self.sensing.sensed_wrench)

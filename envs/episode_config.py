@@ -10,6 +10,7 @@ from controllers.ik import IKConfig
 from envs.errors import EnvError
 from envs.perturbation import PerturbationRanges
 from envs.poses import StartRegion
+from envs.wrist_sensor import WristSensorConfig
 from envs.task import SuccessConfig, Task, check_force_limit, check_number
 
 
@@ -34,6 +35,7 @@ class EpisodeConfig:
         nullspace_iterations: IK iterations per command of the nullspace joint reference.
         start_region: where ``reset`` samples a start when none is given.
         ik: IK settings for placing the arm at the start pose.
+        wrist_sensor: the wrist sensor's model (envs.wrist_sensor; default the exact wrench).
     """
 
     control_period_s: float = 0.01
@@ -49,6 +51,7 @@ class EpisodeConfig:
     nullspace_iterations: int = 3
     start_region: StartRegion = field(default_factory=StartRegion)
     ik: IKConfig = field(default_factory=IKConfig)
+    wrist_sensor: WristSensorConfig = field(default_factory=WristSensorConfig)
 
     def __post_init__(self) -> None:
         for name in ("control_period_s", "time_limit_s", "max_joint_speed_rad_s", "start_penetration_m"):
@@ -66,4 +69,5 @@ class EpisodeConfig:
         """The episode settings of ``task`` (envs.task: time and force limits, perturbations, success), plus
         ``overrides``."""
         return cls(**{"time_limit_s": task.time_limit_s, "force_limit_n": task.force_limit_n,
-                      "perturbations": task.perturbations, "success": task.success, **overrides})
+                      "perturbations": task.perturbations, "success": task.success, "wrist_sensor": task.sensing,
+                      **overrides})

@@ -8,7 +8,7 @@ inside the walls, at rest, held for hold_s); the commanded pose is never consult
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import mujoco
 import numpy as np
@@ -44,7 +44,9 @@ class Observation:
         peg_tip: the peg's own peg_tip pose (simulator truth: it differs from ``tcp`` by the grasp offset and
             any slip or tilt in the grasp).
         wrist_wrench: (6,) [force N; torque N m] the environment exerts on the tool, from the wrist F/T sensor
-            zeroed for the tool load, in the sensor frame (envs.sensing).
+            zeroed for the tool load, in the sensor frame (envs.sensing): the true wrench.
+        sensed_wrench: (6,) what the cell's sensor reads of it (envs.wrist_sensor: noise, bias, low-pass; the same
+            array as ``wrist_wrench`` for the ideal sensor): what a policy sees.
         contact_force_n: sum of the environment's contact normal-force magnitudes on the peg, now.
         insertion: the peg_tip relative to the target hole (depth, lateral, tilt, yaw, in_hole, wall
             penetration, speed).
@@ -61,6 +63,7 @@ class Observation:
     tcp: Pose
     peg_tip: Pose
     wrist_wrench: FloatArray
+    sensed_wrench: FloatArray
     contact_force_n: float
     insertion: InsertionState
     hole: str | None
@@ -119,9 +122,10 @@ class Observer:
         return holes.assess(pos, rot, self.peg_speed_m_s() if speed_m_s is None else speed_m_s)
 
     def observe(self, time_s: float, holes: EpisodeHoles, tracker: SuccessTracker, stats: ContactStats | None,
-                track: bool = True) -> Observation:
+                track: bool = True, sensed: Callable[[FloatArray], FloatArray] | None = None) -> Observation:
         """The observation at episode time ``time_s``; the success ``tracker`` is updated (with "not inserted" unless
-        ``track``) and the wrist force and torque are appended to the samples of ``stats`` (None: not sampled)."""
+        ``track``) and the (true) wrist force and torque are appended to the samples of ``stats`` (None: not
+        sampled); ``sensed`` maps the true wrench to the sensor's reading (None: the true one)."""
         data = self.data
         flange = site_pose(data, self.flange_site)
         tcp = site_pose(data, self.tcp_site)
@@ -146,6 +150,7 @@ class Observer:
             tcp=tcp,
             peg_tip=peg_tip,
             wrist_wrench=wrench,
+            sensed_wrench=wrench if sensed is None else sensed(wrench),
             contact_force_n=self.contacts.normal_forces(data)[0],
             insertion=assessment.state,
             hole=assessment.hole,

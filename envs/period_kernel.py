@@ -31,8 +31,8 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
                       tool: np.ndarray, tool_point: np.ndarray, jac_tool: np.ndarray, jac_tool_arm: np.ndarray,
                       applied: np.ndarray, layout: np.ndarray, rot: np.ndarray, wrist_pos: np.ndarray,
                       xipos: np.ndarray, force: np.ndarray, torque: np.ndarray, bodies: np.ndarray, load: np.ndarray,
-                      counted: np.ndarray, scratch: np.ndarray, limits: np.ndarray,
-                      state: np.ndarray) -> tuple[int, int, bool]:
+                      counted: np.ndarray, scratch: np.ndarray, limits: np.ndarray, sensor: np.ndarray,
+                      noise: np.ndarray, state: np.ndarray) -> tuple[int, int, bool]:
     """Run up to ``n_substeps`` controlled, sensed physics steps (module docstring).
 
     Args:
@@ -50,6 +50,6 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
         if status != STATUS_OK:
             return done, status, False
         if sense_substep_at(d, layout, rot, wrist_pos, xipos, force, torque, bodies, load, counted, scratch, limits,
-                            state):
+                            sensor, noise, state):
             return done + 1, STATUS_OK, True
     return n_substeps, STATUS_OK, False

@@ -29,6 +29,7 @@ import numpy.typing as npt
 from controllers.mujoco_layout import check_layout
 from envs import sensing_kernel as kernel
 from envs.errors import EnvError
+from envs.wrist_sensor import SENSOR_BIAS, SENSOR_ON, SENSOR_ALPHA, SENSOR_SIZE, WristSensorConfig
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -182,6 +183,8 @@ class SenseInputs:
         bodies, load: the carried bodies and [M, g, m_b] of the tool load.
         counted, scratch: the counted contact pairs and the forces' buffer (`PegContacts.kernel_inputs`).
         limits: [force_limit_n, force_limit_window_s, timestep] (sensing_kernel.LIMIT_*).
+        sensor: [on, alpha, bias (6)] of the wrist sensor's model (envs.wrist_sensor.SENSOR_*).
+        noise: (n_substeps, 6) the current control period's sensor noise, one row per physics step.
         state: the sense state (sensing_kernel.sense_state): peaks, force window, time above the force limit.
         layout: where the mjData keeps its contacts (controllers.mujoco_layout, checked on this data).
     """
@@ -196,13 +199,15 @@ class SenseInputs:
     counted: npt.NDArray[np.bool_]
     scratch: FloatArray
     limits: FloatArray
+    sensor: FloatArray
+    noise: FloatArray
     state: FloatArray
     layout: npt.NDArray[np.int64]
 
     def kernel_arguments(self) -> tuple:
         """The arguments of ``sensing_kernel.sense_substep_at`` after the mjData's address."""
         return (self.layout, self.wrist_rot, self.wrist_pos, self.xipos, self.force, self.torque, self.bodies,
-                self.load, self.counted, self.scratch, self.limits, self.state)
+                self.load, self.counted, self.scratch, self.limits, self.sensor, self.noise, self.state)
 
 
 class EpisodeSensing:
@@ -211,31 +216,57 @@ class EpisodeSensing:
     holds the episode's figures."""
 
     def __init__(self, data: mujoco.MjData, wrist: WristSensor, contacts: PegContacts, force_limit_n: float,
-                 force_limit_window_s: float, timestep: float) -> None:
+                 force_limit_window_s: float, timestep: float, n_substeps: int,
+                 sensor: WristSensorConfig = WristSensorConfig()) -> None:
         """Args:
             data: the episode's MjData (views of it are kept).
             wrist, contacts: the sensors.
             force_limit_n, force_limit_window_s: a wrist force above the limit for the window hits the force limit.
             timestep: the physics timestep (s); the force window holds ``force_limit_window_s / timestep``
                 readings (at least one).
+            n_substeps: physics steps per control period (rows of the period's sensor noise).
+            sensor: the wrist sensor's model (envs.wrist_sensor; "ideal": the exact wrench).
         """
         window = max(1, int(round(force_limit_window_s / timestep)))
         limits = np.array([force_limit_n, force_limit_window_s, timestep], dtype=np.float64)
         self.data = data
-        self.inputs = SenseInputs(*wrist.kernel_inputs(data), *contacts.kernel_inputs(), limits,
-                                  kernel.sense_state(window), check_layout(data))
+        self.sensor = sensor
+        parameters = np.zeros(SENSOR_SIZE)
+        parameters[SENSOR_ON] = 0.0 if sensor.sensor_mode == "ideal" else 1.0
+        parameters[SENSOR_ALPHA] = sensor.alpha(timestep)
+        self._sigma = sensor.noise_sigma
+        self._rng: np.random.Generator | None = None
+        self.inputs = SenseInputs(*wrist.kernel_inputs(data), *contacts.kernel_inputs(), limits, parameters,
+                                  np.zeros((max(1, n_substeps), 6)), kernel.sense_state(window), check_layout(data))
         self._arguments = self.inputs.kernel_arguments()
         self.stats = ContactStats()
         self._period_start_s = 0.0
 
-    def reset(self) -> None:
-        """New figures for a new episode (the earlier episode's ``stats`` object is left as it was)."""
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        """New figures for a new episode (the earlier episode's ``stats`` object is left as it was); with the sensor
+        model on, the episode's bias and noise come from ``rng`` (envs.wrist_sensor.episode_generator; required)."""
         self.stats = ContactStats()
         self.inputs.state[:] = 0.0
+        if self.inputs.sensor[SENSOR_ON]:
+            if rng is None:
+                raise EnvError("the wrist sensor model needs the episode's generator at reset")
+            self._rng = rng
+            self.inputs.sensor[SENSOR_BIAS:] = rng.standard_normal(6) * self.sensor.bias_sigma
 
     def start_period(self, time_s: float) -> None:
-        """A control period starts at episode time ``time_s`` (the time a force limit hit in it is recorded at)."""
+        """A control period starts at episode time ``time_s`` (the time a force limit hit in it is recorded at); with
+        the sensor model on, its noise is drawn."""
         self._period_start_s = time_s
+        if self._rng is not None and self.inputs.sensor[SENSOR_ON]:
+            noise = self.inputs.noise
+            noise[:] = self._rng.standard_normal(noise.shape) * self._sigma
+            self.inputs.state[kernel.SUBSTEP] = 0.0
+
+    def sensed_wrench(self, true_wrench: FloatArray) -> FloatArray:
+        """What the cell's sensor reads now: ``true_wrench`` itself when ideal, else the sensed y (a new array)."""
+        if not self.inputs.sensor[SENSOR_ON]:
+            return true_wrench
+        return self.inputs.state[kernel.SENSED:kernel.SENSED + 6].copy()
 
     def substep(self) -> bool:
         """Update the peaks, the force window and the time above the force limit after a physics step

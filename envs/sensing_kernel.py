@@ -15,9 +15,10 @@ with m_b, c_b the carried bodies' masses and centres of mass, M = sum_b m_b and 
 Contacts (envs.sensing): over the contacts whose geom pair is counted and that have constraint rows (efc_address
 >= 0), the sum and the largest of |f_n| = |efc_force[efc_address]| (the normal row of an elliptic cone).
 
-Per physics step (envs.sensing.EpisodeSensing.substep), with |F| = |F_ext| and h the timestep:
+Per physics step (envs.sensing.EpisodeSensing.substep), with h the timestep, |F| the force the limit reads (|F_ext|,
+or with the sensor model of envs.wrist_sensor on, |y_F| of the sensed y <- y + alpha (F_ext + b + n_k - y)):
 
-    peaks     <- max(peaks, (contact sum, single contact, |F|, |tau_ext|))
+    peaks     <- max(peaks, (contact sum, single contact, |F_ext|, |tau_ext|))
     window    <- the last W = max(1, round(force_limit_window_s / h)) values of |F| (a ring buffer)
     sustained <- max(sustained, min(window))          once W values were read
     above     <- above + h if |F| > force_limit_n else 0
@@ -59,8 +60,13 @@ READINGS = 6
 """Number of |F_ext| values written to the window (an integer)."""
 WRENCH = 7
 """The latest [F_ext; tau_ext] (6 slots)."""
-WINDOW = 13
-"""First slot of the ring buffer of the last W values of |F_ext|."""
+SENSED = 13
+"""The latest sensed wrench y (6 slots; envs.wrist_sensor): what the force limit and the policy read when the sensor
+model is on."""
+SUBSTEP = 19
+"""Physics steps sensed in the current control period (the row of the period's noise to add)."""
+WINDOW = 20
+"""First slot of the ring buffer of the last W values of the force limit's |F|."""
 
 LIMIT_FORCE, LIMIT_WINDOW_S, LIMIT_TIMESTEP = 0, 1, 2
 """Slots of the limits array: force_limit_n, force_limit_window_s, the physics timestep (s)."""
@@ -224,13 +230,15 @@ def wrist_wrench(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, force
 def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, force: np.ndarray, torque: np.ndarray,
                   bodies: np.ndarray, load: np.ndarray, geom: np.ndarray, efc_address: np.ndarray,
                   efc_force: np.ndarray, counted: np.ndarray, scratch: np.ndarray, limits: np.ndarray,
-                  state: np.ndarray) -> bool:
+                  sensor: np.ndarray, noise: np.ndarray, state: np.ndarray) -> bool:
     """One physics step's update of the sense state (module docstring); True when the force limit is hit.
 
     Args:
         rot .. load: as in `wrist_wrench`.
         geom .. scratch: as in `normal_forces`.
         limits: [force_limit_n, force_limit_window_s, timestep].
+        sensor: [on, alpha, bias (6)] (envs.wrist_sensor.SENSOR_*).
+        noise: (n_substeps, 6) the period's noise n_k, one row per physics step (read when the sensor is on).
         state: the sense state (`sense_state`), updated.
     """
     total, single = normal_forces(geom, efc_address, efc_force, counted, scratch)
@@ -246,6 +254,15 @@ def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, forc
         state[PEAK_FORCE] = f
     if t > state[PEAK_TORQUE]:
         state[PEAK_TORQUE] = t
+    if sensor[0] != 0.0:  # the sensor model: y <- y + alpha (w + b + n - y); the limit reads |y_F|
+        row = int(state[SUBSTEP])
+        state[SUBSTEP] = row + 1
+        alpha = sensor[1]
+        for j in range(6):
+            y = state[SENSED + j]
+            state[SENSED + j] = y + alpha * ((wrench[j] + sensor[2 + j] + noise[row, j]) - y)
+        y0, y1, y2 = state[SENSED], state[SENSED + 1], state[SENSED + 2]
+        f = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
     window = state[WINDOW:]
     size = window.shape[0]
     readings = int(state[READINGS])
@@ -281,9 +298,10 @@ def contacts_at(d: int, layout: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
 @_jit
 def sense_substep_at(d: int, layout: np.ndarray, rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray,
                      force: np.ndarray, torque: np.ndarray, bodies: np.ndarray, load: np.ndarray, counted: np.ndarray,
-                     scratch: np.ndarray, limits: np.ndarray, state: np.ndarray) -> bool:
+                     scratch: np.ndarray, limits: np.ndarray, sensor: np.ndarray, noise: np.ndarray,
+                     state: np.ndarray) -> bool:
     """`sense_substep` on the contacts of the mjData at address ``d`` (`contacts_at`); True when the force limit
     is hit."""
     geom, efc_address, efc_force = contacts_at(d, layout)
     return sense_substep(rot, site_pos, xipos, force, torque, bodies, load, geom, efc_address, efc_force, counted,
-                         scratch, limits, state)
+                         scratch, limits, sensor, noise, state)

@@ -12,8 +12,8 @@ Gymnasium environment (envs.gym_env), `evaluate`, `sweep`, the demos and the pro
 checkpoint and result JSON records the one it ran (`Task.to_dict`, versioned).
 
 Task file (TOML, `Task.to_toml` / `Task.from_toml`): ``version = 1``, the scalar fields as top-level keys and the
-nested configs as tables ``[perturbations]``, ``[success]``, ``[start]``; units are in the names (_m metres, _deg
-degrees, _n newtons, _s seconds, _m_s metres per second; ``force_limit_n = inf`` is no limit). A key left out
+nested configs as tables ``[perturbations]``, ``[success]``, ``[start]``, ``[sensing]``; units are in the names (_m
+metres, _deg degrees, _n newtons, _s seconds, _m_s metres per second; ``force_limit_n = inf`` is no limit). A key left out
 keeps the default task's value (the "contact" preset); an unknown key, a value of the wrong type or out of range,
 a missing file or malformed TOML is an EnvError of one line naming the file and the key.
 
@@ -43,6 +43,7 @@ from typing import Any, Mapping
 from envs.errors import EnvError
 from envs.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
 from envs.perturbation import PerturbationRanges
+from envs.wrist_sensor import WristSensorConfig
 from envs.shapes import check_shape
 from envs.sorter import check_chamfer, check_clearance, check_hole_depth
 
@@ -141,6 +142,7 @@ class Task:
         time_limit_s: an episode without success ends, failed, after this much simulated time.
         success: the success tolerances.
         start: where an evaluation's episodes start, around the demos' starts.
+        sensing: the wrist force/torque sensor's model (envs.wrist_sensor: noise, bias, low-pass).
 
     Raises:
         EnvError: an invalid field (one line naming it).
@@ -158,6 +160,7 @@ class Task:
     time_limit_s: float = 20.0
     success: SuccessConfig = field(default_factory=SuccessConfig)
     start: StartRange = field(default_factory=StartRange)
+    sensing: WristSensorConfig = field(default_factory=WristSensorConfig)
 
     def __post_init__(self) -> None:
         if self.shape is not None:
@@ -293,7 +296,8 @@ class Task:
         return parse_toml(text, source)
 
 
-_NESTED: dict[str, type] = {"perturbations": PerturbationRanges, "success": SuccessConfig, "start": StartRange}
+_NESTED: dict[str, type] = {"perturbations": PerturbationRanges, "success": SuccessConfig, "start": StartRange,
+                            "sensing": WristSensorConfig}
 _TYPES: dict[str, Any] = {f.name: f.type for f in fields(Task)}
 """Each Task field's annotation (strings: the module uses postponed annotations)."""
 _LEAVES: dict[str, str | None] = {

@@ -10,6 +10,7 @@ import scipy.spatial.transform
 from envs import sensing_kernel as kernel
 from envs.errors import EnvError
 from envs.sensing import PegContacts, ToolLoad, WristSensor
+from envs.wrist_sensor import SENSOR_SIZE, WristSensorConfig
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
 DT, WINDOW_S, LIMIT_N = 0.001, 0.005, 40.0
@@ -76,14 +77,17 @@ def test_more_contacts_than_the_scratch_holds_still_sum_like_numpy() -> None:
     assert (total, single) == (np.sum(forces), np.max(forces))
 
 
-def _sense(state: np.ndarray, force_n: float) -> bool:
-    """One physics step of the fused update with a massless tool (so |F_ext| = |F_s|) and no contacts."""
+def _sense(state: np.ndarray, force_n: float, sensor: np.ndarray | None = None,
+           noise: np.ndarray | None = None) -> bool:
+    """One physics step of the fused update with a massless tool (so F_ext = -F_s), no contacts and (default) the
+    ideal sensor."""
     load = np.concatenate([[0.0], GRAVITY, [0.0]])
     empty = np.zeros((0, 2), np.int32)
     return kernel.sense_substep(np.eye(3).ravel(), np.zeros(3), np.zeros((1, 3)), np.array([0.0, 0.0, force_n]),
                                 np.zeros(3), np.zeros(1, np.int64), load, empty, np.zeros(0, np.int32), np.zeros(0),
                                 np.zeros((1, 1), bool), kernel.contact_scratch(),
-                                np.array([LIMIT_N, WINDOW_S, DT]), state)
+                                np.array([LIMIT_N, WINDOW_S, DT]), np.zeros(SENSOR_SIZE) if sensor is None else sensor,
+                                np.zeros((1, 6)) if noise is None else noise, state)
 
 
 def test_force_limit_fires_after_exactly_the_window_above_the_limit() -> None:
@@ -121,3 +125,48 @@ def test_inputs_the_model_does_not_have_are_refused_at_construction() -> None:
         WristSensor(model, 0, 0, 3, ToolLoad(()))
     with pytest.raises(EnvError, match="geoms"):
         PegContacts(model, (0,), (1,))
+
+
+def _sensed_errors(alpha: float, bias: np.ndarray, sigma: np.ndarray, steps: int = 20_000) -> np.ndarray:
+    """(steps, 6) sensed minus true wrench of the sensor model over a constant true force of 10 N, periods of 10
+    physics steps with their noise drawn as EpisodeSensing.start_period draws it."""
+    state = kernel.sense_state(WINDOW)
+    sensor = np.concatenate([[1.0, alpha], bias])
+    rng = np.random.default_rng(11)
+    noise = np.zeros((10, 6))
+    true = None
+    errors = []
+    for k in range(steps):
+        if k % 10 == 0:
+            noise[:] = rng.standard_normal(noise.shape) * sigma
+            state[kernel.SUBSTEP] = 0.0
+        _sense(state, 10.0, sensor, noise)
+        true = state[kernel.WRENCH:kernel.WRENCH + 6].copy()
+        errors.append(state[kernel.SENSED:kernel.SENSED + 6] - true)
+    return np.array(errors[200:])  # after the filter's start from 0
+
+
+def test_the_sensor_reads_the_true_wrench_plus_bias_and_white_noise() -> None:
+    bias, sigma = np.array([0.5, -0.3, 1.0, 0.02, -0.01, 0.0]), np.array([0.2, 0.2, 0.2, 0.01, 0.01, 0.01])
+    errors = _sensed_errors(1.0, bias, sigma)
+    n = errors.shape[0]
+    assert np.all(np.abs(errors.mean(axis=0) - bias) < 4.0 * sigma / np.sqrt(n))
+    assert errors.std(axis=0) == pytest.approx(sigma, rel=0.03)
+
+
+def test_the_low_pass_filter_shrinks_the_noise_as_a_first_order_filter() -> None:
+    """White noise through y <- y + alpha (m - y) has variance sigma^2 alpha / (2 - alpha)."""
+    alpha = WristSensorConfig(sensor_mode="wrist", sensor_cutoff_hz=100.0).alpha(DT)
+    sigma = np.full(6, 0.2)
+    errors = _sensed_errors(alpha, np.zeros(6), sigma, steps=60_000)
+    assert errors.std(axis=0) == pytest.approx(sigma * np.sqrt(alpha / (2.0 - alpha)), rel=0.06)
+
+
+def test_the_force_limit_reads_the_sensor_and_the_peaks_the_truth() -> None:
+    """A true 30 N under the 40 N limit, read with a +15 N bias along it: the limit fires after its window, while
+    the record's peak stays the true 30 N."""
+    state = kernel.sense_state(WINDOW)
+    sensor = np.concatenate([[1.0, 1.0], [0.0, 0.0, -15.0, 0.0, 0.0, 0.0]])  # F_ext = -F_s: -15 N on F_s's z
+    hits = [_sense(state, 30.0, sensor, np.zeros((WINDOW + 1, 6))) for _ in range(WINDOW)]
+    assert hits[-1] and not any(hits[:-1])
+    assert state[kernel.PEAK_FORCE] == 30.0 and abs(state[kernel.SENSED + 2]) == pytest.approx(45.0)

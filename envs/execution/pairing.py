@@ -19,6 +19,10 @@ FloatArray = npt.NDArray[np.float64]
 
 PAIRING_TOLERANCE: float = 1e-9
 """Start poses (m, quaternion components) and perturbations (mm, deg) of a pair agree to this much."""
+IMPERFECTION_KEYS: frozenset[str] = frozenset({"hole_friction", "pad_friction", "grasp_lateral_mm", "grasp_tilt_deg",
+                                               "grasp_yaw_deg", "payload_mass_error", "joint_friction_nm"})
+"""Perturbation keys of the cell's imperfections (envs.perturbation), written only where set: what one side of a
+paired comparison of an imperfection adds, not what the pairs must share."""
 
 
 def _numbers(value: Any, length: int) -> FloatArray | None:
@@ -58,10 +62,13 @@ def _by_index(records: Sequence[Any], side: str) -> dict[int, Mapping[str, Any]]
 
 def _perturbation_difference(base: Mapping[str, Any], cand: Mapping[str, Any], tolerance: float) -> str | None:
     """What differs between two perturbation dicts (None: equal); an empty one (an episode that never ran:
-    worker_died, wall_timeout) carries none and is not compared."""
+    worker_died, wall_timeout) carries none and is not compared, and an imperfection only one side has
+    (IMPERFECTION_KEYS) is the comparison's treatment, not a difference of the episode."""
     if not base or not cand:
         return None
     for key in sorted(set(base) | set(cand)):
+        if (key not in base or key not in cand) and key in IMPERFECTION_KEYS:
+            continue
         if key not in base or key not in cand:
             return f"perturbation {key} is missing in the {'base' if key not in base else 'candidate'}"
         x, y = base[key], cand[key]

@@ -64,7 +64,8 @@ class Observation:
         gripper_width_m: opening between the finger pads (0 for a welded peg).
         tcp: the measured tcp pose (the nominal peg_tip through the arm's kinematics), world frame.
         wrist_wrench: (6,) [force N; torque N m] of the wrist F/T sensor, in the sensor frame, zeroed for the tool
-            load (hand, fingers, peg), as the simulator's sensor gives it (envs.sensing).
+            load (hand, fingers, peg), as the cell's sensor reads it (envs.sensing; with the task's sensor model,
+            envs.wrist_sensor: noise, bias and low-pass).
         nominal_hole: where the cell believes the target hole is (its z axis out of the hole), not the true one.
         nominal_goal: the tcp pose seated in the nominal hole (the demonstrations' goal).
         privileged: simulator truth for a privileged teacher; None unless the episode runs with privileged=True.
@@ -163,5 +164,5 @@ def observe(env: Any, privileged: bool = False) -> Observation:
     the nominal hole and goal; with ``privileged`` also the true hole and goal (`PrivilegedState`)."""
     obs = env.observation
     truth = PrivilegedState(env.hole, env.hole_axis, env.goal) if privileged else None
-    return Observation(obs.time_s, obs.qpos, obs.qvel, obs.gripper_width_m, obs.tcp, obs.wrist_wrench,
+    return Observation(obs.time_s, obs.qpos, obs.qvel, obs.gripper_width_m, obs.tcp, obs.sensed_wrench,
                        env.nominal_hole, env.nominal_goal, truth)
