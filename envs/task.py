@@ -27,6 +27,9 @@ Presets (package data, envs/tasks/NAME.toml, `preset(name)`):
     exactly where the demos ended.
   - "factory": Factory's tolerances on our 30 mm square peg: 0.1 mm clearance (the smallest we build), 1 mm hole
     error, a 3 mm grasp offset along the peg axis, 0.5 mm chamfers.
+  - "realistic": the contact task in an imperfect cell: every imperfection of envs.execution.sensitivity at once
+    (friction per episode, in-hand pose and grasp offset, payload and joint-friction errors the controller does
+    not know, a noisy, biased, filtered wrist sensor).
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ TASK_VERSION: int = 1
 TASK_PEG_MODES: tuple[str, ...] = tuple(m for m in PEG_MODES if m != "free")
 AROUND: tuple[str, ...] = ("mean", "demo")
 """Centres of an evaluation's start perturbations: the mean demo start, or a random demo's start."""
-PRESET_NAMES: tuple[str, ...] = ("contact", "paper", "factory")
+PRESET_NAMES: tuple[str, ...] = ("contact", "paper", "factory", "realistic")
 DEFAULT_PRESET: str = "contact"
 
 

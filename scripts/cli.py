@@ -26,6 +26,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "train": ("scripts.train", "train RiemannianFlow position and orientation models on demos"),
     "evaluate": ("scripts.evaluate", "execute a trained skill, or any policy, from perturbed starts and score it"),
     "compare": ("scripts.compare", "did a change make insertion worse? paired comparison of two skills on the same episodes"),
+    "sensitivity": ("scripts.sensitivity", "what each imperfection of a real cell costs a skill, paired with the ideal "
+                                           "cell"),
     "sweep": ("scripts.sweep", "success maps of a trained skill over clearance x hole-pose error x ..."),
     "render": ("scripts.render", "render an episode or a demo to MP4"),
     "export": ("scripts.export", "demos or evaluation episodes as a LeRobot v3 or robomimic dataset"),

@@ -87,3 +87,14 @@ def test_joint_friction_stops_a_compliant_arm_short_of_its_target(env) -> None:
     assert errors[0] < 2e-4 and errors[1] > 5e-3
     env.model_error.apply(Perturbation())
     assert not env.model.dof_frictionloss.any()
+
+
+def test_the_realistic_preset_is_the_contact_task_with_every_imperfection() -> None:
+    from envs.execution.sensitivity import IMPERFECTIONS, realistic
+    from envs.task import Task, preset
+
+    assert preset("realistic") == realistic(preset("contact"))
+    assert preset("contact") == Task()
+    for name in IMPERFECTIONS:  # each imperfection changes the task (none is a no-op at its magnitude)
+        from envs.execution.sensitivity import with_imperfection
+        assert with_imperfection(Task(), name) != Task()
