@@ -105,6 +105,7 @@ class Observer:
             wrist, contacts: the sensors.
         """
         self.model, self.data, self.grasped, self.wrist, self.contacts = model, data, grasped, wrist, contacts
+        self.floor_geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "sorter/base")  # the holes' floor
         self.flange_site, self.tcp_site, self.peg_tip_site = ids.flange_site, ids.tcp_site, ids.peg_tip_site
         self.arm_qpos, self.arm_dof = np.asarray(ids.arm_qpos_adr), arm_dof
         self.finger_qpos = np.asarray(ids.finger_qpos_adr, dtype=int)
@@ -135,7 +136,11 @@ class Observer:
         else:
             nan_state = InsertionState(np.nan, np.nan, np.nan, np.nan, False)
             assessment = Assessment(None, nan_state, False)
-        success = tracker.update(time_s, assessment.inserted and track)
+        inserted = assessment.inserted and track
+        floor_n = holes.config.floor_force_n
+        if inserted and floor_n > 0.0:  # the option of SuccessConfig: seated means pressed on the floor
+            inserted = self.contacts.force_on(data, self.floor_geom) >= floor_n
+        success = tracker.update(time_s, inserted)
         wrench = self.wrist.wrench(data)
         if stats is not None:
             stats.wrist_force_samples.append(norm(wrench[:3]))

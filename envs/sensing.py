@@ -119,11 +119,21 @@ class PegContacts:
         one_peg = peg[:, None] != peg[None, :]
         other_ignored = np.where(peg[:, None], ignored[None, :], ignored[:, None])
         self._counted = one_peg & ~other_ignored
+        self._peg = peg
         self._scratch = kernel.contact_scratch()
 
     def kernel_inputs(self) -> tuple[npt.NDArray[np.bool_], FloatArray]:
         """The last arguments of ``sensing_kernel.normal_forces``: the counted-pair table and the forces' buffer."""
         return self._counted, self._scratch
+
+    def force_on(self, data: mujoco.MjData, geom: int) -> float:
+        """Sum of the normal forces (N) of the peg's contacts with ``geom`` now (e.g. the hole's floor)."""
+        contact = data.contact
+        total = 0.0
+        for g1, g2, adr in zip(contact.geom1.tolist(), contact.geom2.tolist(), contact.efc_address.tolist()):
+            if adr >= 0 and ((g1 == geom and self._peg[g2]) or (g2 == geom and self._peg[g1])):
+                total += abs(float(data.efc_force[adr]))
+        return total
 
     def normal_forces(self, data: mujoco.MjData) -> tuple[float, float]:
         """(sum of normal-force magnitudes, largest single normal force) in N, now."""
