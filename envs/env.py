@@ -170,6 +170,7 @@ class PegInHoleEnv:
         self.nominal_hole = Pose(pos=nominal_hole_pos, quat=nominal_hole_quat)
         goal_pos, goal_quat = self.scene.goal_pose()
         self.nominal_goal = Pose(pos=goal_pos, quat=goal_quat)
+        self.believed_hole, self.believed_goal = self.nominal_hole, self.nominal_goal
         self._set_hole_error(Perturbation())
         self.tracker = SuccessTracker(episode_config.success)
         self.perturbation = Perturbation()
@@ -276,6 +277,17 @@ class PegInHoleEnv:
         goal_pos, goal_quat = goal_from_hole(target.pos, target.quat, scene.config.insertion_depth_m)
         self.goal = Pose(pos=goal_pos, quat=goal_quat)
 
+    def _set_believed_hole(self, perturbation: Perturbation) -> None:
+        """Where the cell believes the hole and the goal are (what a policy sees as ``nominal_hole`` and
+        ``nominal_goal``): the nominal ones moved by the episode's hole observation error (envs.perturbation)."""
+        error = perturbation.observation_error()
+        if error == Perturbation():
+            self.believed_hole, self.believed_goal = self.nominal_hole, self.nominal_goal
+            return
+        hole, goal = self.nominal_hole, self.nominal_goal
+        self.believed_hole = Pose(*perturbed_frame(hole.pos, hole.quat, hole.pos, hole.quat, error))
+        self.believed_goal = Pose(*perturbed_frame(goal.pos, goal.quat, hole.pos, hole.quat, error))
+
     def _reset_at(self, start: Pose, perturbation: Perturbation) -> Observation:
         try:
             q = solve_ik(self.arm_model, "tcp", start.pos, start.quat, self.q_nominal, self.config.ik)
@@ -287,6 +299,7 @@ class PegInHoleEnv:
         data.qpos[self._arm_qpos] = q
         data.qvel[:] = 0.0
         self._set_hole_error(perturbation)
+        self._set_believed_hole(perturbation)
         self.friction.apply(perturbation)
         self.model_error.apply(perturbation)
         if self.grasped:

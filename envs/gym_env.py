@@ -295,7 +295,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
 
     def _observe(self, obs: Observation) -> dict[str, Any]:
         """The observation dict: the measured keys, and the truth's with ``privileged``."""
-        hole = self.sim.nominal_hole
+        hole = self.sim.believed_hole  # where the cell believes the hole is (with the task's observation error)
         values: dict[str, Any] = {
             "tcp_pos": obs.tcp.pos,
             "tcp_quat": obs.tcp.quat,

@@ -20,7 +20,10 @@ The cell's imperfections (issue #25), each off at 0:
 - payload: the simulated peg's mass is m (1 + e), e uniform in [-E, E], while the controller's tool load and the
   wrist sensor's zeroing keep the nominal m (a payload the cell's model gets wrong);
 - joint friction: Coulomb friction with stiction (MuJoCo's frictionloss) of f uniform in [min, max] N m on each
-  arm joint, which the controller does not know.
+  arm joint, which the controller does not know;
+- hole observation: where the cell believes the hole is (the policy's ``nominal_hole`` and ``nominal_goal``) is the
+  nominal hole moved by its own error, (dx, dy) uniform in the disk of radius R_o and a yaw uniform in [-A_o, A_o]
+  about its axis, independent of the true hole-pose error above (a camera's error, not the part's).
 
 Their draws come from a generator seeded by the episode's six draws above, so a task with imperfections keeps the
 hole errors, grasp offsets and starts of the same task without them, episode for episode (paired comparisons of one
@@ -47,8 +50,11 @@ MAX_GRASP_LATERAL_M: float = 0.005
 MAX_GRASP_ANGLE_DEG: float = 5.0
 MAX_PAYLOAD_ERROR: float = 0.5
 MAX_JOINT_FRICTION_NM: float = 5.0
-IMPERFECTION_DRAWS: int = 7
-"""Uniform draws of the imperfections' generator per episode (their order: mu_hole, mu_pad, l, t, y, e, f)."""
+MAX_OBSERVATION_ERROR_M: float = 0.01
+MAX_OBSERVATION_ERROR_DEG: float = 10.0
+IMPERFECTION_DRAWS: int = 10
+"""Uniform draws of the imperfections' generator per episode (their order: mu_hole, mu_pad, l, t, y, e, f, then the
+observation's radius, polar angle and yaw; new imperfections are appended, so earlier ones keep their draws)."""
 
 
 def _check_range(name: str, value: float, maximum: float) -> float:
@@ -74,6 +80,8 @@ class PerturbationRanges:
         payload_mass_error: bound E of the simulated peg's relative mass error, in [0, 0.5].
         joint_friction_min_nm, joint_friction_max_nm: range of each arm joint's Coulomb friction (both 0: none);
             0 < min <= max <= 5 N m.
+        hole_observation_error_m, hole_observation_error_deg: R_o and A_o of the observed hole's error, in
+            [0, 10 mm] and [0, 10 deg].
 
     Raises:
         EnvError: a negative, NaN or too large range, or a friction range that is not 0 < min <= max (one line
@@ -93,6 +101,8 @@ class PerturbationRanges:
     payload_mass_error: float = 0.0
     joint_friction_min_nm: float = 0.0
     joint_friction_max_nm: float = 0.0
+    hole_observation_error_m: float = 0.0
+    hole_observation_error_deg: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("hole_error_m", self.hole_error_m, MAX_HOLE_ERROR_M)
@@ -102,6 +112,8 @@ class PerturbationRanges:
         _check_range("grasp_tilt_deg", self.grasp_tilt_deg, MAX_GRASP_ANGLE_DEG)
         _check_range("grasp_yaw_deg", self.grasp_yaw_deg, MAX_GRASP_ANGLE_DEG)
         _check_range("payload_mass_error", self.payload_mass_error, MAX_PAYLOAD_ERROR)
+        _check_range("hole_observation_error_m", self.hole_observation_error_m, MAX_OBSERVATION_ERROR_M)
+        _check_range("hole_observation_error_deg", self.hole_observation_error_deg, MAX_OBSERVATION_ERROR_DEG)
         for low_name, high_name, top in (("hole_friction_min", "hole_friction_max", MAX_FRICTION),
                                          ("pad_friction_min", "pad_friction_max", MAX_FRICTION),
                                          ("joint_friction_min_nm", "joint_friction_max_nm", MAX_JOINT_FRICTION_NM)):
@@ -116,7 +128,7 @@ class PerturbationRanges:
         """Some imperfection of the cell is set (its draws are made)."""
         return any(getattr(self, name) > 0.0 for name in (
             "hole_friction_max", "pad_friction_max", "grasp_lateral_m", "grasp_tilt_deg", "grasp_yaw_deg",
-            "payload_mass_error", "joint_friction_max_nm"))
+            "payload_mass_error", "joint_friction_max_nm", "hole_observation_error_m", "hole_observation_error_deg"))
 
 
 @dataclass(frozen=True)
@@ -134,6 +146,8 @@ class Perturbation:
         grasp_lateral_m, grasp_tilt_deg, grasp_yaw_deg: the peg's in-hand pose error (module docstring).
         payload_mass_error: relative error e of the simulated peg's mass.
         joint_friction_nm: Coulomb friction of each arm joint (N m).
+        observed_hole_dx_m, observed_hole_dy_m, observed_hole_yaw_deg: the observed hole's error in the nominal
+            hole's frame.
     """
 
     hole_dx_m: float = 0.0
@@ -149,6 +163,9 @@ class Perturbation:
     grasp_yaw_deg: float = 0.0
     payload_mass_error: float = 0.0
     joint_friction_nm: float = 0.0
+    observed_hole_dx_m: float = 0.0
+    observed_hole_dy_m: float = 0.0
+    observed_hole_yaw_deg: float = 0.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -159,6 +176,11 @@ class Perturbation:
                            f"{self.joint_friction_nm} N m) must be >= 0")
         if self.payload_mass_error <= -1.0:
             raise EnvError(f"Perturbation.payload_mass_error={self.payload_mass_error} must be > -1 (a mass > 0)")
+
+    def observation_error(self) -> Perturbation:
+        """The observed hole's error as a hole-pose error (for `perturbed_frame` of the nominal hole)."""
+        return Perturbation(hole_dx_m=self.observed_hole_dx_m, hole_dy_m=self.observed_hole_dy_m,
+                            hole_yaw_deg=self.observed_hole_yaw_deg)
 
     @property
     def hole_offset_m(self) -> float:
@@ -181,7 +203,9 @@ class Perturbation:
             ("hole_friction", self.hole_friction), ("pad_friction", self.pad_friction),
             ("grasp_lateral_mm", self.grasp_lateral_m * 1e3), ("grasp_tilt_deg", self.grasp_tilt_deg),
             ("grasp_yaw_deg", self.grasp_yaw_deg), ("payload_mass_error", self.payload_mass_error),
-            ("joint_friction_nm", self.joint_friction_nm)) if v != 0.0}
+            ("joint_friction_nm", self.joint_friction_nm), ("observed_hole_dx_mm", self.observed_hole_dx_m * 1e3),
+            ("observed_hole_dy_mm", self.observed_hole_dy_m * 1e3), ("observed_hole_yaw_deg", self.observed_hole_yaw_deg))
+            if v != 0.0}
         return {
             "hole_dx_mm": self.hole_dx_m * 1e3,
             "hole_dy_mm": self.hole_dy_m * 1e3,
@@ -205,6 +229,8 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
     if ranges.imperfect:
         v = np.random.default_rng(np.frombuffer(u.tobytes(), dtype=np.uint64)).random(IMPERFECTION_DRAWS)
 
+    observed_radius = ranges.hole_observation_error_m * np.sqrt(v[7])
+
     def within(low: float, high: float, draw: float) -> float:
         return float(low + (high - low) * draw) if high > 0.0 else 0.0
     radius = ranges.hole_error_m * np.sqrt(u[0])
@@ -223,6 +249,9 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
         grasp_yaw_deg=float(ranges.grasp_yaw_deg * (2.0 * v[4] - 1.0)),
         payload_mass_error=float(ranges.payload_mass_error * (2.0 * v[5] - 1.0)),
         joint_friction_nm=within(ranges.joint_friction_min_nm, ranges.joint_friction_max_nm, v[6]),
+        observed_hole_dx_m=float(observed_radius * np.cos(2.0 * np.pi * v[8])),
+        observed_hole_dy_m=float(observed_radius * np.sin(2.0 * np.pi * v[8])),
+        observed_hole_yaw_deg=float(ranges.hole_observation_error_deg * (2.0 * v[9] - 1.0)),
     )
 
 

@@ -98,3 +98,21 @@ def test_the_realistic_preset_is_the_contact_task_with_every_imperfection() -> N
     for name in IMPERFECTIONS:  # each imperfection changes the task (none is a no-op at its magnitude)
         from envs.execution.sensitivity import with_imperfection
         assert with_imperfection(Task(), name) != Task()
+
+
+def test_the_policy_sees_the_hole_where_the_cell_believes_it(env) -> None:
+    """An observation error moves what the policy is told (nominal_hole, nominal_goal), not the real hole."""
+    from envs.execution.policy_protocol import observe
+
+    start = _above(env)
+    env.reset(start_pose=start, perturbation=Perturbation(hole_dx_m=0.0005))
+    true_hole, told = env.hole, observe(env)
+    assert np.array_equal(told.nominal_hole.pos, env.nominal_hole.pos)
+    env.reset(start_pose=start, perturbation=Perturbation(hole_dx_m=0.0005, observed_hole_dx_m=0.001,
+                                                          observed_hole_yaw_deg=2.0))
+    seen = observe(env)
+    assert np.array_equal(env.hole.pos, true_hole.pos) and np.array_equal(env.hole.quat, true_hole.quat)
+    assert np.linalg.norm(seen.nominal_hole.pos - env.nominal_hole.pos) == pytest.approx(0.001, abs=1e-9)
+    turned = math.degrees(2.0 * math.acos(min(1.0, abs(float(np.dot(seen.nominal_hole.quat, env.nominal_hole.quat))))))
+    assert turned == pytest.approx(2.0, abs=1e-6)
+    assert np.linalg.norm(seen.nominal_goal.pos - env.nominal_goal.pos) == pytest.approx(0.001, abs=1e-6)

@@ -66,8 +66,9 @@ class Observation:
         wrist_wrench: (6,) [force N; torque N m] of the wrist F/T sensor, in the sensor frame, zeroed for the tool
             load (hand, fingers, peg), as the cell's sensor reads it (envs.sensing; with the task's sensor model,
             envs.wrist_sensor: noise, bias and low-pass).
-        nominal_hole: where the cell believes the target hole is (its z axis out of the hole), not the true one.
-        nominal_goal: the tcp pose seated in the nominal hole (the demonstrations' goal).
+        nominal_hole: where the cell believes the target hole is (its z axis out of the hole), not the true one: the
+            design pose, moved by the task's hole observation error when it sets one (envs.perturbation).
+        nominal_goal: the tcp pose seated in that hole (without an observation error, the demonstrations' goal).
         privileged: simulator truth for a privileged teacher; None unless the episode runs with privileged=True.
     """
 
@@ -165,4 +166,4 @@ def observe(env: Any, privileged: bool = False) -> Observation:
     obs = env.observation
     truth = PrivilegedState(env.hole, env.hole_axis, env.goal) if privileged else None
     return Observation(obs.time_s, obs.qpos, obs.qvel, obs.gripper_width_m, obs.tcp, obs.sensed_wrench,
-                       env.nominal_hole, env.nominal_goal, truth)
+                       env.believed_hole, env.believed_goal, truth)

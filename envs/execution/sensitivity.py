@@ -29,6 +29,7 @@ IMPERFECTIONS: dict[str, dict[str, Any]] = {
     "grasp_offset": {"grasp_offset_m": 0.003},
     "payload": {"payload_mass_error": 0.2},
     "joint_friction": {"joint_friction_min_nm": 0.05, "joint_friction_max_nm": 0.2},
+    "hole_observation": {"hole_observation_error_m": 0.001, "hole_observation_error_deg": 1.0},
     "wrist_sensor": {"sensor_mode": "wrist", "force_noise_n": 0.1, "torque_noise_nm": 0.005, "force_bias_n": 0.5,
                      "torque_bias_nm": 0.02, "sensor_cutoff_hz": 100.0},
 }
