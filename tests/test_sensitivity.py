@@ -30,10 +30,10 @@ def test_the_cli_names_are_the_imperfections() -> None:
 def test_every_variant_pairs_with_the_ideal_cell(model) -> None:
     config = EvaluationConfig(episodes=3, seed=5, task=Task(time_limit_s=0.3))
     seen = []
-    rows = run_sensitivity(model, config, ["payload", "in_hand_pose"], on_variant=seen.append)
-    assert seen == ["ideal", "payload", "in_hand_pose", "all"] == [r.name for r in rows]
+    rows = run_sensitivity(model, config, ["payload", "grasp_offset"], on_variant=seen.append)
+    assert seen == ["ideal", "payload", "grasp_offset", "all"] == [r.name for r in rows]
     assert rows[0].comparison is None and all(r.comparison.success.counts.pairs == 3 for r in rows[1:])
-    assert rows[3].settings == {**IMPERFECTIONS["payload"], **IMPERFECTIONS["in_hand_pose"]}
+    assert rows[3].settings == {**IMPERFECTIONS["payload"], **IMPERFECTIONS["grasp_offset"]}
     table = sensitivity_table(rows).splitlines()
     assert len(table) == 2 + 4 and table[2].startswith("| ideal | ")
 

@@ -228,13 +228,14 @@ def _percent(interval: tuple[float, float]) -> str:
 
 
 def compare_evaluations(base: EvaluationSample, candidate: EvaluationSample, margin: float = 0.0,
-                        alpha: float = 0.05) -> Comparison:
-    """Pair the two evaluations' episodes and compare them (module docstring).
+                        alpha: float = 0.05, treatment: frozenset[str] = frozenset()) -> Comparison:
+    """Pair the two evaluations' episodes and compare them (module docstring); perturbation keys in ``treatment``
+    may differ between the pairs (`pair_records`).
 
     Raises:
         EnvError: the episodes do not pair (pair_records), or margin / alpha out of range.
     """
-    base_records, cand_records = pair_records(base.records, candidate.records)
+    base_records, cand_records = pair_records(base.records, candidate.records, treatment=treatment)
     success = compare_success([r["success"] for r in base_records], [r["success"] for r in cand_records],
                               margin, alpha)
     censor = max(base.time_limit_s, candidate.time_limit_s)

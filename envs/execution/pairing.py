@@ -61,14 +61,15 @@ def _by_index(records: Sequence[Any], side: str) -> dict[int, Mapping[str, Any]]
     return out
 
 
-def _perturbation_difference(base: Mapping[str, Any], cand: Mapping[str, Any], tolerance: float) -> str | None:
+def _perturbation_difference(base: Mapping[str, Any], cand: Mapping[str, Any], tolerance: float,
+                             treatment: frozenset[str] = frozenset()) -> str | None:
     """What differs between two perturbation dicts (None: equal); an empty one (an episode that never ran:
     worker_died, wall_timeout) carries none and is not compared, and an imperfection only one side has
     (IMPERFECTION_KEYS) is the comparison's treatment, not a difference of the episode."""
     if not base or not cand:
         return None
     for key in sorted(set(base) | set(cand)):
-        if (key not in base or key not in cand) and key in IMPERFECTION_KEYS:
+        if key in treatment or ((key not in base or key not in cand) and key in IMPERFECTION_KEYS):
             continue
         if key not in base or key not in cand:
             return f"perturbation {key} is missing in the {'base' if key not in base else 'candidate'}"
@@ -83,8 +84,9 @@ def _perturbation_difference(base: Mapping[str, Any], cand: Mapping[str, Any], t
 
 
 def pair_records(base: Sequence[Any], candidate: Sequence[Any], tolerance: float = PAIRING_TOLERANCE,
-                 ) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]]:
-    """Match two evaluations' episode records (``EpisodeRecord.to_dict()``) by episode index.
+                 treatment: frozenset[str] = frozenset()) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]]:
+    """Match two evaluations' episode records (``EpisodeRecord.to_dict()``) by episode index; perturbation keys in
+    ``treatment`` may differ (what the comparison varies on purpose, e.g. the grasp offset of `pih sensitivity`).
 
     Returns:
         (base records, candidate records), both sorted by index, record i of each from the same episode.
@@ -109,7 +111,7 @@ def pair_records(base: Sequence[Any], candidate: Sequence[Any], tolerance: float
                 raise EnvError(f"episode {index}: {key} differs ({_short(x)} vs {_short(y)}): the evaluations "
                                "did not start from the same poses (same --seed and start options?)")
         what = _perturbation_difference(b[index].get("perturbation") or {}, c[index].get("perturbation") or {},
-                                        tolerance)
+                                        tolerance, treatment)
         if what is not None:
             raise EnvError(f"episode {index}: {what}: the evaluations did not use the same hole-pose errors "
                            "(same --seed and task options?)")

@@ -36,6 +36,11 @@ IMPERFECTIONS: dict[str, dict[str, Any]] = {
 """Imperfection -> the task fields that set it (Task.override names), at the realistic preset's magnitudes."""
 
 
+TREATMENT: frozenset[str] = frozenset({"grasp_offset_mm"})
+"""Perturbation keys an imperfection changes that the ideal cell records too (the grasp offset, 0 there): a variant's
+pairs may differ in them (the other imperfections' keys are recorded only where set, envs.execution.pairing)."""
+
+
 def with_imperfection(task: Task, name: str) -> Task:
     """``task`` with the imperfection ``name`` of IMPERFECTIONS set.
 
@@ -137,7 +142,7 @@ def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig,
             on_variant(name)
         result = evaluate(model_dir, replace(config, task=task), progress=False)
         sample = load_evaluation(result.to_dict(), name)
-        comparison = None if base_sample is None else compare_evaluations(base_sample, sample)
+        comparison = None if base_sample is None else compare_evaluations(base_sample, sample, treatment=TREATMENT)
         base_sample = sample if base_sample is None else base_sample
         rows.append(_row(name, settings, result, comparison))
     return rows
