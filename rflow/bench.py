@@ -11,6 +11,12 @@ samples, then the medians of
     lookahead steps x -> x_1 -> x_2 of both models, for the twist and acceleration), done every 10 ms;
   - rollout_1000_ms: one 1000-step rollout of the position model; rollouts_100x1000_ms: 100 at once
     (the paper: 20 s per 1000 samples, about 50 Hz).
+
+A second benchmark, "training": the default skill's training (`pih train`: both models at once in two processes,
+`rflow.fit_processes`, the skill's log-scale bound and off-data prior) on the same synthetic demos with the former
+default schedule (`PAPER_SCHEDULE`: batch 128, lr 1e-3, 80 epochs) and the current one (`SKILL_SCHEDULE`), timed
+alternately in this run (wall seconds of `fit_pose_skill`, process start-up included), medians and their ratio.
+Both run on today's code, so the ratio is that of the schedules alone.
 """
 
 from __future__ import annotations
@@ -22,6 +28,14 @@ import numpy as np
 
 BENCH_EPOCHS_QUICK = 2
 BENCH_EPOCHS_FULL = 10
+TRAINING_REPEATS_FULL = 3
+"""Alternating (former, current) pairs of the "training" benchmark; --quick runs one pair of shortened trainings."""
+TRAINING_QUICK_EPOCH_FRACTION = 0.05
+"""--quick trains this fraction of each schedule's epochs (at least one): a smoke test, its ratio is mostly start-up."""
+SKILL_LOG_SCALE_CLAMP = 0.5
+SKILL_PRIOR_WEIGHT = 0.3
+"""The skill's model settings (scripts/train.py DEFAULT_LOG_SCALE_CLAMP, DEFAULT_PRIOR_WEIGHT; rflow does not import
+scripts, tests/test_rflow_bench.py checks they agree)."""
 
 
 def synthetic_pose_demos(n: int = 7, m: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
@@ -97,4 +111,44 @@ def bench_flow(quick: bool) -> dict[str, Any]:
     }
 
 
-BENCHMARKS: list[tuple[str, Callable[[bool], dict[str, Any]]]] = [("flow", bench_flow)]
+def skill_training_configs() -> tuple[Any, Any]:
+    """(former, current) TrainConfig of the default skill: `PAPER_SCHEDULE` and `SKILL_SCHEDULE` over the skill's
+    log-scale bound and prior weight (the current one is `scripts.train.skill_train_config()`)."""
+    from rflow.model import ModelConfig
+    from rflow.train import PAPER_SCHEDULE, SKILL_SCHEDULE, TrainConfig
+
+    common = {"model": ModelConfig(log_scale_clamp=SKILL_LOG_SCALE_CLAMP), "prior_weight": SKILL_PRIOR_WEIGHT,
+              "threads": 1}
+    return TrainConfig(**common, **PAPER_SCHEDULE), TrainConfig(**common, **SKILL_SCHEDULE)
+
+
+def bench_training(quick: bool) -> dict[str, Any]:
+    """The default skill's training with the former and the current schedule, alternately (module docstring)."""
+    import dataclasses
+
+    from rflow.skill_io import fit_pose_skill
+
+    pos, quat, dt = synthetic_pose_demos()
+    former, current = skill_training_configs()
+    if quick:
+        former, current = (dataclasses.replace(c, epochs=max(1, round(c.epochs * TRAINING_QUICK_EPOCH_FRACTION)))
+                           for c in (former, current))
+    times: dict[str, list[float]] = {"former": [], "current": []}
+    for _ in range(1 if quick else TRAINING_REPEATS_FULL):
+        for name, config in (("former", former), ("current", current)):
+            start = time.perf_counter()
+            fit_pose_skill(pos, quat, dt, config, progress=False, workers=2)
+            times[name].append(time.perf_counter() - start)
+    former_s, current_s = float(np.median(times["former"])), float(np.median(times["current"]))
+    return {
+        "former_schedule": f"batch {former.batch_size}, lr {former.lr:g}, {former.epochs} epochs",
+        "current_schedule": f"batch {current.batch_size}, lr {current.lr:g}, {current.epochs} epochs",
+        "former_s": former_s,
+        "current_s": current_s,
+        "speedup": former_s / current_s,
+        "repeats": len(times["current"]),
+        "quick": quick,
+    }
+
+
+BENCHMARKS: list[tuple[str, Callable[[bool], dict[str, Any]]]] = [("flow", bench_flow), ("training", bench_training)]

@@ -48,10 +48,9 @@ SCENE_METADATA: tuple[str, ...] = ("goal_pos", "goal_yaw_deg", "hole_depth_m", "
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the options of `pih train`, in groups: input, output, skill, training, run."""
     from rflow.model import MAX_WIDTH
-    from rflow.train import TrainConfig
     from scripts.options import MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, number, seed
 
-    d = TrainConfig()
+    d = skill_train_config()  # the defaults train the skill `pih run` and `pih benchmark` train
     given = parser.add_argument_group("input")
     given.add_argument("--demos", required=True, type=Path, help="demo file (.npz) from `pih demos` or the same schema")
     given.add_argument("--config", type=Path, metavar="FILE.json",
@@ -103,13 +102,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def skill_train_config(**overrides: Any) -> Any:
-    """rflow's TrainConfig (paper defaults: 11 layers, ReLU, Adam, lr 1e-3, batch 128) with this command's
-    log-scale bound, off-data prior and one thread, plus ``overrides`` (TrainConfig fields)."""
+    """rflow's TrainConfig (the paper's architecture: 11 layers, ReLU, Adam) with this command's log-scale bound,
+    off-data prior, one thread and the skill's schedule (rflow.train.SKILL_SCHEDULE: batch 128, lr 2e-3, 40 epochs,
+    half the steps of the paper's lr 1e-3 and 80 epochs at the same validation DTW; why there), plus ``overrides``
+    (TrainConfig fields)."""
     from rflow.model import ModelConfig
-    from rflow.train import TrainConfig
+    from rflow.train import SKILL_SCHEDULE, TrainConfig
 
     values: dict[str, Any] = {"model": ModelConfig(log_scale_clamp=DEFAULT_LOG_SCALE_CLAMP),
-                              "prior_weight": DEFAULT_PRIOR_WEIGHT, "threads": 1}
+                              "prior_weight": DEFAULT_PRIOR_WEIGHT, "threads": 1, **SKILL_SCHEDULE}
     values.update(overrides)
     return TrainConfig(**values)
 

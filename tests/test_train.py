@@ -188,3 +188,78 @@ def test_sampled_transitions_stay_inside_demos_and_split():
     assert start.size > 0 and np.all(~held_out[start])
     assert np.all((h >= 1) & ((start % 100) + h <= 99))
     assert np.unique(h[:64]).size <= 4  # few distinct horizons per batch
+
+
+def test_early_stopping_stops_once_the_validation_loss_stops_improving_and_keeps_the_best_weights(monkeypatch):
+    """patience=2: the validation losses below have their best at epoch 3, epochs 4 and 5 do not beat it, so training
+    stops after epoch 5 (of 20) and returns the weights of epoch 3, not those of the last epoch."""
+    scripted = [5.0, 4.0, 3.0, 3.5, 3.2, 1.0, 1.0]  # epochs 6 and 7 would improve: they must never run
+    original = ImitationFlow.transition_log_prob
+    epochs_validated = {"n": 0}
+
+    def scripted_validation(self, p0, p1, tau):
+        out = original(self, p0, p1, tau)
+        if torch.is_grad_enabled():  # a training step
+            return out
+        epochs_validated["n"] += 1
+        return torch.full_like(out, -scripted[epochs_validated["n"] - 1] * self.dim)  # val loss = scripted value
+
+    monkeypatch.setattr(ImitationFlow, "transition_log_prob", scripted_validation)
+    snapshots = {}
+
+    def keep(epoch, model, history):
+        snapshots[epoch] = {k: v.clone() for k, v in model.network.state_dict().items()}
+
+    config = TrainConfig(model=ModelConfig(layers=3, width=8), epochs=20, transitions_per_epoch=256, patience=2,
+                         threads=1)
+    model, history = fit(simple_demos(50), "euclidean", 0.01, config, progress=False, on_epoch=keep)
+    assert history.val_loss == pytest.approx(scripted[:5])
+    assert len(history.train_loss) == 5 and sorted(snapshots) == [1, 2, 3, 4, 5]
+    final = model.network.state_dict()
+    assert all(torch.equal(final[k], snapshots[3][k]) for k in final)
+    assert not all(torch.equal(final[k], snapshots[5][k]) for k in final)
+
+
+def test_without_patience_training_runs_every_epoch_and_keeps_the_last_weights(monkeypatch):
+    config = TrainConfig(model=ModelConfig(layers=3, width=8), epochs=4, transitions_per_epoch=256, threads=1)
+    snapshots = {}
+
+    def keep(epoch, model, history):
+        snapshots[epoch] = {k: v.clone() for k, v in model.network.state_dict().items()}
+
+    model, history = fit(simple_demos(50), "euclidean", 0.01, config, progress=False, on_epoch=keep)
+    assert len(history.val_loss) == 4
+    final = model.network.state_dict()
+    assert all(torch.equal(final[k], snapshots[4][k]) for k in final)
+
+
+def test_patience_needs_a_validation_split_and_a_positive_count():
+    with pytest.raises(RFlowError, match="val_fraction"):
+        TrainConfig(patience=3, val_fraction=0.0)
+    for bad in (0, -1, 2.5):
+        with pytest.raises(RFlowError, match="patience"):
+            TrainConfig(patience=bad)
+
+
+def test_the_prior_in_the_likelihood_pass_is_the_separate_prior():
+    """fit takes b^-1 of the prior's points in the likelihood's inverse pass: the same log-densities and the same prior
+    value as `transition_log_prob` and `identity_prior` on the same points (up to float32 rounding)."""
+    from rflow.train import prior_deviation, prior_points
+
+    torch.manual_seed(0)
+    network = ImitationFlow(3, ModelConfig(layers=3, width=8), np.array([0.3, -0.2, 0.1]))
+    with torch.no_grad():
+        for layer in network.flow.layers:  # a flow that is not the identity
+            layer.net[-1].weight.normal_(0.0, 0.3)
+    p0, p1 = torch.randn(64, 3), torch.randn(64, 3)
+    tau = torch.linspace(0.01, 1.0, 64)
+    box = torch.full((3,), 4.0)
+    torch.manual_seed(1)
+    z = prior_points(box, 32)
+    with torch.no_grad():
+        log_prob, q = network.transition_log_prob_and_latent(p0, p1, tau, z)
+        torch.manual_seed(1)
+        separate = identity_prior(network, box, 32)
+        torch.testing.assert_close(log_prob, network.transition_log_prob(p0, p1, tau), rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(q, network.latent(z)[0], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(prior_deviation(network, z, q), separate, rtol=1e-5, atol=1e-6)

@@ -54,10 +54,24 @@ def test_weights_are_plain_tensors(trained):
     assert all(isinstance(v, torch.Tensor) for v in state.values())
 
 
-def test_training_config_uses_the_paper_optimiser(trained):
+def test_training_config_uses_the_paper_optimiser_with_the_skill_schedule(trained):
+    from rflow.train import SKILL_SCHEDULE
+
     _, ck = trained
     config = json.loads((ck / "skill.json").read_text())["training"]["position"]["config"]
-    assert (config["optimizer"], config["lr"], config["batch_size"], config["model"]["activation"]) == ("adam", 1e-3, 128, "relu")
+    assert (config["optimizer"], config["lr"], config["batch_size"], config["model"]["activation"]) == (
+        "adam", SKILL_SCHEDULE["lr"], SKILL_SCHEDULE["batch_size"], "relu")
+
+
+def test_train_defaults_are_the_skill_config_of_pih_run():
+    """`pih train` without training options trains the same skill as `pih run` and `pih benchmark`."""
+    import argparse
+
+    from scripts.train import add_arguments, skill_train_config, train_config_from_args
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert train_config_from_args(parser.parse_args(["--demos", "d.npz", "--out", "m"])) == skill_train_config()
 
 
 def test_training_config_records_the_off_data_prior(trained, tmp_path):
