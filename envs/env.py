@@ -21,8 +21,9 @@ an instability; physics failures are recorded as the end reason, never raised. T
 envs.episode_config.EpisodeConfig; commanding whole trajectories, envs.trajectory.
 
 ``reset`` applies a per-episode perturbation (envs.perturbation): the sorter is moved by a hole-pose error
-(mocap), the episode's frictions are written into the model (envs.friction) and the peg is placed in the grasp with an
-offset along its axis, then the grasp settles for
+(mocap), the hole the cell believes in is moved by its observation error, the episode's frictions, payload and joint
+friction are written into the model (envs.friction, envs.model_error) and the peg is placed in the grasp with its
+offset along its axis and its in-hand pose error, then the grasp settles for
 ``grasp_settle_s`` with the arm holding the start pose before the episode clock starts.
 """
 
@@ -51,7 +52,7 @@ from envs.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUC
                               Observer, StepResult, site_pose)
 from envs.period_kernel import controlled_period
 from envs.perturbation import Perturbation, perturbed_frame, sample_perturbation
-from envs.poses import Pose, format_pose, quat_mul_one, nominal_start, rotate, sample_start_poses, validate_pose
+from envs.poses import Pose, format_pose, quat_from_rotvec_one, quat_mul_one, nominal_start, rotate, sample_start_poses, validate_pose
 from envs.scene import Scene, build_scene
 from envs.scene_config import SceneConfig, goal_from_hole
 from envs.sensing import ContactStats, EpisodeSensing, PegContacts, ToolLoad, WristSensor
@@ -64,14 +65,6 @@ FloatArray = npt.NDArray[np.float64]
 
 MAX_START_DRAWS = 100
 """reset(seed) redraws unreachable or colliding starts at most this many times."""
-
-
-def _axis_quat(axis: int, angle_deg: float) -> list[float]:
-    """The unit quaternion [w, x, y, z] of a rotation by ``angle_deg`` about the frame's ``axis`` (0, 1, 2)."""
-    half = math.radians(angle_deg) / 2.0
-    quat = [math.cos(half), 0.0, 0.0, 0.0]
-    quat[1 + axis] = math.sin(half)
-    return quat
 
 
 def _block(indices: Sequence[int]) -> slice:
@@ -335,7 +328,8 @@ class PegInHoleEnv:
         adr = self.scene.ids.peg_qpos_adr
         top = data.site_xpos[self.tcp_site] + rot[:, 2] * (perturbation.grasp_offset_m - PEG_LENGTH_M)
         data.qpos[adr:adr + 3] = top + rot[:, 0] * perturbation.grasp_lateral_m
-        in_hand = quat_mul_one(_axis_quat(1, perturbation.grasp_tilt_deg), _axis_quat(2, perturbation.grasp_yaw_deg))
+        in_hand = quat_mul_one(quat_from_rotvec_one([0.0, math.radians(perturbation.grasp_tilt_deg), 0.0]),
+                               quat_from_rotvec_one([0.0, 0.0, math.radians(perturbation.grasp_yaw_deg)]))
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, data.site_xmat[self.tcp_site])
         data.qpos[adr + 3:adr + 7] = quat if in_hand == [1.0, 0.0, 0.0, 0.0] else quat_mul_one(quat.tolist(), in_hand)

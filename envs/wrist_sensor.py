@@ -11,10 +11,8 @@ the force limit use y; every figure of the record (peaks, medians, the trace) ke
 (the default) is the exact wrench, as before. The noise comes from a generator seeded by the episode's perturbation
 (`episode_generator`), so an episode's readings are the same wherever it runs and paired runs share them.
 
-Magnitudes (the README's imperfection table): a six-axis strain-gauge sensor of the Panda's payload class resolves
-~0.05-0.1 N and ~2-5 mN m per reading, and re-zeroing leaves offsets of a fraction of a newton that drift with
-temperature; the Panda's own estimate of the external wrench from its joint torques is off by a few newtons. These
-are settings of the task, not a calibration of one device.
+Magnitudes are settings of the task (the realistic preset's are in envs.execution.sensitivity), not a calibration of
+one device: no datasheet or paper was checked for them.
 """
 
 from __future__ import annotations

@@ -51,9 +51,11 @@ def main(args: argparse.Namespace) -> int:
     if not args.model.is_dir():
         raise EnvError(f"--model {args.model}: no such checkpoint folder")
     check_output_folder("--out", args.out, inputs=[args.model], estimate_bytes=4 * MiB)
+    paths = {key: args.out / name for key, name in OUTPUTS.items()}
+    for path in paths.values():  # outputs already there are checked before the folder is made or any episode runs
+        if path.exists() or path.is_symlink():
+            check_output("--out", path, args.overwrite, inputs=[args.model], estimate_bytes=2 * MiB)
     args.out.mkdir(parents=True, exist_ok=True)
-    paths = {key: check_output("--out", args.out / name, args.overwrite, inputs=[args.model],
-                               estimate_bytes=2 * MiB) for key, name in OUTPUTS.items()}
     config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task_from_args(args))
     names = [n for n in IMPERFECTION_NAMES if n in args.only]
     rows = run_sensitivity(args.model, config, names,
