@@ -93,19 +93,15 @@ class SensitivityRow:
                 "paired_with_ideal": None if self.comparison is None else self.comparison.to_dict()}
 
 
-def _median(values: Sequence[float | None]) -> float | None:
-    kept = [v for v in values if v is not None and np.isfinite(v)]
-    return float(np.median(kept)) if kept else None
-
-
 def _row(name: str, settings: Mapping[str, Any], result: Any, comparison: Comparison | None) -> SensitivityRow:
-    from envs.execution.result import failure_kinds
+    from envs.execution.result import failure_kinds, finite_median
 
     records = result.records
     return SensitivityRow(
         name, settings, sum(int(r.success) for r in records), len(records),
-        _median([r.time_to_insert_s for r in records if r.success]),
-        _median([r.peak_wrist_force_n for r in records]), _median([r.peak_sustained_wrist_force_n for r in records]),
+        finite_median(r.time_to_insert_s for r in records if r.success),
+        finite_median(r.peak_wrist_force_n for r in records),
+        finite_median(r.peak_sustained_wrist_force_n for r in records),
         failure_kinds(records), comparison)
 
 
