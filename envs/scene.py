@@ -38,6 +38,7 @@ import assets
 from envs.contact import ContactConfig
 from envs.errors import EnvError
 from envs.geometry import FloatArray, look_at_xyaxes
+from envs.pads import make_pads_compliant, pad_patch_m
 from envs.peg import build_peg
 from envs.scene_config import SceneConfig, goal_from_hole, hole_from_goal
 from envs.shapes import PEG_LENGTH_M, SHAPES, check_shape, grip_half_width_m, hole_inradius_m
@@ -92,7 +93,7 @@ class SceneIds:
     ``sorter_geoms`` are the sorter's colliding geoms (its visual-only skin is left out); ``peg_qpos_adr``
     and ``peg_dof_adr`` address the peg's free joint (None when welded); ``finger_*_adr`` the finger joints
     (empty when welded); ``wrist_*_adr`` the F/T sensor's entries in sensordata; ``hand_subtree`` the bodies
-    the F/T sensor carries (hand and fingers); ``sorter_mocap`` the sorter's mocap index; ``home_key`` the
+    the F/T sensor carries (hand, fingers and compliant pads); ``sorter_mocap`` the sorter's mocap index; ``home_key`` the
     Panda's "home" keyframe (None if panda.xml has none).
     """
 
@@ -287,6 +288,11 @@ def _attach_peg(
         return frame
     frame = root.worldbody.attach(peg)
     frame.add("freejoint")
+    if _has_pad_hinges(config):
+        _, _, centre_z = pad_patch_m(fingers[0][1].size, float(fingers[0][1].pos[2]), float(fingers[0][0].pos[2]),
+                                     float(mount.pos[2]), PEG_LENGTH_M)
+        make_pads_compliant(fingers, config.pad_stiffness_nm_rad, centre_z, float(root.option.timestep))
+        fingers = [(finger, _find(root, "geom", f"{finger.name}_pad"), sign) for finger, _, sign in fingers]
     for _, pad, _ in fingers:  # rubber pads with the scene's stiff contact (soft defaults let a 70 N grasp sink)
         pad.solref, pad.solimp = list(config.contact.solref), list(config.contact.solimp)
         pad.priority = 1  # a peg-pad contact takes the pad's friction (envs.friction), as max-mixing did
@@ -309,7 +315,14 @@ def _keyframe_qpos(root: mjcf.RootElement, config: SceneConfig, arm_qpos: npt.Ar
         return arm
     pad = float(_find(root, "geom", "left_finger_pad").size[0])
     opening = grip_half_width_m(config.shape, pad) if config.peg_mode == "grasped" else 0.04
+    if _has_pad_hinges(config):  # each finger's joint, then its pad's hinge (kinematic tree order)
+        return np.concatenate([arm, [opening, 0.0, opening, 0.0], peg_qpos])
     return np.concatenate([arm, [opening, opening], peg_qpos])
+
+
+def _has_pad_hinges(config: SceneConfig) -> bool:
+    """Whether the scene's finger pads are on torsion hinges (envs.pads): a grasped peg and compliant pads."""
+    return config.peg_mode == "grasped" and config.pad_stiffness_nm_rad > 0.0
 
 
 def _scene_ids(model: mujoco.MjModel, peg_mode: str) -> SceneIds:
@@ -328,6 +341,9 @@ def _scene_ids(model: mujoco.MjModel, peg_mode: str) -> SceneIds:
     free = int(model.body_jntadr[peg_body]) if peg_mode != "welded" else -1
     key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
     finger_bodies = (named(body, "left_finger"), named(body, "right_finger"))
+    pad_bodies = tuple(b for b in (mujoco.mj_name2id(model, body, f"{name}_pad_body")
+                                   for name in ("left_finger", "right_finger")) if b >= 0)
+    finger_bodies = finger_bodies + pad_bodies  # compliant pads (envs.pads) carry the pad geoms
     sensor = mujoco.mjtObj.mjOBJ_SENSOR
     return SceneIds(
         flange_site=named(mujoco.mjtObj.mjOBJ_SITE, "flange"),

@@ -25,6 +25,7 @@ from envs.geometry import (
     z_down_rotation,
     z_down_yaw_deg,
 )
+from envs.pads import check_pad_stiffness
 from envs.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
 from envs.shapes import check_shape
 from envs.sorter import check_chamfer, check_clearance, check_hole_depth
@@ -92,6 +93,8 @@ class SceneConfig:
         peg_mode: "grasped" (a free body held by the fingers), "welded" (rigidly in the hand, nq = 7) or
             "free" (free joint above its hole).
         grasp_force_n: force closing each finger on a grasped peg (N), in (0, 140].
+        pad_stiffness_nm_rad: torsional stiffness of each finger pad about the closing axis (N m/rad) for a
+            grasped peg: the pad is a rubber layer that lets the held peg turn (envs.pads); 0: rigid pads.
         hole_at_goal: optional (pos, quat) goal peg_tip pose that overrides goal_pos/goal_yaw_deg; its z
             axis must point down within 5 deg, and the sorter is tilted to match it exactly.
         free_peg_height_m: free mode: height of the peg_tip above its hole's opening at qpos0.
@@ -110,6 +113,7 @@ class SceneConfig:
     goal_yaw_deg: float = PAPER_GOAL_YAW_DEG
     peg_mode: str = "grasped"
     grasp_force_n: float = FRANKA_GRASP_FORCE_N
+    pad_stiffness_nm_rad: float = 0.0
     hole_at_goal: tuple[Sequence[float], Sequence[float]] | None = None
     free_peg_height_m: float = 0.05
     contact: ContactConfig = field(default_factory=ContactConfig)
@@ -120,6 +124,7 @@ class SceneConfig:
         check_chamfer(self.chamfer_m)
         check_hole_depth(self.hole_depth_m)
         check_grasp_force(self.grasp_force_n)
+        check_pad_stiffness(self.pad_stiffness_nm_rad)
         if not (np.isfinite(self.insertion_depth_m) and 0.0 < self.insertion_depth_m <= self.hole_depth_m):
             raise EnvError(
                 f"insertion_depth_m={self.insertion_depth_m} must lie in (0, hole_depth_m={self.hole_depth_m}]"

@@ -45,6 +45,7 @@ from typing import Any, Mapping
 
 from envs.errors import EnvError
 from envs.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
+from envs.pads import check_pad_stiffness
 from envs.perturbation import PerturbationRanges
 from envs.wrist_sensor import WristSensorConfig
 from envs.shapes import check_shape
@@ -148,6 +149,8 @@ class Task:
         clearance_m: hole-minus-peg clearance, in [0.1 mm, 5 mm].
         chamfer_m: 45 deg chamfer at the hole mouths, in [0, 3 mm].
         grasp_force_n: force closing each finger (grasped peg), in (0, 140] N.
+        pad_stiffness_nm_rad: torsional stiffness of each rubber finger pad about the closing axis (envs.pads),
+            N m/rad; 0: rigid pads.
         hole_depth_m: depth of the blind holes (the goal is 30 mm below the opening; equal: seated on the floor).
         perturbations: per-episode hole-pose error and grasp offset ranges.
         force_limit_n: an episode whose wrist force stays above this for 5 ms fails "force_limit" (inf: none).
@@ -165,6 +168,7 @@ class Task:
     clearance_m: float = 0.0002
     chamfer_m: float = 0.001
     grasp_force_n: float = FRANKA_GRASP_FORCE_N
+    pad_stiffness_nm_rad: float = 0.0
     hole_depth_m: float = 0.03
     perturbations: PerturbationRanges = field(
         default_factory=lambda: PerturbationRanges(hole_error_m=0.001, hole_error_deg=1.0))
@@ -182,6 +186,7 @@ class Task:
         check_clearance(self.clearance_m)
         check_chamfer(self.chamfer_m)
         check_grasp_force(self.grasp_force_n)
+        check_pad_stiffness(self.pad_stiffness_nm_rad)
         check_hole_depth(self.hole_depth_m)
         check_force_limit(self.force_limit_n)
         check_number("time_limit_s", self.time_limit_s, strict=True)
@@ -318,7 +323,8 @@ _LEAVES: dict[str, str | None] = {
 }
 """Every leaf field of a Task by its name -> the nested config holding it (None: the Task itself); the names are
 unique, so a single field can be named without its table (`Task.override`, the CLI options)."""
-SCENE_FIELDS: tuple[str, ...] = ("peg_mode", "clearance_m", "chamfer_m", "grasp_force_n", "hole_depth_m")
+SCENE_FIELDS: tuple[str, ...] = ("peg_mode", "clearance_m", "chamfer_m", "grasp_force_n", "pad_stiffness_nm_rad",
+                                 "hole_depth_m")
 """The scene fields a task sets besides the shape (SceneConfig fields of the same names)."""
 
 

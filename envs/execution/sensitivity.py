@@ -25,6 +25,7 @@ from envs.task import Task
 IMPERFECTIONS: dict[str, dict[str, Any]] = {
     "friction": {"hole_friction_min": 0.3, "hole_friction_max": 0.8, "pad_friction_min": 0.6,
                  "pad_friction_max": 1.0},
+    "compliant_pads": {"pad_stiffness_nm_rad": 67.4},
     "in_hand_pose": {"grasp_lateral_m": 0.001, "grasp_tilt_deg": 1.0, "grasp_yaw_deg": 1.0},
     "grasp_offset": {"grasp_offset_m": 0.003},
     "payload": {"payload_mass_error": 0.2},
