@@ -10,6 +10,8 @@ instead of reading the wrong bytes.
 
     DATA_NCON, DATA_NEFC         int fields of mjData
     DATA_CONTACT, DATA_EFC_FORCE pointer fields of mjData (mjContact*, mjtNum*)
+    DATA_EFC_TYPE, DATA_EFC_ID   pointer fields of mjData (int*): each constraint row's type and object (the
+                                 joint-torque sensing tells the joints' friction rows from the contacts')
     CONTACT_SIZE                 sizeof(mjContact)
     CONTACT_GEOM, CONTACT_EFC_ADDRESS   offsets of int geom[2] and int efc_address in mjContact
 
@@ -29,8 +31,8 @@ from mujoco.introspect import ast_nodes, structs
 
 from controllers.errors import ControllerError
 
-LAYOUT_NCON, LAYOUT_NEFC, LAYOUT_CONTACT, LAYOUT_EFC_FORCE, LAYOUT_CONTACT_SIZE, LAYOUT_GEOM, LAYOUT_EFC_ADDRESS = \
-    range(7)
+(LAYOUT_NCON, LAYOUT_NEFC, LAYOUT_CONTACT, LAYOUT_EFC_FORCE, LAYOUT_CONTACT_SIZE, LAYOUT_GEOM, LAYOUT_EFC_ADDRESS,
+ LAYOUT_EFC_TYPE, LAYOUT_EFC_ID) = range(9)
 
 _SCALARS: dict[str, Any] = {
     "int": ctypes.c_int, "unsigned int": ctypes.c_uint, "mjtNum": ctypes.c_double, "double": ctypes.c_double,
@@ -65,7 +67,7 @@ def _struct(name: str) -> Any:
 def _layout() -> np.ndarray:
     data, contact = _struct("mjData"), _struct("mjContact")
     values = [data.ncon.offset, data.nefc.offset, data.contact.offset, data.efc_force.offset, ctypes.sizeof(contact),
-              contact.geom.offset, contact.efc_address.offset]
+              contact.geom.offset, contact.efc_address.offset, data.efc_type.offset, data.efc_id.offset]
     table = np.array(values, dtype=np.int64)
     table.flags.writeable = False
     return table
@@ -82,8 +84,8 @@ def layout() -> np.ndarray:
 
 def check_layout(data: mujoco.MjData) -> np.ndarray:
     """`layout`, checked against the bindings on ``data``: the int and pointer fields read at the offsets must be
-    ncon, nefc and (when there are constraints and contacts) the addresses of efc_force and the contact array, and
-    the mjContact offsets those of the bindings' views. Check it on a state with contacts to check every offset.
+    ncon, nefc and (when there are constraints and contacts) the addresses of efc_force, efc_type, efc_id and the
+    contact array, and the mjContact offsets those of the bindings' views. Check it on a state with contacts to check every offset.
 
     Raises:
         ControllerError: any mismatch (this release's structs are not what its introspection says).
@@ -97,8 +99,9 @@ def check_layout(data: mujoco.MjData) -> np.ndarray:
     found = {"ncon": read(table[LAYOUT_NCON], ctypes.c_int), "nefc": read(table[LAYOUT_NEFC], ctypes.c_int)}
     expected = {"ncon": data.ncon, "nefc": data.nefc}
     if data.nefc > 0:  # an empty efc_force may be NULL in mjData while the bindings hand out an empty array
-        found["efc_force"] = read(table[LAYOUT_EFC_FORCE], ctypes.c_void_p)
-        expected["efc_force"] = data.efc_force.ctypes.data
+        for name, slot in (("efc_force", LAYOUT_EFC_FORCE), ("efc_type", LAYOUT_EFC_TYPE), ("efc_id", LAYOUT_EFC_ID)):
+            found[name] = read(table[slot], ctypes.c_void_p)
+            expected[name] = getattr(data, name).ctypes.data
     contact = read(table[LAYOUT_CONTACT], ctypes.c_void_p)
     if data.ncon > 0:
         views = data.contact

@@ -55,7 +55,7 @@ from envs.perturbation import Perturbation, perturbed_frame, sample_perturbation
 from envs.poses import Pose, format_pose, quat_from_rotvec_one, quat_mul_one, nominal_start, rotate, sample_start_poses, validate_pose
 from envs.scene import Scene, build_scene
 from envs.scene_config import SceneConfig, goal_from_hole
-from envs.sensing import ContactStats, EpisodeSensing, PegContacts, ToolLoad, WristSensor
+from envs.sensing import ContactStats, EpisodeSensing, JointTorqueSensors, PegContacts, ToolLoad, WristSensor
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
 from envs.wrist_sensor import episode_generator
 from envs.success import Assessment, EpisodeHoles, PegFootprint, SuccessTracker
@@ -155,9 +155,11 @@ class PegInHoleEnv:
         self.observer = Observer(self.model, self.data, ids, self._arm_dof, self.grasped, self.wrist, self.contacts)
         if self.grasped:  # the peg's weight, a known tool load compensated by the controller (module docstring)
             self.controller.set_tool_load(float(self.model.body_mass[ids.peg_body]), PEG_LENGTH_M / 2)
+        joints = JointTorqueSensors(self.model, ids.ft_site, ids.arm_dof_adr,
+                                    ToolLoad((ids.peg_body,) if self.grasped else ()))
         self.sensing = EpisodeSensing(self.data, self.wrist, self.contacts, episode_config.force_limit_n,
                                       episode_config.force_limit_window_s, timestep, self.n_substeps,
-                                      episode_config.wrist_sensor)
+                                      episode_config.wrist_sensor, joints)
         self.stability = InstabilityCheck(self.data, self._arm_dof, episode_config.max_joint_speed_rad_s)
         nominal_hole_pos, nominal_hole_quat = self.scene.hole_pose(self.shape)
         self.nominal_hole = Pose(pos=nominal_hole_pos, quat=nominal_hole_quat)

@@ -32,13 +32,17 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
                       applied: np.ndarray, layout: np.ndarray, rot: np.ndarray, wrist_pos: np.ndarray,
                       xipos: np.ndarray, force: np.ndarray, torque: np.ndarray, bodies: np.ndarray, load: np.ndarray,
                       counted: np.ndarray, scratch: np.ndarray, limits: np.ndarray, sensor: np.ndarray,
-                      noise: np.ndarray, state: np.ndarray) -> tuple[int, int, bool]:
+                      noise: np.ndarray, state: np.ndarray, sense_fns: np.ndarray, sense_m: int,
+                      jt_index: np.ndarray, jt_jac: np.ndarray, qfrc_constraint: np.ndarray, jt_bodies: np.ndarray,
+                      jt_load: np.ndarray, jt_noise: np.ndarray, jt_matrices: np.ndarray, jt_vectors: np.ndarray,
+                      jt_estimate: np.ndarray) -> tuple[int, int, bool]:
     """Run up to ``n_substeps`` controlled, sensed physics steps (module docstring).
 
     Args:
         n_substeps: physics steps of the period.
         fns .. applied: ``CartesianImpedanceController.substep_arguments`` (the arguments of impedance_substep).
-        layout .. state: ``EpisodeSensing.period_arguments`` (those of sense_substep_at after the data's address).
+        layout .. jt_estimate: ``EpisodeSensing.period_arguments`` (those of sense_substep_at after the data's
+            address).
 
     Returns:
         (physics steps completed, the law's status (STATUS_OK or its failure), whether the force limit hit).
@@ -50,6 +54,7 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
         if status != STATUS_OK:
             return done, status, False
         if sense_substep_at(d, layout, rot, wrist_pos, xipos, force, torque, bodies, load, counted, scratch, limits,
-                            sensor, noise, state):
+                            sensor, noise, state, sense_fns, sense_m, jt_index, jt_jac, qfrc_constraint, jt_bodies,
+                            jt_load, jt_noise, jt_matrices, jt_vectors, jt_estimate):
             return done + 1, STATUS_OK, True
     return n_substeps, STATUS_OK, False

@@ -28,8 +28,11 @@ import numpy.typing as npt
 
 from controllers.mujoco_layout import check_layout
 from envs import sensing_kernel as kernel
+from envs.sensing_kernel import JT_DOFS as JT_HEADER
 from envs.errors import EnvError
-from envs.wrist_sensor import SENSOR_BIAS, SENSOR_ON, SENSOR_ALPHA, SENSOR_SIZE, WristSensorConfig
+from controllers.mujoco_c import FUNCTIONS
+from envs.wrist_sensor import (MAX_ARM_JOINTS, SENSOR_ALPHA, SENSOR_BIAS, SENSOR_JOINT_BIAS, SENSOR_JOINT_TORQUE,
+                                SENSOR_ON, SENSOR_SIZE, SENSOR_WRIST, WristSensorConfig)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -90,6 +93,37 @@ class WristSensor:
         out = np.empty(6)
         kernel.wrist_wrench(*self.kernel_inputs(data), out)
         return out
+
+
+class JointTorqueSensors:
+    """The arm's joint torque sensors as a wrench sensor (envs.wrist_sensor, ``sensor_mode = "joint_torque"``): the
+    estimate at the F/T site through its Jacobian over the arm's joints, zeroed for the nominal weight of the tool
+    the arm's model does not contain (a grasped peg; a welded peg is part of the hand's body and of the model)."""
+
+    def __init__(self, model: mujoco.MjModel, site: int, arm_dofs: tuple[int, ...], tool: ToolLoad) -> None:
+        """Args:
+            model: the scene.
+            site: the ``ft_sensor`` site id (the estimate's reference point and frame, as the wrist sensor's).
+            arm_dofs: the arm joints' dof addresses (at most MAX_ARM_JOINTS).
+            tool: the tool bodies outside the arm's model (empty: none).
+
+        Raises:
+            EnvError: a site, dof or body that the model does not have, or too many joints.
+        """
+        if not 0 <= site < model.nsite:
+            raise EnvError(f"JointTorqueSensors: site {site} is not one of the model's {model.nsite} sites")
+        if not 0 < len(arm_dofs) <= MAX_ARM_JOINTS or not all(0 <= v < model.nv for v in arm_dofs):
+            raise EnvError(f"JointTorqueSensors: arm dofs {arm_dofs} must be 1 to {MAX_ARM_JOINTS} of the model's "
+                           f"{model.nv} dofs")
+        if not all(0 <= b < model.nbody for b in tool.bodies):
+            raise EnvError(f"JointTorqueSensors: tool bodies {tool.bodies} are not all the model's")
+        self.model = model
+        self.index = np.array([site, int(mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF), len(arm_dofs), *arm_dofs],
+                              dtype=np.int64)
+        self.bodies = np.asarray(tool.bodies, dtype=np.int64)
+        masses = model.body_mass[self.bodies]
+        gravity = np.asarray(model.opt.gravity, dtype=np.float64)
+        self.load = np.concatenate([[float(masses.sum())], gravity, masses])  # [M, g, m_b] (sensing_kernel)
 
 
 class PegContacts:
@@ -197,6 +231,10 @@ class SenseInputs:
         noise: (n_substeps, 6) the current control period's sensor noise, one row per physics step.
         state: the sense state (sensing_kernel.sense_state): peaks, force window, time above the force limit.
         layout: where the mjData keeps its contacts (controllers.mujoco_layout, checked on this data).
+        fns, model_address: MuJoCo's functions and the model's address (controllers.mujoco_c).
+        jt_index .. jt_estimate: the joint-torque estimate's index, Jacobian buffer, qfrc_constraint view, tool load,
+            the period's joint noise (n_substeps, 7), scratch and the estimate (sensing_kernel.joint_torque_estimate;
+            unused in the other modes).
     """
 
     wrist_rot: FloatArray
@@ -213,11 +251,24 @@ class SenseInputs:
     noise: FloatArray
     state: FloatArray
     layout: npt.NDArray[np.int64]
+    fns: npt.NDArray[np.int64]
+    model_address: int
+    jt_index: npt.NDArray[np.int64]
+    jt_jac: FloatArray
+    qfrc_constraint: FloatArray
+    jt_bodies: npt.NDArray[np.int64]
+    jt_load: FloatArray
+    jt_noise: FloatArray
+    jt_matrices: FloatArray
+    jt_vectors: FloatArray
+    jt_estimate: FloatArray
 
     def kernel_arguments(self) -> tuple:
         """The arguments of ``sensing_kernel.sense_substep_at`` after the mjData's address."""
         return (self.layout, self.wrist_rot, self.wrist_pos, self.xipos, self.force, self.torque, self.bodies,
-                self.load, self.counted, self.scratch, self.limits, self.sensor, self.noise, self.state)
+                self.load, self.counted, self.scratch, self.limits, self.sensor, self.noise, self.state, self.fns,
+                self.model_address, self.jt_index, self.jt_jac, self.qfrc_constraint, self.jt_bodies, self.jt_load,
+                self.jt_noise, self.jt_matrices, self.jt_vectors, self.jt_estimate)
 
 
 class EpisodeSensing:
@@ -227,7 +278,7 @@ class EpisodeSensing:
 
     def __init__(self, data: mujoco.MjData, wrist: WristSensor, contacts: PegContacts, force_limit_n: float,
                  force_limit_window_s: float, timestep: float, n_substeps: int,
-                 sensor: WristSensorConfig = WristSensorConfig()) -> None:
+                 sensor: WristSensorConfig = WristSensorConfig(), joints: JointTorqueSensors | None = None) -> None:
         """Args:
             data: the episode's MjData (views of it are kept).
             wrist, contacts: the sensors.
@@ -235,19 +286,35 @@ class EpisodeSensing:
             timestep: the physics timestep (s); the force window holds ``force_limit_window_s / timestep``
                 readings (at least one).
             n_substeps: physics steps per control period (rows of the period's sensor noise).
-            sensor: the wrist sensor's model (envs.wrist_sensor; "ideal": the exact wrench).
+            sensor: the wrench sensing's model (envs.wrist_sensor; "ideal": the exact wrench).
+            joints: the joint torque sensors (required by ``sensor_mode = "joint_torque"``).
+
+        Raises:
+            EnvError: the joint-torque mode without ``joints``.
         """
         window = max(1, int(round(force_limit_window_s / timestep)))
         limits = np.array([force_limit_n, force_limit_window_s, timestep], dtype=np.float64)
         self.data = data
         self.sensor = sensor
         parameters = np.zeros(SENSOR_SIZE)
-        parameters[SENSOR_ON] = 0.0 if sensor.sensor_mode == "ideal" else 1.0
+        parameters[SENSOR_ON] = sensor.mode_code
         parameters[SENSOR_ALPHA] = sensor.alpha(timestep)
+        if sensor.mode_code == SENSOR_JOINT_TORQUE and joints is None:
+            raise EnvError("sensor_mode 'joint_torque' needs the arm's joint torque sensors (JointTorqueSensors)")
         self._sigma = sensor.noise_sigma
         self._rng: np.random.Generator | None = None
+        rows = max(1, n_substeps)
+        if joints is None:
+            jt_index, jt_bodies, jt_load = np.zeros(JT_HEADER, dtype=np.int64), np.zeros(0, np.int64), np.zeros(4)
+            model_address = 0
+        else:
+            jt_index, jt_bodies, jt_load = joints.index, joints.bodies, joints.load
+            model_address = joints.model._address
         self.inputs = SenseInputs(*wrist.kernel_inputs(data), *contacts.kernel_inputs(), limits, parameters,
-                                  np.zeros((max(1, n_substeps), 6)), kernel.sense_state(window), check_layout(data))
+                                  np.zeros((rows, 6)), kernel.sense_state(window), check_layout(data), FUNCTIONS,
+                                  model_address, jt_index, np.zeros((6, data.qvel.shape[0])), data.qfrc_constraint,
+                                  jt_bodies, jt_load, np.zeros((rows, MAX_ARM_JOINTS)), np.zeros((2, 6, 6)),
+                                  np.zeros((4, MAX_ARM_JOINTS)), np.zeros(6))
         self._arguments = self.inputs.kernel_arguments()
         self.stats = ContactStats()
         self._period_start_s = 0.0
@@ -257,19 +324,30 @@ class EpisodeSensing:
         model on, the episode's bias and noise come from ``rng`` (envs.wrist_sensor.episode_generator; required)."""
         self.stats = ContactStats()
         self.inputs.state[:] = 0.0
-        if self.inputs.sensor[SENSOR_ON]:
+        self.inputs.jt_estimate[:] = 0.0
+        mode = self.inputs.sensor[SENSOR_ON]
+        if mode:
             if rng is None:
-                raise EnvError("the wrist sensor model needs the episode's generator at reset")
+                raise EnvError("the wrench sensor model needs the episode's generator at reset")
             self._rng = rng
-            self.inputs.sensor[SENSOR_BIAS:] = rng.standard_normal(6) * self.sensor.bias_sigma
+        if mode == SENSOR_WRIST:
+            self.inputs.sensor[SENSOR_BIAS:SENSOR_JOINT_BIAS] = rng.standard_normal(6) * self.sensor.bias_sigma
+        elif mode == SENSOR_JOINT_TORQUE:
+            self.inputs.sensor[SENSOR_JOINT_BIAS:] = (rng.standard_normal(MAX_ARM_JOINTS)
+                                                      * self.sensor.joint_torque_bias_nm)
 
     def start_period(self, time_s: float) -> None:
         """A control period starts at episode time ``time_s`` (the time a force limit hit in it is recorded at); with
         the sensor model on, its noise is drawn."""
         self._period_start_s = time_s
-        if self._rng is not None and self.inputs.sensor[SENSOR_ON]:
+        mode = self.inputs.sensor[SENSOR_ON]
+        if self._rng is not None and mode == SENSOR_WRIST:
             noise = self.inputs.noise
             noise[:] = self._rng.standard_normal(noise.shape) * self._sigma
+            self.inputs.state[kernel.SUBSTEP] = 0.0
+        elif self._rng is not None and mode == SENSOR_JOINT_TORQUE:
+            noise = self.inputs.jt_noise
+            noise[:] = self._rng.standard_normal(noise.shape) * self.sensor.joint_torque_noise_nm
             self.inputs.state[kernel.SUBSTEP] = 0.0
 
     def sensed_wrench(self, true_wrench: FloatArray) -> FloatArray:

@@ -36,10 +36,12 @@ import math
 import numba
 import numpy as np
 
-from controllers.mujoco_c import float64_pointer, int32_pointer, load_i32, load_pointer
+from controllers.impedance_kernel import cholesky_lower
+from controllers.mujoco_c import FN_JAC_SITE, call_mdppi, float64_pointer, int32_pointer, load_i32, load_pointer
 from controllers.mujoco_layout import (LAYOUT_CONTACT, LAYOUT_CONTACT_SIZE, LAYOUT_EFC_ADDRESS, LAYOUT_EFC_FORCE,
-                                       LAYOUT_GEOM, LAYOUT_NCON, LAYOUT_NEFC)
+                                       LAYOUT_EFC_ID, LAYOUT_EFC_TYPE, LAYOUT_GEOM, LAYOUT_NCON, LAYOUT_NEFC)
 from envs.errors import EnvError
+from envs.wrist_sensor import SENSOR_JOINT_TORQUE, SENSOR_JOINT_BIAS
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
@@ -70,6 +72,14 @@ WINDOW = 20
 
 LIMIT_FORCE, LIMIT_WINDOW_S, LIMIT_TIMESTEP = 0, 1, 2
 """Slots of the limits array: force_limit_n, force_limit_window_s, the physics timestep (s)."""
+
+JT_SITE, JT_FRICTION_TYPE, JT_ARM, JT_DOFS = 0, 1, 2, 3
+"""Slots of the joint-torque sensing's index array: the F/T site, MuJoCo's mjCNSTR_FRICTION_DOF, the number n of arm
+dofs, then their dof addresses (n)."""
+JT_TAU, JT_RHS, JT_SOLUTION, JT_READING = 0, 1, 2, 3
+"""Rows of the joint-torque sensing's vectors (4, 7): tau_m, J tau_m, [F_hat; M_hat], the reading -R_S^T W_hat."""
+JT_REGULARISATION = 1e-9
+"""Added to the diagonal of J J^T (m^2, rad^2 mixed; ~1e-8 of its smallest eigenvalue on the task's postures)."""
 
 _PAIRWISE_BLOCK = 128  # numpy's PW_BLOCKSIZE
 _SCRATCH_SIZE = 256
@@ -230,16 +240,18 @@ def wrist_wrench(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, force
 def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, force: np.ndarray, torque: np.ndarray,
                   bodies: np.ndarray, load: np.ndarray, geom: np.ndarray, efc_address: np.ndarray,
                   efc_force: np.ndarray, counted: np.ndarray, scratch: np.ndarray, limits: np.ndarray,
-                  sensor: np.ndarray, noise: np.ndarray, state: np.ndarray) -> bool:
+                  sensor: np.ndarray, noise: np.ndarray, state: np.ndarray, estimate: np.ndarray) -> bool:
     """One physics step's update of the sense state (module docstring); True when the force limit is hit.
 
     Args:
         rot .. load: as in `wrist_wrench`.
         geom .. scratch: as in `normal_forces`.
         limits: [force_limit_n, force_limit_window_s, timestep].
-        sensor: [on, alpha, bias (6)] (envs.wrist_sensor.SENSOR_*).
-        noise: (n_substeps, 6) the period's noise n_k, one row per physics step (read when the sensor is on).
+        sensor: [mode, alpha, bias (6), joint bias (7)] (envs.wrist_sensor.SENSOR_*).
+        noise: (n_substeps, 6) the period's noise n_k, one row per physics step (read in the wrist mode).
         state: the sense state (`sense_state`), updated.
+        estimate: the zeroed joint-torque estimate of this step (6,) (read in the joint-torque mode:
+            `joint_torque_estimate`).
     """
     total, single = normal_forces(geom, efc_address, efc_force, counted, scratch)
     if total > state[PEAK_CONTACT]:  # max(peak, x) as Python's max: a NaN reading leaves the peak
@@ -254,7 +266,14 @@ def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, forc
         state[PEAK_FORCE] = f
     if t > state[PEAK_TORQUE]:
         state[PEAK_TORQUE] = t
-    if sensor[0] != 0.0:  # the sensor model: y <- y + alpha (w + b + n - y); the limit reads |y_F|
+    if sensor[0] == SENSOR_JOINT_TORQUE:  # y <- y + alpha (W_hat - y); the limit reads |y_F|
+        alpha = sensor[1]
+        for j in range(6):
+            y = state[SENSED + j]
+            state[SENSED + j] = y + alpha * (estimate[j] - y)
+        y0, y1, y2 = state[SENSED], state[SENSED + 1], state[SENSED + 2]
+        f = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+    elif sensor[0] != 0.0:  # the wrist sensor: y <- y + alpha (w + b + n - y); the limit reads |y_F|
         row = int(state[SUBSTEP])
         state[SUBSTEP] = row + 1
         alpha = sensor[1]
@@ -296,12 +315,99 @@ def contacts_at(d: int, layout: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
 
 
 @_jit
+def joint_torque_estimate(fns: np.ndarray, m: int, d: int, layout: np.ndarray, index: np.ndarray, jac: np.ndarray,
+                          qfrc_constraint: np.ndarray, sensor: np.ndarray, noise_row: np.ndarray,
+                          matrices: np.ndarray, vectors: np.ndarray, rot: np.ndarray, site_pos: np.ndarray,
+                          xipos: np.ndarray, bodies: np.ndarray, load: np.ndarray, out: np.ndarray) -> bool:
+    """The external wrench estimated from the joint torques (envs.wrist_sensor), zeroed for the nominal peg, into
+    ``out`` (6,) in the sensor frame; False (``out`` untouched) when J J^T is not positive definite.
+
+    tau_c,i = qfrc_constraint_i - (the dof friction rows' efc_force on dof i): the torque the constraints other than
+    the joint's own friction put on joint i (contacts through the hand and fingers; joint limits, not reached in
+    the task, would count too). tau_m = tau_c + b_tau + n_k; [F_hat; M_hat] = (J J^T + eps I)^-1 J tau_m with J the
+    F/T site's Jacobian over the arm's columns (mj_jacSite, at the state the step's forces were computed at); the
+    reading -R_S^T [F_hat; M_hat] is zeroed for the nominal peg by `wrist_wrench` (``bodies``, ``load``: the peg).
+
+    Args:
+        fns, m, d: MuJoCo's functions, the model and data addresses (controllers.mujoco_c).
+        layout: the mjData offsets (controllers.mujoco_layout).
+        index: JT_* slots (the site, the friction row type, n, the arm's dofs).
+        jac: (6, nv) buffer for the site's Jacobian.
+        qfrc_constraint: MjData.qfrc_constraint (view).
+        sensor: the sensor array (the joint bias b_tau from SENSOR_JOINT_BIAS).
+        noise_row: this step's joint noise n_k (>= n).
+        matrices, vectors: scratch (2, 6, 6) and (4, 7) (JT_* rows).
+        rot, site_pos, xipos: the F/T site's rotation (9,) and position, the bodies' centres of mass.
+        bodies, load: the nominal peg's tool load (as `wrist_wrench`'s).
+        out: the estimate (6,).
+    """
+    n = index[JT_ARM]
+    nv = jac.shape[1]
+    call_mdppi(fns[FN_JAC_SITE], m, d, jac.ctypes.data, jac.ctypes.data + 3 * nv * 8, int(index[JT_SITE]))
+    tau = vectors[JT_TAU]
+    for i in range(n):
+        tau[i] = qfrc_constraint[index[JT_DOFS + i]]
+    nefc = load_i32(d + layout[LAYOUT_NEFC])
+    if nefc > 0:
+        kinds = numba.carray(int32_pointer(load_pointer(d + layout[LAYOUT_EFC_TYPE])), (nefc,))
+        ids = numba.carray(int32_pointer(load_pointer(d + layout[LAYOUT_EFC_ID])), (nefc,))
+        forces = numba.carray(float64_pointer(load_pointer(d + layout[LAYOUT_EFC_FORCE])), (nefc,))
+        for r in range(nefc):
+            if kinds[r] == index[JT_FRICTION_TYPE]:
+                for i in range(n):
+                    if ids[r] == index[JT_DOFS + i]:
+                        tau[i] -= forces[r]
+    for i in range(n):
+        tau[i] += sensor[SENSOR_JOINT_BIAS + i] + noise_row[i]
+    a, c = matrices[0], matrices[1]
+    rhs, x = vectors[JT_RHS], vectors[JT_SOLUTION]
+    for r in range(6):
+        s = 0.0
+        for i in range(n):
+            s += jac[r, index[JT_DOFS + i]] * tau[i]
+        rhs[r] = s
+        for q in range(r + 1):
+            t = 0.0
+            for i in range(n):
+                t += jac[r, index[JT_DOFS + i]] * jac[q, index[JT_DOFS + i]]
+            a[r, q] = t
+            a[q, r] = t
+        a[r, r] += JT_REGULARISATION
+    if not cholesky_lower(a, c):
+        return False
+    for r in range(6):  # C y = rhs, then C^T x = y
+        s = rhs[r]
+        for q in range(r):
+            s -= c[r, q] * x[q]
+        x[r] = s / c[r, r]
+    for r in range(5, -1, -1):
+        s = x[r]
+        for q in range(r + 1, 6):
+            s -= c[q, r] * x[q]
+        x[r] = s / c[r, r]
+    reading = vectors[JT_READING]
+    for j in range(3):  # -R_S^T F_hat, -R_S^T M_hat: what the F/T sensor would read for this wrench
+        reading[j] = -((x[0] * rot[j] + x[1] * rot[3 + j]) + x[2] * rot[6 + j])
+        reading[3 + j] = -((x[3] * rot[j] + x[4] * rot[3 + j]) + x[5] * rot[6 + j])
+    wrist_wrench(rot, site_pos, xipos, reading[0:3], reading[3:6], bodies, load, out)
+    return True
+
+
+@_jit
 def sense_substep_at(d: int, layout: np.ndarray, rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray,
                      force: np.ndarray, torque: np.ndarray, bodies: np.ndarray, load: np.ndarray, counted: np.ndarray,
                      scratch: np.ndarray, limits: np.ndarray, sensor: np.ndarray, noise: np.ndarray,
-                     state: np.ndarray) -> bool:
-    """`sense_substep` on the contacts of the mjData at address ``d`` (`contacts_at`); True when the force limit
-    is hit."""
+                     state: np.ndarray, fns: np.ndarray, m: int, jt_index: np.ndarray, jt_jac: np.ndarray,
+                     qfrc_constraint: np.ndarray, jt_bodies: np.ndarray, jt_load: np.ndarray, jt_noise: np.ndarray,
+                     jt_matrices: np.ndarray, jt_vectors: np.ndarray, jt_estimate: np.ndarray) -> bool:
+    """`sense_substep` on the contacts of the mjData at address ``d`` (`contacts_at`), with the joint-torque
+    estimate (`joint_torque_estimate`) first in that mode; True when the force limit is hit. A singular J J^T keeps
+    the last estimate."""
+    if sensor[0] == SENSOR_JOINT_TORQUE:
+        row = int(state[SUBSTEP])
+        state[SUBSTEP] = row + 1
+        joint_torque_estimate(fns, m, d, layout, jt_index, jt_jac, qfrc_constraint, sensor, jt_noise[row],
+                              jt_matrices, jt_vectors, rot, site_pos, xipos, jt_bodies, jt_load, jt_estimate)
     geom, efc_address, efc_force = contacts_at(d, layout)
     return sense_substep(rot, site_pos, xipos, force, torque, bodies, load, geom, efc_address, efc_force, counted,
-                         scratch, limits, sensor, noise, state)
+                         scratch, limits, sensor, noise, state, jt_estimate)

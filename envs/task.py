@@ -157,7 +157,7 @@ class Task:
         time_limit_s: an episode without success ends, failed, after this much simulated time.
         success: the success tolerances.
         start: where an evaluation's episodes start, around the demos' starts.
-        sensing: the wrist force/torque sensor's model (envs.wrist_sensor: noise, bias, low-pass).
+        sensing: how the cell senses the wrench (envs.wrist_sensor: ideal, a wrist sensor or the joint torques).
 
     Raises:
         EnvError: an invalid field (one line naming it).

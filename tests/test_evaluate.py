@@ -82,6 +82,12 @@ def test_scene_takes_the_demos_clearance():
     assert config.clearance_m == 0.0005
 
 
+def test_scene_takes_the_tasks_pads_whatever_the_demos_had():
+    config = scene_config_for({"shape": "square", "scene": {"grasp_force_n": 70.0}},
+                              EvaluationConfig(task=Task(pad_stiffness_nm_rad=67.4)), Pose(GOAL_POS, GOAL_QUAT))
+    assert config.pad_stiffness_nm_rad == 67.4
+
+
 def test_unreachable_start_is_recorded_not_raised(skill, env):
     far = StartPose(0, 0, Pose(np.array([2.0, 0.0, 0.5]), GOAL_QUAT))
     record, _ = run_episode(env, ClosedLoopPolicy(skill), far)

@@ -87,7 +87,7 @@ def _sense(state: np.ndarray, force_n: float, sensor: np.ndarray | None = None,
                                 np.zeros(3), np.zeros(1, np.int64), load, empty, np.zeros(0, np.int32), np.zeros(0),
                                 np.zeros((1, 1), bool), kernel.contact_scratch(),
                                 np.array([LIMIT_N, WINDOW_S, DT]), np.zeros(SENSOR_SIZE) if sensor is None else sensor,
-                                np.zeros((1, 6)) if noise is None else noise, state)
+                                np.zeros((1, 6)) if noise is None else noise, state, np.zeros(6))
 
 
 def test_force_limit_fires_after_exactly_the_window_above_the_limit() -> None:

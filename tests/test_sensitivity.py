@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from envs.execution.config import EvaluationConfig
-from envs.execution.sensitivity import IMPERFECTIONS, run_sensitivity, sensitivity_table
+from envs.execution.sensitivity import ALTERNATIVES, IMPERFECTIONS, run_sensitivity, sensitivity_table
 from envs.task import Task
 from scripts.cli import main
 from scripts.sensitivity import IMPERFECTION_NAMES
@@ -24,7 +24,7 @@ def model(tmp_path_factory) -> Path:
 
 
 def test_the_cli_names_are_the_imperfections() -> None:
-    assert IMPERFECTION_NAMES == tuple(IMPERFECTIONS)
+    assert IMPERFECTION_NAMES == (*IMPERFECTIONS, *ALTERNATIVES)
 
 
 def test_every_variant_pairs_with_the_ideal_cell(model) -> None:

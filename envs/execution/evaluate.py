@@ -47,7 +47,8 @@ if TYPE_CHECKING:  # the result (with scipy.stats, ~0.7 s to import) is built in
 
 def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: Pose) -> Any:
     """The SceneConfig to evaluate a skill in: the demos' scene, shape and clearance but for the task's shape (when
-    set) and the task's fields named in ``config.scene_from_task``.
+    set), the task's fields named in ``config.scene_from_task`` and the task's finger pads (always: a property of
+    the cell the skill runs in, as its perturbations are).
 
     The demos' recorded scene (metadata["scene"], from the demo file's config) supplies goal_pos,
     goal_yaw_deg, hole_depth_m and insertion_depth_m when present; ``hole_at_goal`` puts the target
@@ -75,6 +76,7 @@ def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: P
     clearance = task.clearance_m if "clearance_m" in config.scene_from_task else metadata.get("clearance_m")
     if clearance is not None:
         kwargs["clearance_m"] = float(clearance)
+    kwargs["pad_stiffness_nm_rad"] = task.pad_stiffness_nm_rad  # the cell's pads, like its perturbations
     if config.hole_at_goal:
         kwargs["hole_at_goal"] = (tuple(goal.pos.tolist()), tuple(goal.quat.tolist()))
     return SceneConfig(**kwargs)

@@ -31,10 +31,18 @@ IMPERFECTIONS: dict[str, dict[str, Any]] = {
     "payload": {"payload_mass_error": 0.2},
     "joint_friction": {"joint_friction_min_nm": 0.05, "joint_friction_max_nm": 0.2},
     "hole_observation": {"hole_observation_error_m": 0.001, "hole_observation_error_deg": 1.0},
+    "joint_torque_sensing": {"sensor_mode": "joint_torque", "joint_torque_noise_nm": 0.05,
+                             "joint_torque_bias_nm": 0.3, "sensor_cutoff_hz": 100.0},
+}
+"""Imperfection -> the task fields that set it (Task.override names), at the realistic preset's magnitudes. The
+wrench is sensed as a stock Panda senses it, from its joint torque sensors."""
+
+ALTERNATIVES: dict[str, dict[str, Any]] = {
     "wrist_sensor": {"sensor_mode": "wrist", "force_noise_n": 0.1, "torque_noise_nm": 0.005, "force_bias_n": 0.5,
                      "torque_bias_nm": 0.02, "sensor_cutoff_hz": 100.0},
 }
-"""Imperfection -> the task fields that set it (Task.override names), at the realistic preset's magnitudes."""
+"""Variants measured alone but not part of the realistic cell (nor of "all"): a wrist F/T sensor instead of the
+joint torque sensing (one cell has one or the other)."""
 
 
 TREATMENT: frozenset[str] = frozenset({"grasp_offset_mm"})
@@ -48,9 +56,10 @@ def with_imperfection(task: Task, name: str) -> Task:
     Raises:
         EnvError: an unknown name.
     """
-    if name not in IMPERFECTIONS:
-        raise EnvError(f"unknown imperfection {name!r}; choose from {', '.join(IMPERFECTIONS)}")
-    return task.override(**IMPERFECTIONS[name])
+    settings = IMPERFECTIONS.get(name, ALTERNATIVES.get(name))
+    if settings is None:
+        raise EnvError(f"unknown imperfection {name!r}; choose from {', '.join([*IMPERFECTIONS, *ALTERNATIVES])}")
+    return task.override(**settings)
 
 
 def realistic(task: Task) -> Task:
@@ -110,13 +119,13 @@ def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig,
                     evaluate: Callable[..., Any] | None = None,
                     on_variant: Callable[[str], None] | None = None) -> list[SensitivityRow]:
     """Evaluate the skill on ``config.task`` (the ideal row), on it with each imperfection of ``names`` alone and,
-    with more than one name, with all of them at once ("all"); every variant on the same seed and episodes, paired
-    with the ideal row.
+    with more than one of IMPERFECTIONS, with those at once ("all"; ALTERNATIVES only alone); every variant on the
+    same seed and episodes, paired with the ideal row.
 
     Args:
         model_dir: a `pih train` checkpoint.
         config: the evaluation of the ideal cell (its task is the base).
-        names: imperfections of IMPERFECTIONS.
+        names: imperfections of IMPERFECTIONS or ALTERNATIVES.
         evaluate: the evaluation function (default envs.execution.evaluate.evaluate).
         on_variant: called with each variant's name before it runs (progress).
 
@@ -128,9 +137,11 @@ def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig,
         from envs.execution.evaluate import evaluate
     variants: list[tuple[str, dict[str, Any], Task]] = [("ideal", {}, config.task)]
     for name in names:
-        variants.append((name, dict(IMPERFECTIONS[name]), with_imperfection(config.task, name)))
-    if len(names) > 1:
-        combined = {k: v for name in names for k, v in IMPERFECTIONS[name].items()}
+        task = with_imperfection(config.task, name)
+        variants.append((name, dict(IMPERFECTIONS.get(name, ALTERNATIVES.get(name, {}))), task))
+    cell = [name for name in names if name in IMPERFECTIONS]
+    if len(cell) > 1:
+        combined = {k: v for name in cell for k, v in IMPERFECTIONS[name].items()}
         variants.append(("all", combined, config.task.override(**combined)))
     rows: list[SensitivityRow] = []
     base_sample = None
