@@ -44,11 +44,23 @@ def test_push_stays_near_zero_while_the_peg_follows_the_flow() -> None:
 
 
 def test_push_is_bounded_and_leaks_away() -> None:
-    a = adapter(push_limit_m=0.002, push_leak_s=0.5)
+    a = adapter(push_limit_m=0.002, push_leak_s=0.5, seat_speed_m_s=0.0)
     hold(a, GOAL, np.array([0.0, 0.0, -0.04]), 500)
     assert np.linalg.norm(a.push) == pytest.approx(0.002)
     hold(a, GOAL, np.zeros(3), 100)  # 1 s later, the flow at rest
     assert np.linalg.norm(a.push) == pytest.approx(0.002 * (1 - PERIOD_S / 0.5) ** 100, rel=1e-6)
+
+
+def test_the_seat_push_drives_a_resting_peg_down_until_the_floor_holds_it() -> None:
+    a = adapter(push_leak_s=1e9, seat_speed_m_s=0.002, seat_radius_m=0.005, seat_force_n=5.0)
+    hold(a, GOAL + [0.0, 0.0, 0.001], np.zeros(3), 101)  # at rest 1 mm above the goal, nothing on the wrist
+    assert a.push == pytest.approx([0.0, 0.0, -0.002], abs=1e-9)  # 2 mm/s for 1 s, along the axis (down)
+    a.sense([0.0, 0.0, 6.0])  # the floor pushes up with 6 N: seated
+    hold(a, GOAL + [0.0, 0.0, 0.001], np.zeros(3), 100)
+    assert a.push == pytest.approx([0.0, 0.0, -0.002], abs=1e-9)
+    far = adapter(push_leak_s=1e9)
+    hold(far, GOAL + [0.0, 0.0, 0.006], np.zeros(3), 101)  # 6 mm from the goal: outside the seat radius
+    assert np.linalg.norm(far.push) == 0.0
 
 
 def test_frame_yields_to_a_refused_sideways_motion_near_the_goal() -> None:

@@ -26,6 +26,12 @@ is split about the skill's insertion axis a (the goal's peg axis, z of R_goal):
     torque D omega_d away from the hole's axis that does not vanish while the walls hold the peg, so the peg wedges
     against a tilted hole (a traced failure is in the README). Letting the skill's frame turn with the walls
     removes the request, so the peg follows the hole's axis;
+  - seat push: within ``seat_radius_m`` of the goal the axial push also integrates a seating speed v_s,
+        e <- e + a v_s T   while the wrist reads less than ``seat_force_n`` against the axis,
+    so a peg that sits farther in the hand than in the demos (a grasp offset: the tcp reaches the demos' goal with
+    the tip still above the floor, where the flow is at rest and nothing pushes on; traced) is driven down until
+    the floor holds it, as a force-terminated insertion does. A seated peg reads the floor's force and the push then
+    only leaks;
   - rotational compliance: within ``radius_m`` of the goal the commanded rotational stiffness is
     ``rotational_stiffness`` (remote-centre compliance at the peg tip: the controlled frame is the tcp);
   - stall search: while the peg stalls at the hole's mouth (the axial push |u| beyond ``search_push_m`` with the
@@ -78,6 +84,11 @@ class ContactAdaptation:
         search_push_scale: the axial push is scaled by this while the search runs, in [0, 1]: less axial force
             means less normal force on the chamfer and less friction for the sideways force to overcome (with the
             full push the peg ratchets up the fingers instead of sliding; traced on a development seed).
+        seat_speed_m_s: the seating speed v_s, m/s (0: no seat push); 2 mm/s raises the force by K v_s = 3 N/s at
+            1500 N/m.
+        seat_radius_m: distance of the measured tcp from the goal within which the seat push runs, m (5 mm: the
+            largest grasp offset of the realistic cell, 3 mm, plus margin).
+        seat_force_n: the wrist force against the axis (N) at which the seat push stops: the floor holds the peg.
 
     Raises:
         EnvError: a negative, NaN or zero-where-positive field (one line naming it).
@@ -94,10 +105,13 @@ class ContactAdaptation:
     search_push_m: float = 0.005
     search_band_m: float = 0.002
     search_push_scale: float = 0.3
+    seat_speed_m_s: float = 0.002
+    seat_radius_m: float = 0.005
+    seat_force_n: float = 5.0
 
     def __post_init__(self) -> None:
         for name in ("push_limit_m", "frame_limit_m", "frame_limit_deg", "radius_m", "search_amplitude_m",
-                     "search_push_m", "search_band_m"):
+                     "search_push_m", "search_band_m", "seat_speed_m_s", "seat_radius_m", "seat_force_n"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0.0):
                 raise EnvError(f"contact adaptation {name}={value!r} must be a finite number >= 0")
@@ -116,7 +130,7 @@ class ContactAdaptation:
     def off(cls) -> "ContactAdaptation":
         """No push, no frame shift or rotation, no search, the controller's rotational stiffness: the bare flow."""
         return cls(push_limit_m=0.0, frame_limit_m=0.0, frame_limit_deg=0.0, rotational_stiffness=None,
-                   search_amplitude_m=0.0)
+                   search_amplitude_m=0.0, seat_speed_m_s=0.0)
 
 
 class ContactAdapter:
@@ -144,6 +158,7 @@ class ContactAdapter:
         """Start an episode: no push, no frame shift, rotation or search. ``mouth_depth_m``: how far the goal lies
         beyond the nominal hole's mouth along the axis, a^T (g_p - mouth), m (None: no stall search)."""
         self.push = np.zeros(3)
+        self.resistance_n = 0.0
         self.frame = np.zeros(3)
         self.rotation = np.zeros(3)
         self.search = np.zeros(3)
@@ -172,10 +187,16 @@ class ContactAdapter:
         """The rotational stiffness to command at measured position ``pos`` (None: the controller's)."""
         return self.config.rotational_stiffness if self.near_goal(pos) else None
 
+    def sense(self, force_world: npt.ArrayLike) -> None:
+        """The sensed force the environment exerts on the tool (3,, N, world) this step: its part against the axis,
+        -a^T F, is what the seat push reads."""
+        self.resistance_n = -dot(self.axis, np.asarray(force_world, dtype=np.float64))
+
     def update(self, pos: npt.ArrayLike, velocity_d: npt.ArrayLike, period_s: float) -> None:
         """One control step at measured position ``pos`` with the flow's linear velocity ``velocity_d`` (3,):
-        e <- (1 - T/tau) e + (xi_d - v) T, push = sat(a a^T e), delta <- sat(delta - (I - a a^T)(xi_d - v) T)
-        near the goal. The first call only records ``pos`` (no velocity yet)."""
+        e <- (1 - T/tau) e + (xi_d - v) T (+ a v_s T seating near the goal, `sense`), push = sat(a a^T e),
+        delta <- sat(delta - (I - a a^T)(xi_d - v) T) near the goal. The first call only records ``pos`` (no
+        velocity yet)."""
         here = np.asarray(pos, dtype=np.float64)
         previous, self._previous = self._previous, here.copy()
         cfg = self.config
@@ -185,6 +206,9 @@ class ContactAdapter:
         a = self.axis
         axial = dot(a, error)
         lateral = error - axial * a
+        if (cfg.seat_speed_m_s > 0.0 and self.resistance_n < cfg.seat_force_n
+                and norm(here - self.goal_pos) < cfg.seat_radius_m):
+            axial += cfg.seat_speed_m_s * period_s
         self.push = _saturate(max(0.0, 1.0 - period_s / cfg.push_leak_s) * self.push + axial * a, cfg.push_limit_m)
         if self._update_search(here, period_s):
             return  # the frame holds still while the search moves the peg

@@ -235,7 +235,12 @@ class _PoseSkillPolicy:
     def act(self, observation: Observation) -> Action:
         """`Policy.act`: the action for the next control step at the observation's measured tcp pose (`command`)."""
         self._step += 1
+        self.sense(observation)
         return self.command(self._step - 1, observation.tcp)
+
+    def sense(self, observation: Observation) -> None:
+        """Read what the policy senses besides the pose (nothing here; the closed loop's contact adaptation reads the
+        wrench)."""
 
 
 class ClosedLoopPolicy(_PoseSkillPolicy):
@@ -266,6 +271,11 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         self._period_s = 0.0
         self._flow_period_s = 0.0
         self._step = 0
+
+    def sense(self, observation: Observation) -> None:
+        """Hand the contact adaptation the sensed force on the tool in the world frame: the wrist wrench is in the
+        sensor frame, whose axes are the hand's and the tcp's (envs.scene), so R(q_tcp) F."""
+        self.adapter.sense(rotate(observation.tcp.quat, np.asarray(observation.wrist_wrench, dtype=np.float64)[:3]))
 
     def reset(self, observation: Observation, period_s: float) -> None:
         """`Policy.reset`: `reset_at` the measured tcp pose, with the nominal hole's mouth for the stall search."""
