@@ -24,6 +24,11 @@ or with the sensor model of envs.wrist_sensor on, |y_F| of the sensed y <- y + a
     above     <- above + h if |F| > force_limit_n else 0
     limit hit <=> above >= force_limit_window_s - 1e-12 and above > 0
 
+With ``sensor_mode = "joint_torque"`` (envs.wrist_sensor) the sensed y filters the estimate from the joint torques
+instead (`joint_torque_estimate`: tau_c from qfrc_constraint less the joints' own friction rows, plus the sensors'
+bias and noise, mapped by (J J^T)^-1 J at the F/T site and zeroed for the nominal peg), while the record's wrench
+stays the F/T site's exact one.
+
 Every sum is taken in the order the numpy version used (left to right for the 3-vector products, numpy's pairwise
 summation for the contact sum, four interleaved partial sums for the mass-weighted centre as numpy's matmul through
 OpenBLAS does for up to 7 bodies), so the readings, and the episode records, stayed the same to the last bit.
