@@ -4,9 +4,14 @@
   controller's tool load (controllers.impedance: the weight it compensates) and the wrist sensor's zeroing
   (envs.sensing.ToolLoad) keep the nominal mass they were given when the environment was built. A heavier peg
   sags by e m g / K_z under a translational stiffness K_z and shows as e m g on the zeroed sensor.
+- Payload centre of mass: the simulated peg's centre of mass is moved across its axis by c (its body's ipos), while
+  the controller's tool load and the sensor's zeroing keep it on the axis: the zeroed wrist sensor reads the moment
+  c x m g, and the compliant wrist turns by about |c| m g / K_rot.
 - Joint friction: each arm joint gets Coulomb friction with stiction of f N m (MuJoCo's dof frictionloss: a joint
   stays at rest until its torque exceeds f, then slides against f), which the impedance law does not compensate;
-  a compliant arm stops short of its target by up to about J^-T f / K.
+  a compliant arm stops short of its target by up to about J^-T f / K. And viscous friction b N m s/rad (added to
+  the dof's damping): a joint moving at qdot is held back by b qdot, so a compliant arm moving at a steady speed
+  lags its target by a further K^-1 J^-T b qdot.
 
 Both are written into the environment's model at reset (environments built on one Scene share them). A changed
 mass also changes the constants MuJoCo derives from the masses at compile time (the bodies' and dofs' inverse
@@ -24,9 +29,10 @@ import numpy as np
 from envs.perturbation import Perturbation
 
 
-MASS_CONSTANTS: tuple[str, ...] = ("body_mass", "body_inertia", "body_subtreemass", "body_invweight0", "dof_M0",
-                                    "dof_invweight0", "cam_poscom0", "light_poscom0")
-"""The model's arrays a payload error changes: the masses and what mj_setConst derives from them."""
+MASS_CONSTANTS: tuple[str, ...] = ("body_mass", "body_inertia", "body_ipos", "body_subtreemass", "body_invweight0",
+                                    "dof_M0", "dof_invweight0", "cam_poscom0", "light_poscom0")
+"""The model's arrays a payload error changes: the masses, the centres of mass and what mj_setConst derives from
+them."""
 
 
 class ModelError:
@@ -38,24 +44,29 @@ class ModelError:
         self._dofs = np.asarray(arm_dofs, dtype=np.int64)
         self.mass_kg = float(model.body_mass[peg_body]) if peg_body is not None else 0.0
         self.frictionloss = model.dof_frictionloss[self._dofs].copy()
+        self.damping = model.dof_damping[self._dofs].copy()
         self._compiled = {name: getattr(model, name).copy() for name in MASS_CONSTANTS}
         self._scratch: mujoco.MjData | None = None
-        self._scale = 1.0
+        self._payload = (1.0, 0.0, 0.0)  # (mass scale, centre-of-mass shift x, y) now in the model
 
     def apply(self, perturbation: Perturbation) -> None:
-        """Write the episode's payload mass (and inertia, and the constants derived from them) and arm joint
-        friction into the model."""
+        """Write the episode's payload mass (and inertia), centre of mass (and the constants derived from them) and
+        arm joint friction (Coulomb and viscous) into the model."""
         model = self.model
-        scale = 1.0 + perturbation.payload_mass_error if self._peg is not None else 1.0
-        if scale != self._scale:
+        payload = ((1.0 + perturbation.payload_mass_error, perturbation.payload_com_x_m, perturbation.payload_com_y_m)
+                   if self._peg is not None else (1.0, 0.0, 0.0))
+        if payload != self._payload:
             for name, compiled in self._compiled.items():
                 getattr(model, name)[:] = compiled
-            if scale != 1.0:
+            if payload != (1.0, 0.0, 0.0):
+                scale, com_x, com_y = payload
                 model.body_mass[self._peg] *= scale
                 model.body_inertia[self._peg] *= scale
+                model.body_ipos[self._peg, :2] += (com_x, com_y)
                 if self._scratch is None:
                     self._scratch = mujoco.MjData(model)
                 mujoco.mj_setConst(model, self._scratch)
-            self._scale = scale
+            self._payload = payload
         friction = perturbation.joint_friction_nm
         model.dof_frictionloss[self._dofs] = friction if friction > 0.0 else self.frictionloss
+        model.dof_damping[self._dofs] = self.damping + perturbation.joint_damping_nm_s

@@ -19,8 +19,11 @@ The cell's imperfections (issue #25), each off at 0:
   turned by y uniform in [-Y, Y] about its own axis;
 - payload: the simulated peg's mass is m (1 + e), e uniform in [-E, E], while the controller's tool load and the
   wrist sensor's zeroing keep the nominal m (a payload the cell's model gets wrong);
+- payload centre of mass: the simulated peg's centre of mass is moved across its axis by (cx, cy) uniform in the
+  disk of radius C (in the peg's frame), while the controller and the sensor's zeroing keep it on the axis;
 - joint friction: Coulomb friction with stiction (MuJoCo's frictionloss) of f uniform in [min, max] N m on each
-  arm joint, which the controller does not know;
+  arm joint, which the controller does not know, and viscous friction b uniform in [0, B] N m s/rad on each (on
+  top of the model's own joint damping);
 - hole observation: where the cell believes the hole is (the policy's ``nominal_hole`` and ``nominal_goal``) is the
   nominal hole moved by its own error, (dx, dy) uniform in the disk of radius R_o and a yaw uniform in [-A_o, A_o]
   about its axis, independent of the true hole-pose error above (a camera's error, not the part's).
@@ -50,11 +53,14 @@ MAX_GRASP_LATERAL_M: float = 0.005
 MAX_GRASP_ANGLE_DEG: float = 5.0
 MAX_PAYLOAD_ERROR: float = 0.5
 MAX_JOINT_FRICTION_NM: float = 5.0
+MAX_COM_ERROR_M: float = 0.01
+MAX_JOINT_DAMPING_NM_S: float = 10.0
 MAX_OBSERVATION_ERROR_M: float = 0.01
 MAX_OBSERVATION_ERROR_DEG: float = 10.0
-IMPERFECTION_DRAWS: int = 10
+IMPERFECTION_DRAWS: int = 13
 """Uniform draws of the imperfections' generator per episode (their order: mu_hole, mu_pad, l, t, y, e, f, then the
-observation's radius, polar angle and yaw; new imperfections are appended, so earlier ones keep their draws)."""
+observation's radius, polar angle and yaw, then the centre of mass's radius and polar angle and b; new imperfections
+are appended, so earlier ones keep their draws)."""
 
 
 def _check_range(name: str, value: float, maximum: float) -> float:
@@ -82,6 +88,8 @@ class PerturbationRanges:
             0 < min <= max <= 5 N m.
         hole_observation_error_m, hole_observation_error_deg: R_o and A_o of the observed hole's error, in
             [0, 10 mm] and [0, 10 deg].
+        payload_com_error_m: bound C of the simulated peg's centre-of-mass shift across its axis, in [0, 10 mm].
+        joint_damping_nm_s: bound B of each arm joint's extra viscous friction, in [0, 10] N m s/rad.
 
     Raises:
         EnvError: a negative, NaN or too large range, or a friction range that is not 0 < min <= max (one line
@@ -103,6 +111,8 @@ class PerturbationRanges:
     joint_friction_max_nm: float = 0.0
     hole_observation_error_m: float = 0.0
     hole_observation_error_deg: float = 0.0
+    payload_com_error_m: float = 0.0
+    joint_damping_nm_s: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("hole_error_m", self.hole_error_m, MAX_HOLE_ERROR_M)
@@ -112,6 +122,8 @@ class PerturbationRanges:
         _check_range("grasp_tilt_deg", self.grasp_tilt_deg, MAX_GRASP_ANGLE_DEG)
         _check_range("grasp_yaw_deg", self.grasp_yaw_deg, MAX_GRASP_ANGLE_DEG)
         _check_range("payload_mass_error", self.payload_mass_error, MAX_PAYLOAD_ERROR)
+        _check_range("payload_com_error_m", self.payload_com_error_m, MAX_COM_ERROR_M)
+        _check_range("joint_damping_nm_s", self.joint_damping_nm_s, MAX_JOINT_DAMPING_NM_S)
         _check_range("hole_observation_error_m", self.hole_observation_error_m, MAX_OBSERVATION_ERROR_M)
         _check_range("hole_observation_error_deg", self.hole_observation_error_deg, MAX_OBSERVATION_ERROR_DEG)
         for low_name, high_name, top in (("hole_friction_min", "hole_friction_max", MAX_FRICTION),
@@ -128,7 +140,8 @@ class PerturbationRanges:
         """Some imperfection of the cell is set (its draws are made)."""
         return any(getattr(self, name) > 0.0 for name in (
             "hole_friction_max", "pad_friction_max", "grasp_lateral_m", "grasp_tilt_deg", "grasp_yaw_deg",
-            "payload_mass_error", "joint_friction_max_nm", "hole_observation_error_m", "hole_observation_error_deg"))
+            "payload_mass_error", "joint_friction_max_nm", "hole_observation_error_m", "hole_observation_error_deg",
+            "payload_com_error_m", "joint_damping_nm_s"))
 
 
 @dataclass(frozen=True)
@@ -148,6 +161,8 @@ class Perturbation:
         joint_friction_nm: Coulomb friction of each arm joint (N m).
         observed_hole_dx_m, observed_hole_dy_m, observed_hole_yaw_deg: the observed hole's error in the nominal
             hole's frame.
+        payload_com_x_m, payload_com_y_m: the simulated peg's centre-of-mass shift in its own frame (m).
+        joint_damping_nm_s: extra viscous friction of each arm joint (N m s/rad).
     """
 
     hole_dx_m: float = 0.0
@@ -166,12 +181,15 @@ class Perturbation:
     observed_hole_dx_m: float = 0.0
     observed_hole_dy_m: float = 0.0
     observed_hole_yaw_deg: float = 0.0
+    payload_com_x_m: float = 0.0
+    payload_com_y_m: float = 0.0
+    joint_damping_nm_s: float = 0.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
             if not np.isfinite(value):
                 raise EnvError(f"Perturbation.{name}={value!r} must be finite")
-        if min(self.hole_friction, self.pad_friction, self.joint_friction_nm) < 0.0:
+        if min(self.hole_friction, self.pad_friction, self.joint_friction_nm, self.joint_damping_nm_s) < 0.0:
             raise EnvError(f"Perturbation frictions ({self.hole_friction}, {self.pad_friction}, "
                            f"{self.joint_friction_nm} N m) must be >= 0")
         if self.payload_mass_error <= -1.0:
@@ -204,7 +222,9 @@ class Perturbation:
             ("grasp_lateral_mm", self.grasp_lateral_m * 1e3), ("grasp_tilt_deg", self.grasp_tilt_deg),
             ("grasp_yaw_deg", self.grasp_yaw_deg), ("payload_mass_error", self.payload_mass_error),
             ("joint_friction_nm", self.joint_friction_nm), ("observed_hole_dx_mm", self.observed_hole_dx_m * 1e3),
-            ("observed_hole_dy_mm", self.observed_hole_dy_m * 1e3), ("observed_hole_yaw_deg", self.observed_hole_yaw_deg))
+            ("observed_hole_dy_mm", self.observed_hole_dy_m * 1e3), ("observed_hole_yaw_deg", self.observed_hole_yaw_deg),
+            ("payload_com_x_mm", self.payload_com_x_m * 1e3), ("payload_com_y_mm", self.payload_com_y_m * 1e3),
+            ("joint_damping_nm_s", self.joint_damping_nm_s))
             if v != 0.0}
         return {
             "hole_dx_mm": self.hole_dx_m * 1e3,
@@ -230,6 +250,7 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
         v = np.random.default_rng(np.frombuffer(u.tobytes(), dtype=np.uint64)).random(IMPERFECTION_DRAWS)
 
     observed_radius = ranges.hole_observation_error_m * np.sqrt(v[7])
+    com_radius = ranges.payload_com_error_m * np.sqrt(v[10])
 
     def within(low: float, high: float, draw: float) -> float:
         return float(low + (high - low) * draw) if high > 0.0 else 0.0
@@ -252,6 +273,9 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
         observed_hole_dx_m=float(observed_radius * np.cos(2.0 * np.pi * v[8])),
         observed_hole_dy_m=float(observed_radius * np.sin(2.0 * np.pi * v[8])),
         observed_hole_yaw_deg=float(ranges.hole_observation_error_deg * (2.0 * v[9] - 1.0)),
+        payload_com_x_m=float(com_radius * np.cos(2.0 * np.pi * v[11])),
+        payload_com_y_m=float(com_radius * np.sin(2.0 * np.pi * v[11])),
+        joint_damping_nm_s=float(ranges.joint_damping_nm_s * v[12]),
     )
 
 

@@ -15,6 +15,7 @@ from envs.perturbation import Perturbation
 from envs.poses import Pose
 from envs.scene import build_scene
 from envs.scene_config import SceneConfig
+from envs.poses import quat_conj, quat_mul, quat_to_rotvec
 from rflow.quaternion import quat_to_mat
 
 GRAVITY_M_S2 = 9.81
@@ -87,6 +88,52 @@ def test_joint_friction_stops_a_compliant_arm_short_of_its_target(env) -> None:
     assert errors[0] < 2e-4 and errors[1] > 5e-3
     env.model_error.apply(Perturbation())
     assert not env.model.dof_frictionloss.any()
+
+
+def test_a_payload_centre_of_mass_error_turns_the_compliant_wrist(env) -> None:
+    """The peg's centre of mass off its axis, unknown to the controller's tool load: its weight's moment c x m g
+    turns the wrist (held at 2 N m/rad) about the horizontal axis perpendicular to c, by an angle proportional to |c|
+    and at most |c| m g / K_rot (the arm's posture stiffness takes some of the moment; 67 % of it measured)."""
+    start, k_rot = _above(env), 2.0
+    stiffness = np.diag([500.0] * 3 + [k_rot] * 3)
+    quats, moments = [], []
+    for com_x in (0.0, 0.004, 0.008):
+        env.reset(start_pose=start, perturbation=Perturbation(payload_com_x_m=com_x))
+        for _ in range(200):
+            env.step(start, stiffness)
+        quats.append(env.observation.tcp.quat.copy())
+        peg_x = env.data.xmat[env.scene.ids.peg_body].reshape(3, 3)[:, 0]
+        moments.append(np.cross(com_x * peg_x, [0.0, 0.0, -env.model_error.mass_kg * GRAVITY_M_S2]))
+    turns = [quat_to_rotvec(quat_mul(q, quat_conj(quats[0]))) for q in quats[1:]]
+    assert np.linalg.norm(turns[1]) == pytest.approx(2.0 * np.linalg.norm(turns[0]), rel=0.05)
+    for turn, moment in zip(turns, moments[1:]):
+        cosine = turn @ moment / (np.linalg.norm(turn) * np.linalg.norm(moment))
+        assert cosine > np.cos(np.radians(10.0))  # turned the way the weight's moment turns it
+        assert 0.5 < np.linalg.norm(turn) / (np.linalg.norm(moment) / k_rot) <= 1.0
+    env.model_error.apply(Perturbation())
+    assert env.model.body_ipos[env.scene.ids.peg_body, 0] == 0.0
+
+
+def test_viscous_joint_friction_is_in_the_simulated_arm_and_slows_it(env) -> None:
+    """4 N m s/rad on every arm joint: the simulated joints are held back by -(d_0 + b) qdot, and a compliant arm
+    pulled 20 mm along x travels less in 0.3 s than without it."""
+    start = _above(env)
+    stiffness = np.diag([300.0] * 3 + [30.0] * 3)
+    arm = list(env.scene.ids.arm_dof_adr)
+    travelled = []
+    for damping in (0.0, 4.0):
+        env.reset(start_pose=start, perturbation=Perturbation(joint_damping_nm_s=damping))
+        target = Pose(start.pos + [0.02, 0.0, 0.0], start.quat)
+        for _ in range(30):
+            env.step(target, stiffness)
+        data = env.data
+        # (qfrc_passive is of the state the last step started from, qvel of the one it ended in: 2 %)
+        assert np.allclose(data.qfrc_passive[arm], -(env.model_error.damping + damping) * data.qvel[arm], rtol=0.05,
+                           atol=1e-4)
+        travelled.append(float(env.observation.tcp.pos[0] - start.pos[0]))
+    assert travelled[1] < 0.9 * travelled[0]
+    env.model_error.apply(Perturbation())
+    assert np.array_equal(env.model.dof_damping[arm], env.model_error.damping)
 
 
 def test_the_realistic_preset_is_the_contact_task_with_every_imperfection() -> None:
