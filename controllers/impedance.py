@@ -259,6 +259,8 @@ class CartesianImpedanceController:
         self._tool_point = np.zeros(3)
         self._jac_tool = np.zeros((3, model.nv))
         self._jac_tool_arm = self._jac_tool[:, self.dof_slice]
+        self._disturbance = np.zeros((1, n))  # the actuators' torque beyond the command, per physics step
+        self._disturbance_state = np.zeros(2)  # [on, next row] (impedance_kernel.impedance_substep)
         self._checked = self.default_stiffness  # the last stiffness `checked_stiffness` accepted (a private copy)
 
     def checked_stiffness(self, stiffness: npt.ArrayLike | None) -> npt.NDArray[np.float64]:
@@ -290,6 +292,26 @@ class CartesianImpedanceController:
             raise ControllerError(f"tool load: mass {mass_kg!r} kg must be finite and >= 0, depth {depth_m!r} m finite")
         weight = float(mass_kg) * np.asarray(self.model.opt.gravity, dtype=np.float64)
         self._tool[:] = [float(mass_kg > 0.0), float(depth_m), float(self.model.site_bodyid[self.site_id]), *weight]
+
+    def set_torque_disturbance(self, rows: npt.ArrayLike | None) -> None:
+        """What the arm's actuators deliver beyond the commanded torque (a cell's torque noise, not part of the
+        law): one row (N m per arm joint) per coming physics step, added to ctrl after the law, starting at the
+        next step; the last row repeats. None: none (the default).
+
+        Raises:
+            ControllerError: rows that are not a finite (R, n_joints) array with R >= 1.
+        """
+        if rows is None:
+            self._disturbance_state[:] = 0.0
+            return
+        values = np.asarray(rows, dtype=np.float64)
+        n = self._last_tau.shape[0]
+        if values.ndim != 2 or values.shape[0] < 1 or values.shape[1] != n or not np.isfinite(values).all():
+            raise ControllerError(f"torque disturbance must be a finite (R >= 1, {n}) array, got shape {values.shape}")
+        if self._disturbance.shape != values.shape:
+            self._disturbance = np.zeros(values.shape)
+        self._disturbance[:] = values
+        self._disturbance_state[:] = (1.0, 0.0)
 
     def reset(self, tau0: npt.ArrayLike | None = None) -> None:
         """Set the last commanded torque, the reference of the torque-rate limit.
@@ -453,7 +475,8 @@ class CartesianImpedanceController:
         _, qpos, qvel, bias, site_pos, site_mat, ctrl = self._data_views(data)
         return (self._fns, self.model._address, data._address, self.site_id, self._jac, self._jac_minv, qpos, qvel,
                 bias, site_pos, site_mat, self._target, k, self._params, self._last_tau, ctrl, self._work, self._vec,
-                self._tool, self._tool_point, self._jac_tool, self._jac_tool_arm, data.qfrc_applied[self.dof_slice])
+                self._tool, self._tool_point, self._jac_tool, self._jac_tool_arm, data.qfrc_applied[self.dof_slice],
+                self._disturbance, self._disturbance_state)
 
     def _validate(
         self,

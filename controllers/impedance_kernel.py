@@ -266,16 +266,19 @@ def impedance_substep(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarra
                       site_mat: np.ndarray, target: np.ndarray, stiffness: np.ndarray, params: np.ndarray,
                       last_tau: np.ndarray, ctrl: np.ndarray, work: np.ndarray, vec: np.ndarray, tool: np.ndarray,
                       tool_point: np.ndarray, jac_tool: np.ndarray, jac_tool_arm: np.ndarray,
-                      applied: np.ndarray) -> int:
+                      applied: np.ndarray, disturbance: np.ndarray, disturbance_state: np.ndarray) -> int:
     """One controlled physics step: the tool load (when enabled, from the site pose of the last step, as a
     hook before mj_step1 sees it), mj_step1, J and J M^-1 of the site (mj_jacSite, mj_solveM), the law
-    (`impedance_torque`) into ctrl, mj_step2.
+    (`impedance_torque`) into ctrl, the actuators' torque disturbance (when on) added to ctrl, mj_step2.
 
     Args:
         fns: controllers.mujoco_c.FUNCTIONS; m, d: MjModel._address, MjData._address.
         site: the controlled site; jac, jac_minv: (6, nv) C-contiguous buffers.
         qpos .. vec: as in `impedance_torque` (site_mat (9,)).
         tool .. applied: as in `tool_load_into`.
+        disturbance, disturbance_state: the torque the actuators deliver beyond the command, one row (n,) per
+            physics step (R, n), and [on, the next row]: the row's values are added to ctrl after the law (the
+            law's own record of its command, last_tau, keeps the command), the last row repeating past R.
 
     Returns:
         STATUS_OK, or the law's failure status (the state is then left after mj_step1, nothing applied).
@@ -290,6 +293,12 @@ def impedance_substep(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarra
                               last_tau, ctrl, work, vec)
     if status != STATUS_OK:
         return status
+    if disturbance_state[0] != 0.0:
+        row = int(disturbance_state[1])
+        disturbance_state[1] = row + 1
+        row = min(row, disturbance.shape[0] - 1)
+        for i in range(disturbance.shape[1]):
+            ctrl[i] += disturbance[row, i]
     call_md(fns[FN_STEP2], m, d)
     return STATUS_OK
 

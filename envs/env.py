@@ -46,7 +46,7 @@ from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.friction import EpisodeFriction
 from envs.geometry import as_vector
-from envs.model_error import ModelError
+from envs.model_error import ActuatorNoise, ModelError
 from envs.instability import InstabilityCheck
 from envs.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUCCESS, REASON_TIME_LIMIT, Observation,
                               Observer, StepResult, site_pose)
@@ -152,6 +152,7 @@ class PegInHoleEnv:
         self.friction = EpisodeFriction(self.model, ids.sorter_geoms, ids.finger_geoms if self.grasped else (),
                                         ids.peg_geoms)
         self.model_error = ModelError(self.model, ids.peg_body, tuple(ids.arm_dof_adr))
+        self.actuator_noise = ActuatorNoise(self.controller, len(ids.arm_dof_adr), self.n_substeps)
         self.observer = Observer(self.model, self.data, ids, self._arm_dof, self.grasped, self.wrist, self.contacts)
         if self.grasped:  # the peg's weight, a known tool load compensated by the controller (module docstring)
             self.controller.set_tool_load(float(self.model.body_mass[ids.peg_body]), PEG_LENGTH_M / 2)
@@ -297,6 +298,7 @@ class PegInHoleEnv:
         self._set_believed_hole(perturbation)
         self.friction.apply(perturbation)
         self.model_error.apply(perturbation)
+        self.actuator_noise.reset(perturbation)
         if self.grasped:
             self._place_peg_in_grasp(perturbation)
         mujoco.mj_forward(model, data)
@@ -374,6 +376,7 @@ class PegInHoleEnv:
         problem: str | None = None
         force_limited = False
         self.sensing.start_period(self._steps * self.control_period_s)
+        self.actuator_noise.start_period()
         try:
             with np.errstate(all="ignore"):
                 ran = self._run_period(pose, stiffness, q_ref)

@@ -13,7 +13,10 @@
   the dof's damping): a joint moving at qdot is held back by b qdot, so a compliant arm moving at a steady speed
   lags its target by a further K^-1 J^-T b qdot.
 
-Both are written into the environment's model at reset (environments built on one Scene share them). A changed
+- Torque noise (`ActuatorNoise`): each arm joint delivers its commanded torque plus white noise of sigma N m per
+  physics step (the controller's torque disturbance, controllers.impedance), which the law never sees.
+
+The payload and joint-friction errors are written into the environment's model at reset (environments built on one Scene share them). A changed
 mass also changes the constants MuJoCo derives from the masses at compile time (the bodies' and dofs' inverse
 weights that scale the constraint solver's regularisation, the subtree masses, the dofs' M0): without them the
 contact solver worked with the nominal peg's weights and 10 of 300 episodes of the realistic task blew up (bad
@@ -22,6 +25,9 @@ the compiled values at the nominal one, so an episode without a payload error is
 """
 
 from __future__ import annotations
+
+from dataclasses import astuple
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -70,3 +76,38 @@ class ModelError:
         friction = perturbation.joint_friction_nm
         model.dof_frictionloss[self._dofs] = friction if friction > 0.0 else self.frictionloss
         model.dof_damping[self._dofs] = self.damping + perturbation.joint_damping_nm_s
+
+
+ACTUATOR_NOISE_SALT: int = 0x70_71_75_65
+"""Appended to the episode's seed words, so the torque noise has a generator of its own (the wrist sensor's,
+envs.wrist_sensor.episode_generator, draws from the same words without it)."""
+
+
+class ActuatorNoise:
+    """The torque noise of an episode's arm (module docstring): drawn per control period, one row per physics step,
+    from a generator seeded by the episode's perturbation, and handed to the controller as its torque disturbance.
+
+    Args:
+        controller: the episode's CartesianImpedanceController (its `set_torque_disturbance`).
+        n_joints, n_substeps: arm joints and physics steps per control period.
+    """
+
+    def __init__(self, controller: Any, n_joints: int, n_substeps: int) -> None:
+        self.controller = controller
+        self._shape = (max(1, int(n_substeps)), int(n_joints))
+        self._sigma = 0.0
+        self._rng: np.random.Generator | None = None
+
+    def reset(self, perturbation: Perturbation) -> None:
+        """Start an episode: its sigma and generator (none at sigma 0, and no disturbance)."""
+        self._sigma = float(perturbation.actuator_noise_nm)
+        self._rng = None
+        if self._sigma > 0.0:
+            words = np.frombuffer(np.array(astuple(perturbation), dtype=np.float64).tobytes(), dtype=np.uint64)
+            self._rng = np.random.default_rng([*words.tolist(), ACTUATOR_NOISE_SALT])
+        self.controller.set_torque_disturbance(None)
+
+    def start_period(self) -> None:
+        """Draw the coming control period's noise (nothing at sigma 0)."""
+        if self._rng is not None:
+            self.controller.set_torque_disturbance(self._rng.standard_normal(self._shape) * self._sigma)

@@ -29,7 +29,8 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
                       site_pos: np.ndarray, site_mat: np.ndarray, target: np.ndarray, stiffness: np.ndarray,
                       params: np.ndarray, last_tau: np.ndarray, ctrl: np.ndarray, work: np.ndarray, vec: np.ndarray,
                       tool: np.ndarray, tool_point: np.ndarray, jac_tool: np.ndarray, jac_tool_arm: np.ndarray,
-                      applied: np.ndarray, layout: np.ndarray, rot: np.ndarray, wrist_pos: np.ndarray,
+                      applied: np.ndarray, disturbance: np.ndarray, disturbance_state: np.ndarray,
+                      layout: np.ndarray, rot: np.ndarray, wrist_pos: np.ndarray,
                       xipos: np.ndarray, force: np.ndarray, torque: np.ndarray, bodies: np.ndarray, load: np.ndarray,
                       counted: np.ndarray, scratch: np.ndarray, limits: np.ndarray, sensor: np.ndarray,
                       noise: np.ndarray, state: np.ndarray, sense_fns: np.ndarray, sense_m: int,
@@ -40,7 +41,8 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
 
     Args:
         n_substeps: physics steps of the period.
-        fns .. applied: ``CartesianImpedanceController.substep_arguments`` (the arguments of impedance_substep).
+        fns .. disturbance_state: ``CartesianImpedanceController.substep_arguments`` (the arguments of
+            impedance_substep).
         layout .. jt_estimate: ``EpisodeSensing.period_arguments`` (those of sense_substep_at after the data's
             address).
 
@@ -50,7 +52,7 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
     for done in range(n_substeps):
         status = impedance_substep(fns, m, d, site, jac, jac_minv, qpos, qvel, qfrc_bias, site_pos, site_mat, target,
                                    stiffness, params, last_tau, ctrl, work, vec, tool, tool_point, jac_tool,
-                                   jac_tool_arm, applied)
+                                   jac_tool_arm, applied, disturbance, disturbance_state)
         if status != STATUS_OK:
             return done, status, False
         if sense_substep_at(d, layout, rot, wrist_pos, xipos, force, torque, bodies, load, counted, scratch, limits,

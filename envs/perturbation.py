@@ -24,6 +24,9 @@ The cell's imperfections (issue #25), each off at 0:
 - joint friction: Coulomb friction with stiction (MuJoCo's frictionloss) of f uniform in [min, max] N m on each
   arm joint, which the controller does not know, and viscous friction b uniform in [0, B] N m s/rad on each (on
   top of the model's own joint damping);
+- torque noise: each arm joint delivers its commanded torque plus white noise of sigma N m per physics step
+  (drawn per control period from the episode's own generator, envs.model_error.ActuatorNoise), which the
+  controller does not know;
 - hole observation: where the cell believes the hole is (the policy's ``nominal_hole`` and ``nominal_goal``) is the
   nominal hole moved by its own error, (dx, dy) uniform in the disk of radius R_o and a yaw uniform in [-A_o, A_o]
   about its axis, independent of the true hole-pose error above (a camera's error, not the part's).
@@ -55,6 +58,7 @@ MAX_PAYLOAD_ERROR: float = 0.5
 MAX_JOINT_FRICTION_NM: float = 5.0
 MAX_COM_ERROR_M: float = 0.01
 MAX_JOINT_DAMPING_NM_S: float = 10.0
+MAX_ACTUATOR_NOISE_NM: float = 5.0
 MAX_OBSERVATION_ERROR_M: float = 0.01
 MAX_OBSERVATION_ERROR_DEG: float = 10.0
 IMPERFECTION_DRAWS: int = 13
@@ -90,6 +94,8 @@ class PerturbationRanges:
             [0, 10 mm] and [0, 10 deg].
         payload_com_error_m: bound C of the simulated peg's centre-of-mass shift across its axis, in [0, 10 mm].
         joint_damping_nm_s: bound B of each arm joint's extra viscous friction, in [0, 10] N m s/rad.
+        actuator_noise_nm: sigma of the white noise on each arm joint's delivered torque per physics step, in
+            [0, 5] N m (not drawn: every episode has it).
 
     Raises:
         EnvError: a negative, NaN or too large range, or a friction range that is not 0 < min <= max (one line
@@ -113,6 +119,7 @@ class PerturbationRanges:
     hole_observation_error_deg: float = 0.0
     payload_com_error_m: float = 0.0
     joint_damping_nm_s: float = 0.0
+    actuator_noise_nm: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("hole_error_m", self.hole_error_m, MAX_HOLE_ERROR_M)
@@ -124,6 +131,7 @@ class PerturbationRanges:
         _check_range("payload_mass_error", self.payload_mass_error, MAX_PAYLOAD_ERROR)
         _check_range("payload_com_error_m", self.payload_com_error_m, MAX_COM_ERROR_M)
         _check_range("joint_damping_nm_s", self.joint_damping_nm_s, MAX_JOINT_DAMPING_NM_S)
+        _check_range("actuator_noise_nm", self.actuator_noise_nm, MAX_ACTUATOR_NOISE_NM)
         _check_range("hole_observation_error_m", self.hole_observation_error_m, MAX_OBSERVATION_ERROR_M)
         _check_range("hole_observation_error_deg", self.hole_observation_error_deg, MAX_OBSERVATION_ERROR_DEG)
         for low_name, high_name, top in (("hole_friction_min", "hole_friction_max", MAX_FRICTION),
@@ -141,7 +149,7 @@ class PerturbationRanges:
         return any(getattr(self, name) > 0.0 for name in (
             "hole_friction_max", "pad_friction_max", "grasp_lateral_m", "grasp_tilt_deg", "grasp_yaw_deg",
             "payload_mass_error", "joint_friction_max_nm", "hole_observation_error_m", "hole_observation_error_deg",
-            "payload_com_error_m", "joint_damping_nm_s"))
+            "payload_com_error_m", "joint_damping_nm_s", "actuator_noise_nm"))
 
 
 @dataclass(frozen=True)
@@ -163,6 +171,7 @@ class Perturbation:
             hole's frame.
         payload_com_x_m, payload_com_y_m: the simulated peg's centre-of-mass shift in its own frame (m).
         joint_damping_nm_s: extra viscous friction of each arm joint (N m s/rad).
+        actuator_noise_nm: sigma of the noise on each arm joint's delivered torque (N m).
     """
 
     hole_dx_m: float = 0.0
@@ -184,12 +193,14 @@ class Perturbation:
     payload_com_x_m: float = 0.0
     payload_com_y_m: float = 0.0
     joint_damping_nm_s: float = 0.0
+    actuator_noise_nm: float = 0.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
             if not np.isfinite(value):
                 raise EnvError(f"Perturbation.{name}={value!r} must be finite")
-        if min(self.hole_friction, self.pad_friction, self.joint_friction_nm, self.joint_damping_nm_s) < 0.0:
+        if min(self.hole_friction, self.pad_friction, self.joint_friction_nm, self.joint_damping_nm_s,
+               self.actuator_noise_nm) < 0.0:
             raise EnvError(f"Perturbation frictions ({self.hole_friction}, {self.pad_friction}, "
                            f"{self.joint_friction_nm} N m) must be >= 0")
         if self.payload_mass_error <= -1.0:
@@ -224,7 +235,7 @@ class Perturbation:
             ("joint_friction_nm", self.joint_friction_nm), ("observed_hole_dx_mm", self.observed_hole_dx_m * 1e3),
             ("observed_hole_dy_mm", self.observed_hole_dy_m * 1e3), ("observed_hole_yaw_deg", self.observed_hole_yaw_deg),
             ("payload_com_x_mm", self.payload_com_x_m * 1e3), ("payload_com_y_mm", self.payload_com_y_m * 1e3),
-            ("joint_damping_nm_s", self.joint_damping_nm_s))
+            ("joint_damping_nm_s", self.joint_damping_nm_s), ("actuator_noise_nm", self.actuator_noise_nm))
             if v != 0.0}
         return {
             "hole_dx_mm": self.hole_dx_m * 1e3,
@@ -276,6 +287,7 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
         payload_com_x_m=float(com_radius * np.cos(2.0 * np.pi * v[11])),
         payload_com_y_m=float(com_radius * np.sin(2.0 * np.pi * v[11])),
         joint_damping_nm_s=float(ranges.joint_damping_nm_s * v[12]),
+        actuator_noise_nm=float(ranges.actuator_noise_nm),
     )
 
 

@@ -24,7 +24,7 @@ from scripts.options import MAX_EPISODES, MAX_WORKERS, count, seed
 from scripts.task_options import add_task_file_arguments, task_from_args
 
 IMPERFECTION_NAMES = ("friction", "compliant_pads", "in_hand_pose", "grasp_offset", "payload", "joint_friction",
-                      "hole_observation", "joint_torque_sensing", "wrist_sensor")
+                      "torque_noise", "hole_observation", "joint_torque_sensing", "wrist_sensor")
 """The names of envs.execution.sensitivity.IMPERFECTIONS, then ALTERNATIVES (spelled here so --help does not load the
 simulator)."""
 OUTPUTS = {"table": "sensitivity.md", "json": "sensitivity.json", "figure": "sensitivity.png"}

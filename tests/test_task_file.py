@@ -22,7 +22,7 @@ from scripts.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 MINE = Task(shape="triangle", peg_mode="welded", clearance_m=0.0005, chamfer_m=0.0, grasp_force_n=50.0, pad_stiffness_nm_rad=40.0,
             hole_depth_m=0.05, perturbations=PerturbationRanges(0.002, 0.5, 0.001, 0.3, 0.8, 0.6, 1.2, 0.001, 1.0, 0.5, 0.1,
-                                                                     0.1, 0.3, 0.002, 3.0, 0.001, 0.4),
+                                                                     0.1, 0.3, 0.002, 3.0, 0.001, 0.4, 0.2),
             sensing=WristSensorConfig("wrist", 0.1, 0.005, 0.5, 0.02, 200.0),
             force_limit_n=math.inf,
             time_limit_s=7.5, success=SuccessConfig(seat_tolerance_m=0.002, hold_s=0.1),

@@ -22,7 +22,8 @@ PAIRING_TOLERANCE: float = 1e-9
 IMPERFECTION_KEYS: frozenset[str] = frozenset({"hole_friction", "pad_friction", "grasp_lateral_mm", "grasp_tilt_deg",
                                                "grasp_yaw_deg", "payload_mass_error", "joint_friction_nm",
                                                "observed_hole_dx_mm", "observed_hole_dy_mm", "observed_hole_yaw_deg",
-                                               "payload_com_x_mm", "payload_com_y_mm", "joint_damping_nm_s"})
+                                               "payload_com_x_mm", "payload_com_y_mm", "joint_damping_nm_s",
+                                               "actuator_noise_nm"})
 """Perturbation keys of the cell's imperfections (envs.perturbation), written only where set: what one side of a
 paired comparison of an imperfection adds, not what the pairs must share."""
 
