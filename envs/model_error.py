@@ -32,6 +32,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from envs.errors import EnvError
 from envs.perturbation import Perturbation
 
 
@@ -94,20 +95,30 @@ class ActuatorNoise:
 
     def __init__(self, controller: Any, n_joints: int, n_substeps: int) -> None:
         self.controller = controller
+        self._disturb = getattr(controller, "set_torque_disturbance", None)  # the impedance controller's
         self._shape = (max(1, int(n_substeps)), int(n_joints))
         self._sigma = 0.0
         self._rng: np.random.Generator | None = None
 
     def reset(self, perturbation: Perturbation) -> None:
-        """Start an episode: its sigma and generator (none at sigma 0, and no disturbance)."""
+        """Start an episode: its sigma and generator (none at sigma 0, and no disturbance).
+
+        Raises:
+            EnvError: torque noise asked of a controller that has no torque disturbance (only the impedance
+                controller has one).
+        """
         self._sigma = float(perturbation.actuator_noise_nm)
         self._rng = None
         if self._sigma > 0.0:
+            if self._disturb is None:
+                raise EnvError(f"actuator_noise_nm={self._sigma:g} needs a controller with a torque disturbance "
+                               f"(set_torque_disturbance); {type(self.controller).__name__} has none")
             words = np.frombuffer(np.array(astuple(perturbation), dtype=np.float64).tobytes(), dtype=np.uint64)
             self._rng = np.random.default_rng([*words.tolist(), ACTUATOR_NOISE_SALT])
-        self.controller.set_torque_disturbance(None)
+        if self._disturb is not None:
+            self._disturb(None)
 
     def start_period(self) -> None:
         """Draw the coming control period's noise (nothing at sigma 0)."""
-        if self._rng is not None:
-            self.controller.set_torque_disturbance(self._rng.standard_normal(self._shape) * self._sigma)
+        if self._rng is not None and self._disturb is not None:
+            self._disturb(self._rng.standard_normal(self._shape) * self._sigma)
