@@ -85,7 +85,8 @@ def layout() -> np.ndarray:
 def check_layout(data: mujoco.MjData) -> np.ndarray:
     """`layout`, checked against the bindings on ``data``: the int and pointer fields read at the offsets must be
     ncon, nefc and (when there are constraints and contacts) the addresses of efc_force, efc_type, efc_id and the
-    contact array, and the mjContact offsets those of the bindings' views. Check it on a state with contacts to check every offset.
+    contact array, and the mjContact offsets those of the bindings' views. Check it on a state with contacts to check
+    every offset.
 
     Raises:
         ControllerError: any mismatch (this release's structs are not what its introspection says).

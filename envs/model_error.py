@@ -16,17 +16,17 @@
 - Torque noise (`ActuatorNoise`): each arm joint delivers its commanded torque plus white noise of sigma N m per
   physics step (the controller's torque disturbance, controllers.impedance), which the law never sees.
 
-The payload and joint-friction errors are written into the environment's model at reset (environments built on one Scene share them). A changed
-mass also changes the constants MuJoCo derives from the masses at compile time (the bodies' and dofs' inverse
-weights that scale the constraint solver's regularisation, the subtree masses, the dofs' M0): without them the
-contact solver worked with the nominal peg's weights and 10 of 300 episodes of the realistic task blew up (bad
-accelerations on the peg's free joint); they are recomputed with ``mj_setConst`` for a changed mass and restored to
-the compiled values at the nominal one, so an episode without a payload error is the same to the last bit.
+The payload and joint-friction errors are written into the environment's model at reset (environments built on one
+Scene share them). A changed mass or centre of mass also changes the constants MuJoCo derives from them at compile
+time (the bodies' and dofs' inverse weights that scale the constraint solver's regularisation, the subtree masses,
+the dofs' M0): without them the contact solver worked with the nominal peg's weights and 10 of 300 episodes of the
+realistic task blew up (bad accelerations on the peg's free joint); they are recomputed with ``mj_setConst`` for a
+changed payload and restored to the compiled values at the nominal one, so an episode without a payload error is the
+same to the last bit.
 """
 
 from __future__ import annotations
 
-from dataclasses import astuple
 from typing import Any
 
 import mujoco
@@ -34,6 +34,7 @@ import numpy as np
 
 from envs.errors import EnvError
 from envs.perturbation import Perturbation
+from envs.wrist_sensor import episode_generator
 
 
 MASS_CONSTANTS: tuple[str, ...] = ("body_mass", "body_inertia", "body_ipos", "body_subtreemass", "body_invweight0",
@@ -113,12 +114,11 @@ class ActuatorNoise:
             if self._disturb is None:
                 raise EnvError(f"actuator_noise_nm={self._sigma:g} needs a controller with a torque disturbance "
                                f"(set_torque_disturbance); {type(self.controller).__name__} has none")
-            words = np.frombuffer(np.array(astuple(perturbation), dtype=np.float64).tobytes(), dtype=np.uint64)
-            self._rng = np.random.default_rng([*words.tolist(), ACTUATOR_NOISE_SALT])
+            self._rng = episode_generator(perturbation, ACTUATOR_NOISE_SALT)
         if self._disturb is not None:
             self._disturb(None)
 
     def start_period(self) -> None:
         """Draw the coming control period's noise (nothing at sigma 0)."""
-        if self._rng is not None and self._disturb is not None:
+        if self._rng is not None:  # only with a disturbance to hand it to (`reset`)
             self._disturb(self._rng.standard_normal(self._shape) * self._sigma)

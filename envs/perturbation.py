@@ -233,7 +233,8 @@ class Perturbation:
             ("grasp_lateral_mm", self.grasp_lateral_m * 1e3), ("grasp_tilt_deg", self.grasp_tilt_deg),
             ("grasp_yaw_deg", self.grasp_yaw_deg), ("payload_mass_error", self.payload_mass_error),
             ("joint_friction_nm", self.joint_friction_nm), ("observed_hole_dx_mm", self.observed_hole_dx_m * 1e3),
-            ("observed_hole_dy_mm", self.observed_hole_dy_m * 1e3), ("observed_hole_yaw_deg", self.observed_hole_yaw_deg),
+            ("observed_hole_dy_mm", self.observed_hole_dy_m * 1e3),
+            ("observed_hole_yaw_deg", self.observed_hole_yaw_deg),
             ("payload_com_x_mm", self.payload_com_x_m * 1e3), ("payload_com_y_mm", self.payload_com_y_m * 1e3),
             ("joint_damping_nm_s", self.joint_damping_nm_s), ("actuator_noise_nm", self.actuator_noise_nm))
             if v != 0.0}

@@ -93,8 +93,8 @@ class SceneIds:
     ``sorter_geoms`` are the sorter's colliding geoms (its visual-only skin is left out); ``peg_qpos_adr``
     and ``peg_dof_adr`` address the peg's free joint (None when welded); ``finger_*_adr`` the finger joints
     (empty when welded); ``wrist_*_adr`` the F/T sensor's entries in sensordata; ``hand_subtree`` the bodies
-    the F/T sensor carries (hand, fingers and compliant pads); ``sorter_mocap`` the sorter's mocap index; ``home_key`` the
-    Panda's "home" keyframe (None if panda.xml has none).
+    the F/T sensor carries (hand, fingers and compliant pads); ``sorter_mocap`` the sorter's mocap index;
+    ``home_key`` the Panda's "home" keyframe (None if panda.xml has none).
     """
 
     flange_site: int

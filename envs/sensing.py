@@ -26,11 +26,10 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from controllers.mujoco_c import FUNCTIONS
 from controllers.mujoco_layout import check_layout
 from envs import sensing_kernel as kernel
-from envs.sensing_kernel import JT_DOFS as JT_HEADER
 from envs.errors import EnvError
-from controllers.mujoco_c import FUNCTIONS
 from envs.wrist_sensor import (MAX_ARM_JOINTS, SENSOR_ALPHA, SENSOR_BIAS, SENSOR_JOINT_BIAS, SENSOR_JOINT_TORQUE,
                                 SENSOR_ON, SENSOR_SIZE, SENSOR_WRIST, WristSensorConfig)
 
@@ -305,7 +304,7 @@ class EpisodeSensing:
         self._rng: np.random.Generator | None = None
         rows = max(1, n_substeps)
         if joints is None:
-            jt_index, jt_bodies, jt_load = np.zeros(JT_HEADER, dtype=np.int64), np.zeros(0, np.int64), np.zeros(4)
+            jt_index, jt_bodies, jt_load = np.zeros(kernel.JT_DOFS, dtype=np.int64), np.zeros(0, np.int64), np.zeros(4)
             model_address = 0
         else:
             jt_index, jt_bodies, jt_load = joints.index, joints.bodies, joints.load

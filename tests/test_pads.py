@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -37,7 +38,6 @@ def _turn_under_side_load(env: PegInHoleEnv, force_n: float) -> tuple[float, flo
     def tilt() -> float:
         hand = data.site_xmat[env.tcp_site].reshape(3, 3)
         peg_rot = np.zeros(9)
-        import mujoco
         mujoco.mju_quat2Mat(peg_rot, data.qpos[adr + 3:adr + 7])
         relative = hand.T @ peg_rot.reshape(3, 3)
         return math.atan2(relative[0, 2], relative[2, 2])

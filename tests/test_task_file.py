@@ -20,7 +20,8 @@ from envs.task import (PRESET_NAMES, SuccessConfig, StartRange, Task, TASK_VERSI
 from scripts.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
-MINE = Task(shape="triangle", peg_mode="welded", clearance_m=0.0005, chamfer_m=0.0, grasp_force_n=50.0, pad_stiffness_nm_rad=40.0,
+MINE = Task(shape="triangle", peg_mode="welded", clearance_m=0.0005, chamfer_m=0.0, grasp_force_n=50.0,
+            pad_stiffness_nm_rad=40.0,
             hole_depth_m=0.05, perturbations=PerturbationRanges(0.002, 0.5, 0.001, 0.3, 0.8, 0.6, 1.2, 0.001, 1.0, 0.5, 0.1,
                                                                      0.1, 0.3, 0.002, 3.0, 0.001, 0.4, 0.2),
             sensing=WristSensorConfig("wrist", 0.1, 0.005, 0.5, 0.02, 200.0),

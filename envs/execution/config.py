@@ -72,8 +72,8 @@ class EvaluationConfig:
 
     The scene is the demos' (the checkpoint's or demo file's recorded scene; envs.execution.evaluate.scene_config_for)
     but for the task's shape, when set, and the task's fields named in ``scene_from_task``; the finger pads, the
-    perturbations, force and time limits, success tolerances and start range are the task's. The task the episodes ran, resolved against
-    the demos' scene, is in the result (`EvaluationResult.task`).
+    perturbations, force and time limits, success tolerances and start range are the task's. The task the episodes
+    ran, resolved against the demos' scene, is in the result (`EvaluationResult.task`).
 
     Attributes:
         episodes: number of perturbed starts K.

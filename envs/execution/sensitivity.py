@@ -57,10 +57,19 @@ def with_imperfection(task: Task, name: str) -> Task:
     Raises:
         EnvError: an unknown name.
     """
+    return task.override(**imperfection_settings(name))
+
+
+def imperfection_settings(name: str) -> dict[str, Any]:
+    """The task fields of the imperfection ``name`` (IMPERFECTIONS or ALTERNATIVES; a copy).
+
+    Raises:
+        EnvError: an unknown name.
+    """
     settings = IMPERFECTIONS.get(name, ALTERNATIVES.get(name))
     if settings is None:
         raise EnvError(f"unknown imperfection {name!r}; choose from {', '.join([*IMPERFECTIONS, *ALTERNATIVES])}")
-    return task.override(**settings)
+    return dict(settings)
 
 
 def realistic(task: Task) -> Task:
@@ -138,8 +147,7 @@ def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig,
         from envs.execution.evaluate import evaluate
     variants: list[tuple[str, dict[str, Any], Task]] = [("ideal", {}, config.task)]
     for name in names:
-        task = with_imperfection(config.task, name)
-        variants.append((name, dict(IMPERFECTIONS.get(name, ALTERNATIVES.get(name, {}))), task))
+        variants.append((name, imperfection_settings(name), with_imperfection(config.task, name)))
     cell = [name for name in names if name in IMPERFECTIONS]
     if len(cell) > 1:
         combined = {k: v for name in cell for k, v in IMPERFECTIONS[name].items()}
