@@ -22,7 +22,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from batch.config import BatchConfig
 from batch.errors import BatchError
-from batch.supervision import Fault, Init, Schedule, Work, error_reason
+from batch.supervision import Fault, Init, Schedule, Work, error_reason, unit_limit_s
 
 
 @contextlib.contextmanager
@@ -62,14 +62,14 @@ def _worker_main(conn: Connection, setup: Any, init: Init, work: Work) -> None:
 @dataclass
 class _Worker:
     """A spawned worker process: its slot and number (in start order, from 1), its pipe, the unit it is
-    running (key, unit, start time) and whether it was asked to end."""
+    running (key, unit, start time, wall-time limit or None) and whether it was asked to end."""
 
     slot: int
     number: int
     process: Any
     conn: Connection
     ready: bool = False
-    unit: tuple[str, Any, float] | None = None
+    unit: tuple[str, Any, float, float | None] | None = None
     retired: bool = False
 
     def where(self) -> dict[str, Any]:
@@ -134,7 +134,7 @@ def run_in_processes(schedule: Schedule, setup: Any, init: Init, work: Work, con
             for w in workers:
                 if w.ready and not w.retired and w.unit is None and schedule.remaining:
                     key, unit = schedule.take()
-                    w.unit = (key, unit, time.monotonic())
+                    w.unit = (key, unit, time.monotonic(), unit_limit_s(unit, config.unit_timeout_s))
                     w.conn.send((key, unit))
                 elif not schedule.remaining:
                     w.retire()  # nothing left for it: its shutdown overlaps the units still running
@@ -148,9 +148,9 @@ def _wait_for_any(workers: Sequence[_Worker], unit_timeout_s: float | None) -> N
     """Wait until a worker answers or ends, or the earliest running unit reaches the wall-time limit."""
     timeout = None
     if unit_timeout_s is not None:
-        started = [w.unit[2] for w in workers if w.unit is not None]
-        if started:
-            timeout = max(0.0, min(started) + unit_timeout_s - time.monotonic())
+        deadlines = [w.unit[2] + w.unit[3] for w in workers if w.unit is not None and w.unit[3] is not None]
+        if deadlines:
+            timeout = max(0.0, min(deadlines) - time.monotonic())
     wait([w.conn for w in workers] + [w.process.sentinel for w in workers], timeout)
 
 
@@ -184,7 +184,7 @@ def _serve(w: _Worker, schedule: Schedule, unit_timeout_s: float | None,
             return [spawn(w.slot)] if schedule.start_lost(w.slot, w.where()) else []
         running = None if w.unit is None else w.unit[:2]
         return [spawn(w.slot)] if schedule.worker_lost(running, w.where()) else []
-    if w.unit is not None and unit_timeout_s is not None and time.monotonic() - w.unit[2] > unit_timeout_s:
+    if w.unit is not None and w.unit[3] is not None and time.monotonic() - w.unit[2] > w.unit[3]:
         w.kill()
         schedule.timed_out(*w.unit[:2])
         return [spawn(w.slot)] if schedule.remaining else []

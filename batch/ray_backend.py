@@ -32,7 +32,7 @@ from typing import Any, Iterator
 
 from batch.config import BatchConfig
 from batch.errors import BatchError
-from batch.supervision import Fault, Init, Schedule, Work, error_reason
+from batch.supervision import Fault, Init, Schedule, Work, error_reason, unit_limit_s
 
 POLL_S = 1.0
 """Longest single wait on Ray (Ctrl-C and the head's health are looked at between waits)."""
@@ -256,8 +256,8 @@ class _Stream:
         limit = self.config.unit_timeout_s
         timeout = POLL_S
         if limit is not None and self.running:
-            first = min(r.start for r in self.running.values())
-            timeout = min(timeout, max(0.0, first + limit - time.monotonic()))
+            first = min(r.start + unit_limit_s(r.unit, limit) for r in self.running.values())
+            timeout = min(timeout, max(0.0, first - time.monotonic()))
         refs = list(self.running) + list(self.starting)
         if refs:
             finished, _ = self.ray.wait(refs, num_returns=1, timeout=timeout)
@@ -271,7 +271,7 @@ class _Stream:
                 self.answered(ref)
         if limit is not None:
             now = time.monotonic()
-            for ref in [r for r, run in self.running.items() if now - run.start > limit]:
+            for ref in [r for r, run in self.running.items() if now - run.start > unit_limit_s(run.unit, limit)]:
                 run = self.running.pop(ref)
                 self.kill(run.actor)
                 self.schedule.timed_out(run.key, run.unit)

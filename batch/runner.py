@@ -38,7 +38,7 @@ from batch.errors import BatchError
 from batch.journal import Journal, as_json
 from batch.processes import run_in_processes
 from batch.ray_backend import run_on_ray
-from batch.supervision import Failure, Fault, Init, Schedule, Work, error_reason
+from batch.supervision import Failure, Fault, GroupWork, Init, Schedule, UnitGroup, Work, error_reason, unit_limit_s
 
 
 @dataclass
@@ -68,7 +68,8 @@ class BatchOutcome:
 
 def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Work, failure: Failure,
               config: BatchConfig = BatchConfig(), journal: Journal | None = None,
-              on_record: Callable[[str, dict], None] | None = None) -> BatchOutcome:
+              on_record: Callable[[str, dict], None] | None = None, group_size: int = 1,
+              work_group: GroupWork | None = None) -> BatchOutcome:
     """Run every unit not yet in ``journal`` and collect one record per unit (module docstring).
 
     Args:
@@ -80,6 +81,10 @@ def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Wo
         config: workers, wall-time limit, retries, backend.
         journal: finished units are skipped and new records appended as they finish.
         on_record: called in this process with (key, record) for each new record.
+        group_size: with ``work_group``, the units still to run go to the workers in groups of up to this many
+            consecutive units (`batch.supervision.UnitGroup`), and ``work_group(context, [unit, ...])`` returns
+            their records in order in one call; each unit keeps its key, record, journal entry and tries.
+        work_group: module-level function (context, units) -> list of JSON-able records, one per unit.
 
     Returns:
         BatchOutcome.
@@ -90,8 +95,13 @@ def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Wo
     keys = [str(key) for key, _ in units]
     if len(set(keys)) != len(keys):
         raise BatchError("unit keys must be unique")
+    if isinstance(group_size, bool) or not isinstance(group_size, int) or group_size < 1:
+        raise BatchError(f"group_size={group_size!r} must be an integer >= 1")
     done = journal.done() if journal is not None else {}
-    todo = [(str(key), unit) for key, unit in units if str(key) not in done]
+    todo: list[tuple[str, Any]] = [(str(key), unit) for key, unit in units if str(key) not in done]
+    if work_group is not None and group_size > 1:
+        todo = [(g.key, g) for g in unit_groups(todo, group_size, config.workers)]
+        work = _Dispatch(work, work_group)
     found: dict[str, dict] = {k: done[k] for k in keys if k in done}
     lost: dict[str, dict] = {}
     events: list[dict[str, Any]] = journal.events() if journal is not None else []
@@ -139,6 +149,34 @@ def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Wo
     return BatchOutcome(records, complete=len(records) == len(keys), interrupted=interrupted,
                         infrastructure_errors={k: lost[k] for k in keys if k in lost}, events=events,
                         workers=schedule.workers, fault=fault)
+
+
+def unit_groups(todo: Sequence[tuple[str, Any]], group_size: int, workers: int) -> list[UnitGroup]:
+    """The units in consecutive groups of at most ``group_size``, smaller toward the end (guided scheduling: each
+    group at most the units left over twice the workers), so that the last groups the workers take are short and
+    none waits long for another's."""
+    groups, i = [], 0
+    while i < len(todo):
+        size = max(1, min(group_size, -(-(len(todo) - i) // (2 * max(1, workers)))))
+        groups.append(UnitGroup(tuple(todo[i:i + size])))
+        i += size
+    return groups
+
+
+class _Dispatch:
+    """The work of a batch with unit groups: a `UnitGroup` to the group work ({member key: record}), any other unit
+    to the unit's work. Module-level and holding module-level functions, so it pickles to a spawned worker."""
+
+    def __init__(self, work: Work, work_group: GroupWork):
+        self.work, self.work_group = work, work_group
+
+    def __call__(self, context: Any, unit: Any) -> Any:
+        if not isinstance(unit, UnitGroup):
+            return self.work(context, unit)
+        records = self.work_group(context, [member for _, member in unit.members])
+        if len(records) != len(unit.members):
+            raise BatchError(f"the group work returned {len(records)} records for {len(unit.members)} units")
+        return {key: record for (key, _), record in zip(unit.members, records)}
 
 
 class _Interrupts:
@@ -213,7 +251,7 @@ def _run_here(schedule: Schedule, setup: Any, init: Init, work: Work, timeout_s:
     while schedule.remaining:
         key, unit = schedule.take()
         try:
-            with _alarm(timeout_s):
+            with _alarm(unit_limit_s(unit, timeout_s)):
                 rec = work(context, unit)
         except WallTimeout:
             schedule.timed_out(key, unit)

@@ -14,6 +14,7 @@ number, pid, exit code; Ray actor, node, ip), what it ran, what became of the un
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from datetime import datetime, timezone
 import time
 from typing import Any, Callable, Sequence
@@ -24,7 +25,32 @@ INFRASTRUCTURE = "infrastructure"
 
 Init = Callable[[Any], Any]
 Work = Callable[[Any, Any], dict]
+GroupWork = Callable[[Any, list], list]
 Failure = Callable[[str, Any, str], dict]
+
+
+@dataclass(frozen=True)
+class UnitGroup:
+    """Units run by one call of the batch's group work (`batch.runner.run_batch` with ``group_size``; e.g. episodes
+    in lockstep), each keeping its own key and record: the group's answer is {member key: record}. The group's
+    wall-time limit is the units' limit times its size; a group over it is split and its members run again one by
+    one under the units' own limit, so a unit that hangs is the only one recorded "wall_timeout". A group whose
+    worker is lost runs again as a whole, and after its last try each member is an infrastructure error."""
+
+    members: tuple[tuple[str, Any], ...]
+
+    @property
+    def key(self) -> str:
+        """The group's key in events and tries: its first and last member's."""
+        first, last = self.members[0][0], self.members[-1][0]
+        return f"group {first}" if first == last else f"group {first}..{last}"
+
+
+def unit_limit_s(unit: Any, unit_timeout_s: float | None) -> float | None:
+    """The wall-time limit of ``unit``: ``unit_timeout_s``, times the members of a `UnitGroup`."""
+    if unit_timeout_s is None or not isinstance(unit, UnitGroup):
+        return unit_timeout_s
+    return unit_timeout_s * len(unit.members)
 
 
 class Fault(Exception):
@@ -95,11 +121,27 @@ class Schedule:
         return key, unit
 
     def finished(self, key: str, unit: Any, kind: str, payload: Any) -> None:
-        """A worker answered: ("done", record) or ("error", reason)."""
-        self._record(key, payload if kind == "done" else self._failure(key, unit, payload))
+        """A worker answered: ("done", record) or ("error", reason); for a `UnitGroup` ("done", {key: record}) or
+        ("error", reason), which is every member's."""
+        if not isinstance(unit, UnitGroup):
+            self._record(key, payload if kind == "done" else self._failure(key, unit, payload))
+            return
+        for member_key, member in unit.members:
+            if kind == "done" and isinstance(payload, dict) and member_key in payload:
+                self._record(member_key, payload[member_key])
+            else:
+                reason = payload if kind != "done" else f"error: the group's work returned no record of {member_key}"
+                self._record(member_key, self._failure(member_key, member, reason))
 
     def timed_out(self, key: str, unit: Any) -> None:
-        """The unit ran over the wall-time limit (its worker is killed): an outcome, "wall_timeout"."""
+        """The unit ran over the wall-time limit (its worker is killed): an outcome, "wall_timeout". A group of
+        several units is split instead: its members run again one by one (`UnitGroup`)."""
+        if isinstance(unit, UnitGroup) and len(unit.members) > 1:
+            self._queue.extend(reversed(unit.members))  # next, in their order
+            self.note("group_split", {}, f"{key} ran over its wall-time limit; its units run again one by one")
+            return
+        if isinstance(unit, UnitGroup):
+            key, unit = unit.members[0]
         self._record(key, self._failure(key, unit, WALL_TIMEOUT))
 
     def worker_lost(self, running: tuple[str, Any] | None, where: dict[str, Any], detail: str = "") -> bool:
@@ -117,7 +159,9 @@ class Schedule:
                 self._queue.append((key, unit))
                 action = "retried"
             else:
-                self._give_up(key, self._failure(key, unit, infrastructure_reason(tries)))
+                members = unit.members if isinstance(unit, UnitGroup) else ((key, unit),)
+                for member_key, member in members:
+                    self._give_up(member_key, self._failure(member_key, member, infrastructure_reason(tries)))
                 action = "given_up"
             event = {"unit": key, "tries": tries, "max_tries": self._max_tries, "unit_action": action}
         replace = self.remaining > 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import mujoco
 import numpy as np
 import numpy.typing as npt
@@ -20,7 +21,7 @@ def as_vector(value: npt.ArrayLike, size: int, name: str) -> npt.NDArray[np.floa
         vector = np.array(value, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError) as error:
         raise ControllerError(f"{name} must be a numeric vector of length {size}") from error
-    if vector.shape != (size,) or not np.all(np.isfinite(vector)):
+    if vector.shape != (size,) or not all(map(math.isfinite, vector.tolist())):
         raise ControllerError(f"{name} must be a finite vector of length {size}, got shape {np.shape(value)}")
     return vector
 

@@ -30,7 +30,7 @@ offset along its axis and its in-hand pose error, then the grasp settles for
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import mujoco
@@ -77,6 +77,30 @@ def _block(indices: Sequence[int]) -> slice:
     if list(indices) != list(range(first, first + len(indices))):
         raise EnvError(f"arm dof addresses {list(indices)} are not one consecutive block")
     return slice(first, first + len(indices))
+
+
+@dataclass
+class PeriodCommand:
+    """One control period between `PegInHoleEnv.prepare_period` and `PegInHoleEnv.finish_period`.
+
+    Attributes:
+        pose: the commanded tcp pose.
+        stiffness: the checked 6x6 stiffness, or None (the controller's default).
+        q_ref: the nullspace reference of the period.
+        arguments: the compiled period's arguments (envs.period_kernel), None for a controller other than the
+            impedance controller.
+        ran: physics steps completed; status: the control law's status; limit_hit: the force limit hit.
+        problem: why the controller failed ("controller failed (...)"), else None.
+    """
+
+    pose: Pose
+    stiffness: FloatArray | None
+    q_ref: FloatArray
+    arguments: tuple | None = None
+    ran: int = 0
+    status: int = STATUS_OK
+    limit_hit: bool = False
+    problem: str | None = None
 
 
 class PegInHoleEnv:
@@ -359,6 +383,18 @@ class PegInHoleEnv:
         Raises:
             EnvError: a malformed target or stiffness, or stepping an episode that has ended.
         """
+        period = self.prepare_period(target, stiffness)
+        self.run_period(period)
+        return self.finish_period(period)
+
+    def prepare_period(self, target: Pose | Sequence[npt.ArrayLike],
+                       stiffness: npt.ArrayLike | None = None) -> PeriodCommand:
+        """The first part of `step`: check the command, advance the nullspace reference and start the period's
+        sensing and torque noise; the physics follows in `run_period`, the scoring in `finish_period`.
+
+        Raises:
+            EnvError: a malformed target or stiffness, or stepping an episode that has ended.
+        """
         if self._done:
             raise EnvError(f"the episode has ended ({self._reason}); call reset() first")
         pose = self._as_pose(target, "target pose")
@@ -373,18 +409,50 @@ class PegInHoleEnv:
             self.nullspace.reset(self.data.qpos[self._arm_qpos])
             q_ref = self.nullspace.q
             self.nullspace_failures += 1
-        problem: str | None = None
-        force_limited = False
         self.sensing.start_period(self._steps * self.control_period_s)
         self.actuator_noise.start_period()
+        period = PeriodCommand(pose, stiffness, q_ref)
+        controller = self.controller
+        if isinstance(controller, CartesianImpedanceController):
+            try:
+                period.arguments = (controller.substep_arguments(self.data, pose.pos, pose.quat, stiffness, q_ref)
+                                    + self.sensing.period_arguments())
+            except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
+                period.problem = f"controller failed ({type(err).__name__}: {err})"
+        return period
+
+    def run_period(self, period: PeriodCommand) -> None:
+        """The physics of a prepared period (`prepare_period`): its physics steps toward the command, each followed by
+        the sensing; the outcome is stored in ``period``. With the impedance controller this is one compiled call
+        (envs.period_kernel) that touches this episode's MjData and buffers only and releases the GIL, so the periods
+        of several episodes may run on threads at once (envs.execution.lockstep); any other Controller runs its
+        ``step`` with the sensing hook."""
+        if period.problem is not None:
+            return
         try:
             with np.errstate(all="ignore"):
-                ran = self._run_period(pose, stiffness, q_ref)
-            force_limited = ran < self.n_substeps or self.stats.force_limit_time_s is not None  # also on the last substep
+                if period.arguments is None:
+                    period.ran = self.controller.step(self.data, period.pose.pos, period.pose.quat, period.stiffness,
+                                                      period.q_ref, self.n_substeps, after_substep=self._sense)
+                else:
+                    ran, status, limit_hit = controlled_period(self.n_substeps, *period.arguments)
+                    period.ran, period.status, period.limit_hit = int(ran), int(status), bool(limit_hit)
         except (np.linalg.LinAlgError, ControllerError, FloatingPointError) as err:
-            problem = f"controller failed ({type(err).__name__}: {err})"
-        finally:
-            self.sensing.copy_peaks()
+            period.problem = f"controller failed ({type(err).__name__}: {err})"
+
+    def finish_period(self, period: PeriodCommand) -> StepResult:
+        """The last part of `step`: the period's sensing peaks, the instability check, the observation and
+        success check and the end of the episode (module docstring)."""
+        problem = period.problem
+        force_limited = False
+        if problem is None and period.arguments is not None:
+            self.sensing.after_period(period.limit_hit)
+            if period.status != STATUS_OK:
+                problem = ("controller failed (ControllerError: J M^-1 J^T is not positive definite (Cholesky "
+                           "failed); the arm is singular)")
+        if problem is None:
+            force_limited = period.ran < self.n_substeps or self.stats.force_limit_time_s is not None
+        self.sensing.copy_peaks()
         self._steps += 1
         problem = problem or self._instability()
         obs = self._observe(track=problem is None and not force_limited)
@@ -401,28 +469,7 @@ class PegInHoleEnv:
         if reason is not None:
             self._done, self._reason = True, reason
         return StepResult(obs=obs, done=reason is not None, reason=reason,
-                          info={"target": pose, "q_ref": q_ref, "step": self._steps})
-
-    def _run_period(self, pose: Pose, stiffness: FloatArray | None, q_ref: FloatArray) -> int:
-        """The period's physics steps toward ``pose``, each followed by the sensing; the number completed.
-
-        The impedance controller runs them in one compiled call (envs.period_kernel: the same kernels as its
-        ``step`` with the `_sense` hook, without Python between physics steps); any other Controller through its
-        ``step`` with the hook.
-
-        Raises:
-            ControllerError: the controller failed (bad command, singular arm).
-        """
-        controller = self.controller
-        if not isinstance(controller, CartesianImpedanceController):
-            return controller.step(self.data, pose.pos, pose.quat, stiffness, q_ref, self.n_substeps,
-                                   after_substep=self._sense)
-        arguments = controller.substep_arguments(self.data, pose.pos, pose.quat, stiffness, q_ref)
-        ran, status, limit_hit = controlled_period(self.n_substeps, *arguments, *self.sensing.period_arguments())
-        self.sensing.after_period(limit_hit)
-        if status != STATUS_OK:
-            raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed); the arm is singular")
-        return int(ran)
+                          info={"target": period.pose, "q_ref": period.q_ref, "step": self._steps})
 
     def _sense(self) -> bool:
         """The hook after every physics step (envs.sensing.EpisodeSensing.substep: peaks, force window, force limit);

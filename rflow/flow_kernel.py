@@ -129,6 +129,16 @@ def flow_step(x, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_fir
                clamp, n_extra, relu)
 
 
+@_jit
+def flow_steps(xs, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_first, b_first, w_hidden, b_hidden,
+               w_out, b_out, clamp, n_extra, relu):
+    """`flow_step` on every row of xs (B, D) in place, one row after the other: the closed-loop steps of a batch of
+    episodes with the arithmetic of one (envs.execution.lockstep), in one call."""
+    for r in range(xs.shape[0]):
+        flow_step(xs[r], phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_first, b_first, w_hidden,
+                  b_hidden, w_out, b_out, clamp, n_extra, relu)
+
+
 BLOCK_POINTS = 128
 """Points per block of `flow_pass`, a compile-time constant (the last block is padded): the inner loops run across a
 block's points with a known trip count, so the compiler vectorises and unrolls them (AVX2: 4 doubles per

@@ -178,6 +178,12 @@ class NumpyImitationFlow:
         flow_kernel.flow_step(x, phi_t, self.offset, self._hid, self._latent, *self._weights)
         return x.copy()
 
+    def step_rows(self, xs: np.ndarray, dt: float | None = None) -> None:
+        """`step_single` of every row of xs (B, D), C-contiguous float64, in place and in one compiled call: each
+        row's result equals its own `step_single` to the last bit."""
+        phi_t = self.step_matrix(self.dt if dt is None else dt)
+        flow_kernel.flow_steps(xs, phi_t, self.offset, self._hid, self._latent, *self._weights)
+
 
 class TangentChart:
     """Log_g / Exp_g at a fixed goal with few numpy calls (the control-loop path), equal to the batched

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rflow.arrays import Array, as_float, concat, stack
+from rflow.arrays import Array, as_float, concat, is_torch, stack
 from rflow.errors import RFlowError
 
 FloatArray = npt.NDArray[np.float64]
@@ -88,6 +88,9 @@ def quat_mul(a: Array, b: Array) -> Array:
     numpy input (or anything array-like) gives a float64 numpy array; torch tensors give a tensor (and keep
     their autograd graph).
     """
+    if type(a) is np.ndarray and type(b) is np.ndarray and a.shape == b.shape == (4,) \
+            and a.dtype == b.dtype == np.float64:  # one pair (the control loop's): Python floats, the same rounding
+        return np.array(hamilton(*a.tolist(), *b.tolist()))
     a, b = as_float(a), as_float(b)
     return stack(list(hamilton(a[..., 0], a[..., 1], a[..., 2], a[..., 3],
                                b[..., 0], b[..., 1], b[..., 2], b[..., 3])), a)
@@ -95,6 +98,9 @@ def quat_mul(a: Array, b: Array) -> Array:
 
 def quat_conj(q: Array) -> Array:
     """Conjugate w - u of quaternions (..., 4): the inverse of a unit quaternion."""
+    if type(q) is np.ndarray and q.shape == (4,) and q.dtype == np.float64:  # one quaternion: no concatenate
+        w, x, y, z = q.tolist()
+        return np.array([w, -x, -y, -z])
     q = as_float(q)
     return concat([q[..., :1], -q[..., 1:]], q)
 
@@ -183,6 +189,10 @@ def slerp(q0: npt.ArrayLike, q1: npt.ArrayLike, s: npt.ArrayLike) -> FloatArray:
 def rotate(quat: npt.ArrayLike, vec: npt.ArrayLike) -> FloatArray:
     """Rotate vector(s) by unit quaternion(s): q * (0, v) * conj(q)."""
     v = np.asarray(vec, dtype=float)
+    q = quat if is_torch(quat) else np.asarray(quat, dtype=float)
+    if v.shape == (3,) and q.shape == (4,) and not is_torch(q):  # one vector and one quaternion: the same products in Python floats
+        w, x, y, z = q.tolist()
+        return np.array(hamilton(*hamilton(w, x, y, z, 0.0, *v.tolist()), w, -x, -y, -z)[1:])
     qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
     return quat_mul(quat_mul(quat, qv), quat_conj(quat))[..., 1:]
 

@@ -131,7 +131,8 @@ def episode_physics_rate(env: PegInHoleEnv, states: list[np.ndarray]) -> float:
 
 
 def bench_evaluation(quick: bool, model: Path | None = None) -> dict[str, Any]:
-    """A closed-loop evaluation of the skill (10 episodes with --quick) on all local cores: episodes/s."""
+    """A closed-loop evaluation of the skill (10 episodes with --quick) on all local cores, episodes/s, with the
+    default lockstep batches and again one episode at a time (``lockstep=1``; same records)."""
     if model is None:
         return {"skipped": "no trained skill (--model)"}
     from envs.execution.evaluate import EvaluationConfig, evaluate
@@ -140,12 +141,71 @@ def bench_evaluation(quick: bool, model: Path | None = None) -> dict[str, Any]:
     start = time.perf_counter()
     result = evaluate(model, config, progress=False)
     wall = time.perf_counter() - start
+    start = time.perf_counter()
+    alone = evaluate(model, dataclasses.replace(config, lockstep=1), progress=False)
+    wall_alone = time.perf_counter() - start
+    same = [r.to_dict() | {"wall_s": 0} for r in alone.records] == [r.to_dict() | {"wall_s": 0} for r in result.records]
     successes = sum(int(r.success) for r in result.records)
     env = PegInHoleEnv()
     settle = int(round(env.config.grasp_settle_s / float(env.model.opt.timestep)))
     physics_steps = sum(r.steps * env.n_substeps + settle for r in result.records)
-    return {"episodes": config.episodes, "workers": config.workers, "wall_s": wall,
-            "episodes_per_s": config.episodes / wall, "successes": successes, "physics_steps": physics_steps}
+    return {"episodes": config.episodes, "workers": config.workers, "lockstep": config.lockstep, "wall_s": wall,
+            "episodes_per_s": config.episodes / wall, "successes": successes, "physics_steps": physics_steps,
+            "wall_s_one_at_a_time": wall_alone, "records_equal_one_at_a_time": same}
+
+
+LOCKSTEP_SLOTS: tuple[int, ...] = (1, 8, 32, 128)
+"""Episodes per lockstep batch timed by `bench_lockstep` (--quick: the first two)."""
+
+
+def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
+    """Episodes in lockstep (envs.execution.lockstep) against their own bare physics, one core.
+
+    The same evaluation starts (128; 16 with --quick) run one at a time (`run_episode`, today's loop) and in lockstep
+    with K = LOCKSTEP_SLOTS slots on one thread, and with K = 32 (8 with --quick) on two threads. Their physics is
+    timed apart: bare mj_step from every control period's state of every episode (`episode_physics_rate` after each
+    episode, in that episode's model), the least time the episodes need on one core. Each figure's
+    "ratio_to_physics" is that time over its wall time (1.0: no cost beyond the physics; above 1 only with threads).
+    The records of every variant equal the one-at-a-time ones ("records_equal")."""
+    if model is None:
+        return {"skipped": "no trained skill (--model)"}
+    from envs.execution.episode import run_episode
+    from envs.execution.evaluate import EvaluationConfig, build_slots
+    from envs.execution.lockstep import run_lockstep
+    from envs.execution.starts import evaluation_starts
+
+    sizes = LOCKSTEP_SLOTS[:2] if quick else LOCKSTEP_SLOTS
+    config = EvaluationConfig(episodes=16 if quick else max(sizes))
+    skill, envs, policies = build_slots(model, config, max(sizes))
+    starts = evaluation_starts(skill.metadata["demo_starts"], config)
+    env, policy = envs[0], policies[0]
+    physics_s, periods = 0.0, 0
+    for start in starts:
+        states: list[np.ndarray] = []
+        record, _ = run_episode(env, policy, start, feedforward_gain=config.feedforward_gain,
+                                on_step=lambda e: states.append(physics_state(e.model, e.data)))
+        periods += record.steps
+        physics_s += len(states) * env.n_substeps / episode_physics_rate(env, states)
+
+    def strip(records: list[Any]) -> list[dict[str, Any]]:
+        return [{k: v for k, v in r.to_dict().items() if k != "wall_s"} for r in records]
+
+    wall = time.perf_counter()
+    reference = strip([run_episode(env, policy, s, feedforward_gain=config.feedforward_gain)[0] for s in starts])
+    one_at_a_time = time.perf_counter() - wall
+    figures: dict[str, Any] = {"episodes": len(starts), "periods": periods, "physics_s": physics_s,
+                               "one_at_a_time": {"wall_s": one_at_a_time, "ratio_to_physics": physics_s / one_at_a_time}}
+    equal = True
+    for slots, threads in [(k, 1) for k in sizes] + [(8 if quick else 32, 2)]:
+        wall = time.perf_counter()
+        records = run_lockstep(envs[:slots], policies[:slots], starts, config.feedforward_gain, threads=threads)
+        elapsed = time.perf_counter() - wall
+        equal = equal and strip(records) == reference
+        figures[f"slots_{slots}" + ("" if threads == 1 else f"_threads_{threads}")] = {
+            "wall_s": elapsed, "ratio_to_physics": physics_s / elapsed, "periods_per_s": periods / elapsed,
+            "speedup_over_one_at_a_time": one_at_a_time / elapsed}
+    figures["records_equal"] = equal
+    return figures
 
 
 def bench_render(quick: bool) -> dict[str, Any]:
@@ -199,8 +259,9 @@ BENCHMARKS: list[Benchmark] = [
     ("evaluation", bench_evaluation),
     ("render", bench_render),
     ("ik", bench_ik),
+    ("lockstep", bench_lockstep),
 ]
-NEEDS_MODEL: frozenset[str] = frozenset({"episode_steps", "evaluation"})
+NEEDS_MODEL: frozenset[str] = frozenset({"episode_steps", "evaluation", "lockstep"})
 """Benchmarks called with the trained skill (function(quick, model))."""
 
 RATE_FIGURES: dict[str, str] = {

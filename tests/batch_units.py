@@ -96,3 +96,8 @@ def failure(key: str, unit: dict[str, Any], reason: str) -> dict[str, Any]:
 def units(n: int, special: dict[int, dict[str, Any]] | None = None) -> list[tuple[str, dict[str, Any]]]:
     """n units keyed "u000".. with ``special`` payload changes by index."""
     return [(f"u{i:03d}", {"n": i, **(special or {}).get(i, {})}) for i in range(n)]
+
+
+def work_group(context: dict[str, Any], members: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The records of a group of units, each as `work` makes it, marked as run in a group of this size."""
+    return [{**work(context, unit), "group": len(members)} for unit in members]

@@ -61,6 +61,12 @@ class StiffnessSetting:
             raise EnvError("stiffness 'learned' needs a skill trained with `pih train --stiffness ...`")
 
 
+DEFAULT_LOCKSTEP = 8
+"""Episodes a worker runs in lockstep by default (`EvaluationConfig.lockstep`)."""
+MAX_LOCKSTEP = 256
+"""At most this many (each slot holds an environment of its own, a few MB)."""
+
+
 SCENE_FROM_TASK: tuple[str, ...] = ("peg_mode", "clearance_m", "chamfer_m", "grasp_force_n")
 """The scene fields an evaluation may take from its task instead of the demos' (`EvaluationConfig.scene_from_task`);
 the hole depth and the goal are always the demos': a skill is evaluated at the depth it was taught."""
@@ -97,6 +103,8 @@ class EvaluationConfig:
             None: the controller's default), see envs.execution.policy.StiffnessSetting.
         contact_adaptation: closed loop: adapt to the contact near the hole (axial push, frame shift, rotational
             compliance; envs.execution.adaptation); False runs the bare learned flow (the ablation).
+        lockstep: episodes a worker runs side by side, one control period at a time for all
+            (envs.execution.lockstep); the records do not depend on it, only the wall time does.
     """
 
     episodes: int = 100
@@ -114,6 +122,7 @@ class EvaluationConfig:
     ray_address: str | None = None
     stiffness: str | None = None
     contact_adaptation: bool = True
+    lockstep: int = DEFAULT_LOCKSTEP
 
     def __post_init__(self) -> None:
         if not isinstance(self.episodes, int) or self.episodes < 1:
@@ -134,6 +143,8 @@ class EvaluationConfig:
                            "demos' scene")
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
+        if isinstance(self.lockstep, bool) or not isinstance(self.lockstep, int) or not 1 <= self.lockstep <= MAX_LOCKSTEP:
+            raise EnvError(f"lockstep={self.lockstep!r} must be an integer from 1 to {MAX_LOCKSTEP}")
         try:
             self.batch_config()
         except BatchError as err:

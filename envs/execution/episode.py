@@ -196,43 +196,137 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
     Returns:
         (EpisodeRecord, EpisodeTrace or None).
     """
-    wall = time.perf_counter()
-    rec = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
-                        perturbation=start.perturbation.to_dict())
-    rows: list[tuple[Any, Pose]] = []  # (observation, commanded tcp pose) of every row
-    commanded: list[FloatArray] = []  # translational stiffness of every step
-    try:
+    run = EpisodeRun(env, policy, start, record_trace, on_step, feedforward_gain, privileged)
+    run.begin()
+    while run.running:
+        period = run.command(run.act())
+        if period is not None:
+            env.run_period(period)
+            run.complete(period)
+    return run.finish()
+
+
+class EpisodeRun:
+    """One episode as the steps of its control periods, so that a loop can interleave many episodes
+    (envs.execution.lockstep) while each runs exactly the arithmetic of `run_episode`, which is this class run
+    alone: ``begin``; while ``running``: ``act`` (or an action from a batched policy), ``command`` -> a prepared
+    period, the env's ``run_period``, ``complete``; then ``finish``. Any exception inside ends the episode as
+    "error: ..." (never raised)."""
+
+    def __init__(self, env: Any, policy: Policy, start: StartPose, record_trace: bool = False,
+                 on_step: Callable[[Any], None] | None = None, feedforward_gain: float = 1.0,
+                 privileged: bool = False):
+        self.env = env
+        self.policy = policy
+        self.start = start
+        self.record_trace = record_trace
+        self.on_step = on_step
+        self.gain = feedforward_gain
+        self.privileged = privileged
+        self.record = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
+                                    perturbation=start.perturbation.to_dict())
+        self.running = False
+        self._wall = time.perf_counter()
+        self._rows: list[tuple[Any, Pose]] = []  # (observation, commanded tcp pose) of every row
+        self._commanded: list[FloatArray] = []  # translational stiffness of every step
+        self._progress: ProgressWindow | None = None
+        self._default_k: FloatArray | None = None
+        self._action: Action | None = None
+        self._target: Pose | None = None
+        self._steps = 0
+        self._finished = False
+
+    def begin(self) -> bool:
+        """Reset the env at the start and the policy at its first observation; whether the episode runs (an
+        unreachable start or an error ends it here)."""
+        env, rec = self.env, self.record
         try:
-            obs = env.reset(start_pose=start.pose, perturbation=start.perturbation)
-        except EnvError as err:
-            rec.reason, rec.failure = f"unreachable start: {err}", "unreachable_start"
-            return rec, None
-        period = env.control_period_s
-        policy.reset(observe(env, privileged), period)
-        rows.append((obs, obs.tcp))
-        progress = ProgressWindow(period)
-        _add_progress(progress, obs)
-        if on_step is not None:
-            on_step(env)
-        step = 0
-        result = None
-        default_k = env.controller.config.translational_stiffness * np.eye(3)
-        while not env.done:
-            action = policy.act(observe(env, privileged))
+            try:
+                obs = env.reset(start_pose=self.start.pose, perturbation=self.start.perturbation)
+            except EnvError as err:
+                rec.reason, rec.failure = f"unreachable start: {err}", "unreachable_start"
+                self._finished = True
+                return False
+            period = env.control_period_s
+            self.policy.reset(observe(env, self.privileged), period)
+            self._rows.append((obs, obs.tcp))
+            self._progress = ProgressWindow(period)
+            _add_progress(self._progress, obs)
+            if self.on_step is not None:
+                self.on_step(env)
+            self._default_k = env.controller.config.translational_stiffness * np.eye(3)
+            self.running = not env.done
+        except Exception as err:  # an episode must never abort the batch
+            self._fail(err)
+        return self.running
+
+    def observation(self) -> Any:
+        """What the policy sees now (`policy_protocol.observe`)."""
+        return observe(self.env, self.privileged)
+
+    def act(self) -> Any:
+        """The policy's action for the coming period (None after an error, which ended the episode)."""
+        try:
+            return self.policy.act(self.observation())
+        except Exception as err:
+            self._fail(err)
+            return None
+
+    def command(self, action: Any) -> Any:
+        """The env's prepared period (envs.env.PeriodCommand) of ``action``, its stiffness and feed-forward lead
+        (envs.execution.feedforward); None when the episode has ended (an error, a bad action)."""
+        if not self.running:
+            return None
+        env = self.env
+        try:
             if not isinstance(action, Action):
-                raise EnvError(f"{type(policy).__name__}.act returned a {type(action).__name__}, not an Action")
+                raise EnvError(f"{type(self.policy).__name__}.act returned a {type(action).__name__}, not an Action")
             stiffness = command_stiffness(env, action)
-            target = led_pose(env, action, feedforward_gain, stiffness)  # = feedforward_pose, stiffness made once
-            result = env.step(target, stiffness)
-            commanded.append(translational_stiffness(action, default_k))
-            _add_progress(progress, result.obs)
-            step += 1
-            if record_trace:
-                rows.append((result.obs, target))
-            if on_step is not None:
-                on_step(env)
+            target = led_pose(env, action, self.gain, stiffness)  # = feedforward_pose, stiffness made once
+            period = env.prepare_period(target, stiffness)
+        except Exception as err:
+            self._fail(err)
+            return None
+        self._action, self._target = action, target
+        return period
+
+    def complete(self, period: Any) -> None:
+        """Score the period the env ran (``env.finish_period``) and book it."""
+        env = self.env
+        try:
+            result = env.finish_period(period)
+            self._commanded.append(translational_stiffness(self._action, self._default_k))
+            _add_progress(self._progress, result.obs)
+            self._steps += 1
+            if self.record_trace:
+                self._rows.append((result.obs, self._target))
+            if self.on_step is not None:
+                self.on_step(env)
+            self.running = not env.done
+        except Exception as err:
+            self._fail(err)
+
+    def finish(self) -> tuple[EpisodeRecord, EpisodeTrace | None]:
+        """The episode's record (scored from the env's last observation) and trace."""
+        rec = self.record
+        if not self._finished:
+            self._finished = True
+            try:
+                self._score()
+            except Exception as err:
+                self._fail(err)
+        rec.wall_s = time.perf_counter() - self._wall
+        trace = None
+        rows, commanded = self._rows, self._commanded
+        if self.record_trace and rows:
+            k = np.stack(commanded[:1] + commanded) if commanded else np.full((len(rows), 3, 3), np.nan)
+            trace = _trace_of(rows, k[:len(rows)])
+        return rec, trace
+
+    def _score(self) -> None:
+        rec, env = self.record, self.env
+        rec.steps = self._steps
         obs = env.observation
-        rec.steps = step
         rec.success = bool(obs.success)
         ins = obs.insertion
         if rec.success:
@@ -243,7 +337,7 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
             rec.reason = (f"{reason} (depth {ins.depth_m * 1e3:.1f} mm, lateral {ins.lateral_m * 1e3:.2f} mm, "
                           f"tilt {ins.tilt_deg:.1f} deg, yaw {ins.yaw_error_deg:.1f} deg, "
                           f"speed {ins.speed_m_s * 1e3:.1f} mm/s, hole {obs.hole})")
-            rec.failure = progress.failure(reason)
+            rec.failure = self._progress.failure(reason)
         rec.final_pos = obs.peg_tip.pos.tolist()
         rec.final_quat = obs.peg_tip.quat.tolist()
         rec.final_pos_error_mm = norm(obs.peg_tip.pos - env.goal.pos) * 1e3
@@ -256,22 +350,20 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
         for key, value in env.stats.summary().items():
             setattr(rec, key, float("nan") if value is None else float(value))
         rec.touched = bool(rec.peak_contact_force_n > CONTACT_THRESHOLD_N)
-        if commanded:
-            eig = eigh_sym(np.stack(commanded))[0]
+        if self._commanded:
+            eig = eigh_sym(np.stack(self._commanded))[0]
             rec.min_stiffness_n_m, rec.max_stiffness_n_m = float(eig.min()), float(eig.max())
             rec.start_stiffness_eig_n_m, rec.final_stiffness_eig_n_m = eig[0].tolist(), eig[-1].tolist()
-    except Exception as err:  # an episode must never abort the batch
+
+    def _fail(self, err: BaseException) -> None:
+        """End the episode as "error: Type: message at file:line" (an episode must never abort the batch)."""
+        rec = self.record
         last = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         where = f" at {Path(last.filename).name}:{last.lineno}" if last else ""
         rec.success, rec.failure = False, "error"
         rec.reason = f"error: {type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}{where}"
-    finally:
-        rec.wall_s = time.perf_counter() - wall
-    trace = None
-    if record_trace and rows:
-        k = np.stack(commanded[:1] + commanded) if commanded else np.full((len(rows), 3, 3), np.nan)
-        trace = _trace_of(rows, k[:len(rows)])
-    return rec, trace
+        self.running = False
+        self._finished = True
 
 
 def _add_progress(progress: ProgressWindow, obs: Any) -> None:

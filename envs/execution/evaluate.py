@@ -135,26 +135,76 @@ def build_setup(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
 
     skill = load_skill(model_dir)
     env = build_env(skill.metadata, Pose(pos=skill.goal_pos, quat=skill.goal_quat), config)
+    return skill, env, _policy_for(skill, config)
+
+
+def build_slots(model_dir: str | os.PathLike[str], config: EvaluationConfig, slots: int) -> tuple[Any, list, list]:
+    """`build_setup` for ``slots`` episodes in lockstep (envs.execution.lockstep): one skill, and per slot an
+    environment of its own (its own MjModel and MjData) and a policy of its own on that skill.
+
+    Returns:
+        (skill, envs, policies).
+
+    Raises:
+        as `build_setup`.
+    """
+    skill, env, policy = build_setup(model_dir, config)
+    envs, policies = [env], [policy]
+    for _ in range(slots - 1):
+        envs.append(build_env(skill.metadata, Pose(pos=skill.goal_pos, quat=skill.goal_quat), config))
+        policies.append(_policy_for(skill, config))
+    return skill, envs, policies
+
+
+def _policy_for(skill: Any, config: EvaluationConfig) -> Any:
+    """The evaluation's policy on ``skill`` (mode, lookahead, stiffness, contact adaptation of ``config``)."""
     stiffness = None if config.stiffness is None else StiffnessSetting.parse(config.stiffness)
     adaptation = ContactAdaptation() if config.contact_adaptation else ContactAdaptation.off()
-    policy = make_policy(skill, config.mode, config.lookahead_s, config.task.time_limit_s, config.speed, stiffness,
-                         adaptation)
-    return skill, env, policy
+    return make_policy(skill, config.mode, config.lookahead_s, config.task.time_limit_s, config.speed, stiffness,
+                       adaptation)
 
 
 def _init_worker(setup: _Setup) -> dict[str, Any]:
-    """Worker context: the environment and policy of ``setup`` (torch on one thread per worker)."""
+    """Worker context: the environment and policy of ``setup`` (torch on one thread per worker), and how to make
+    more slots for episodes in lockstep."""
     import torch
 
     torch.set_num_threads(1)
-    _, env, policy = build_setup(setup.model_dir, setup.config)
-    return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain}
+    skill, env, policy = build_setup(setup.model_dir, setup.config)
+    return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain,
+            "slot": _SlotMaker(skill, setup.config)}
+
+
+class _SlotMaker:
+    """Another lockstep slot of an evaluation: an environment of its own and a policy of its own on the skill."""
+
+    def __init__(self, skill: Any, config: EvaluationConfig):
+        self.skill, self.config = skill, config
+
+    def __call__(self) -> tuple[Any, Any]:
+        skill = self.skill
+        return (build_env(skill.metadata, Pose(pos=skill.goal_pos, quat=skill.goal_quat), self.config),
+                _policy_for(skill, self.config))
 
 
 def _run_unit(context: dict[str, Any], start: StartPose) -> dict[str, Any]:
     """The record (as a dict) of one episode (the policy privileged where the context says so)."""
     return run_episode(context["env"], context["policy"], start, feedforward_gain=context["gain"],
                        privileged=context.get("privileged", False))[0].to_dict()
+
+
+def _run_group(context: dict[str, Any], starts: list[StartPose]) -> list[dict[str, Any]]:
+    """The records (as dicts) of episodes run in lockstep (envs.execution.lockstep) on the context's slots: its
+    environment and policy and as many more as the group needs (``context["slot"]()``, made once per worker)."""
+    from envs.execution.lockstep import run_lockstep
+
+    slots = context.setdefault("slots", [(context["env"], context["policy"])])
+    while len(slots) < len(starts):
+        slots.append(context["slot"]())
+    envs, policies = zip(*slots[:len(starts)])
+    records = run_lockstep(envs, policies, starts, feedforward_gain=context["gain"],
+                           privileged=context.get("privileged", False))
+    return [r.to_dict() for r in records]
 
 
 def _failed_unit(key: str, start: StartPose, reason: str) -> dict[str, Any]:
@@ -185,7 +235,7 @@ def run_settings(config: EvaluationConfig) -> dict[str, Any]:
     """{"config": the config's settings that change a record, its task (versioned) among them}: what a journal's run
     holds of an evaluation (`journal_run`, envs.execution.evaluate_policy.policy_journal_run)."""
     settings = {k: v for k, v in config.settings().items() if k not in ("workers", "unit_timeout_s", "backend",
-                                                                         "ray_address")}
+                                                                         "ray_address", "lockstep")}
     return {"config": to_jsonable({**settings, "task": config.task.to_dict()})}
 
 
@@ -217,7 +267,7 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     env_scene = env.scene.config
     if starts is None:
         starts = evaluation_starts(metadata_starts(skill.metadata, f"checkpoint {model_dir}"), config)
-    here = {"env": env, "policy": policy, "gain": config.feedforward_gain}
+    here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "slot": _SlotMaker(skill, config)}
     del env, policy  # workers build their own
     outcome, records, earlier_s = run_episodes(starts, _Setup(str(model_dir), config), _init_worker, here, config,
                                                progress, journal, f"evaluate ({config.mode})")
@@ -259,7 +309,8 @@ def run_episodes(starts: Sequence[StartPose], setup: Any, init_worker: Callable[
         torch.set_num_threads(1)
     try:
         outcome = run_batch([(str(s.index), s) for s in starts], setup, (lambda _: here) if in_process else init_worker,
-                            _run_unit, _failed_unit, batch, journal, on_record)
+                            _run_unit, _failed_unit, batch, journal, on_record, group_size=config.lockstep,
+                            work_group=_run_group)
     finally:
         torch.set_num_threads(threads)
         bar.close()
@@ -311,6 +362,7 @@ __all__ = [
     "StartPose",
     "build_env",
     "build_setup",
+    "build_slots",
     "check_goal_reachable",
     "evaluate",
     "iter_replays",

@@ -204,7 +204,18 @@ def _init_policy_worker(setup: _PolicySetup) -> dict[str, Any]:
 
     torch.set_num_threads(1)
     env, policy = build_policy_setup(setup.spec, setup.metadata, setup.config)
-    return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain, "privileged": setup.spec.privileged}
+    return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain, "privileged": setup.spec.privileged,
+            "slot": _PolicySlotMaker(setup)}
+
+
+class _PolicySlotMaker:
+    """Another lockstep slot of a policy evaluation: an environment of its own and a policy from the factory."""
+
+    def __init__(self, setup: _PolicySetup):
+        self.setup = setup
+
+    def __call__(self) -> tuple[Any, Policy]:
+        return build_policy_setup(self.setup.spec, self.setup.metadata, self.setup.config)
 
 
 def policy_journal_run(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig) -> dict[str, Any]:
@@ -241,7 +252,8 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
     scene = to_jsonable(asdict(scene_config))
     if starts is None:
         starts = evaluation_starts(metadata_starts(metadata, "the demo file"), config)
-    here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "privileged": spec.privileged}
+    here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "privileged": spec.privileged,
+            "slot": _PolicySlotMaker(_PolicySetup(spec, metadata, config))}
     del env, policy  # workers build their own
     outcome, records, earlier_s = run_episodes(starts, _PolicySetup(spec, metadata, config), _init_policy_worker,
                                                here, config, progress, journal, f"evaluate ({spec.spec})")

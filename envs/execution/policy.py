@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -52,7 +53,7 @@ from envs.execution.policy_protocol import Action, Observation
 from envs.poses import (Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec,
                          quat_to_rotvec_one, rotate)
 from rflow.errors import RFlowError
-from rflow.generate import next_point, rollout
+from rflow.generate import next_point, next_points_rowwise, rollout
 from rflow.skill_io import PoseSkill
 from rflow.small_linalg import dot, norm
 
@@ -136,6 +137,31 @@ def skill_state_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, 
                 next_point(skill.models["orientation"], q, horizon_s), None)
     except RFlowError as err:
         raise EnvError(f"cannot query the skill at pos {p.tolist()}, quat {q.tolist()}: {err}") from None
+
+
+def skill_state_steps(skill: PoseSkill, pos: npt.ArrayLike, quat: Sequence[npt.ArrayLike], stiffness: Any,
+                      horizon_s: float) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """`skill_state_step` of each row of a batch (B, 3), (B, 4), stiffness (B, 3, 3) or None, row i equal to the
+    single query of row i to the last bit (rflow.generate.next_points_rowwise; a joint skill row by row).
+
+    Raises:
+        EnvError: NaN or malformed poses or stiffness, horizon <= 0.
+    """
+    if not (np.isfinite(horizon_s) and horizon_s > 0.0):
+        raise EnvError(f"flow horizon {horizon_s} s must be > 0")
+    p = np.asarray(pos, dtype=np.float64)
+    if skill.layout == "joint":
+        rows = [skill_state_step(skill, p[i], quat[i], None if stiffness is None else stiffness[i], horizon_s)
+                for i in range(p.shape[0])]
+        k = None if rows[0][2] is None else np.stack([r[2] for r in rows])
+        return np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows]), k
+    goal = skill.goal_quat
+    q = np.stack([_unit(on_goal_hemisphere(np.asarray(row, dtype=np.float64), goal)) for row in quat])
+    try:
+        return (next_points_rowwise(skill.models["position"], p, horizon_s),
+                next_points_rowwise(skill.models["orientation"], q, horizon_s), None)
+    except RFlowError as err:
+        raise EnvError(f"cannot query the skill at a batch of {p.shape[0]} poses: {err}") from None
 
 
 @dataclass(frozen=True)
@@ -299,38 +325,97 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         x_2 = Phi(2L) x (xi_1 = (x_1 - x)/L, xi_2 = (x_2 - x_1)/L, a = (xi_2 - xi_1)/L, xi = xi_1 - a L/2),
         both time-scaled by ``speed`` (xi * s, a * s^2). The flow is queried in the frame shifted and turned by
         the contact adaptation (p - delta and Exp(rho)^-1 q in; + delta, Exp(rho) q and R(rho) omega out)."""
-        step_s = self.lookahead_s
-        k = self.stiffness_state
+        query = self._query(measured)
+        p1, q1, k1 = skill_state_step(self.skill, query.pos, query.quat, query.stiffness, self.lookahead_s)
+        p2, q2 = skill_step(self.skill, p1, q1, self.lookahead_s, k1)
+        k_next = None
+        if query.stiffness is not None:
+            k_next = skill_state_step(self.skill, query.pos, query.quat, query.stiffness, self._flow_period_s)[2]
+        return self._complete(measured, query, p1, q1, p2, q2, k_next)
+
+    def batch_key(self) -> tuple:
+        """Policies of one skill with one lookahead and speed answer together (`act_many`)."""
+        return (id(self.skill), self.lookahead_s, self.speed, self._flow_period_s)
+
+    @staticmethod
+    def act_many(policies: Sequence[ClosedLoopPolicy], observations: Sequence[Observation]) -> list[Action]:
+        """`Policy.act` of several closed-loop policies of one skill (``batch_key``), each with its observation:
+        the flow queries of all of them as one batch (`skill_state_steps`, row by row the arithmetic of one query,
+        so each action is the one its own ``act`` gives to the last bit). Changes no policy when it raises.
+
+        Raises:
+            EnvError: a query the skill rejects (NaN, off the manifold).
+        """
+        skill, lookahead = policies[0].skill, policies[0].lookahead_s
+        queries = [p._query(o.tcp) for p, o in zip(policies, observations)]
+        pos = np.array([q.pos for q in queries])
+        quat = [q.quat for q in queries]
+        k = None if queries[0].stiffness is None else np.array([q.stiffness for q in queries])
+        p1, q1, k1 = skill_state_steps(skill, pos, quat, k, lookahead)
+        p2, q2, _ = skill_state_steps(skill, p1, q1, k1, lookahead)
+        k_next = None if k is None else skill_state_steps(skill, pos, quat, k, policies[0]._flow_period_s)[2]
+        actions = []
+        for i, (policy, observation, query) in enumerate(zip(policies, observations, queries)):
+            policy._step += 1
+            policy.sense(observation)
+            actions.append(policy._complete(observation.tcp, query, p1[i], q1[i], p2[i], q2[i],
+                                            None if k_next is None else k_next[i]))
+        return actions
+
+    def _query(self, measured: Pose) -> _Query:
+        """Where the flow is queried for the measured pose: in the frame shifted by delta and turned by Exp(rho)
+        (only near the hole, after the walls refused a rotation); changes nothing."""
         delta = self.adapter.frame
-        turned = self.adapter.rotation.any()
-        query = np.asarray(measured.pos, dtype=np.float64) - delta
+        turned = bool(self.adapter.rotation.any())
         query_quat = measured.quat
-        if turned:  # into the turned frame: Exp(rho)^-1 q (only near the hole, after the walls refused a rotation)
+        rho = None
+        if turned:  # into the turned frame: Exp(rho)^-1 q
             rho = np.array(self.adapter.rotation_quat)
             query_quat = quat_mul(quat_conj(rho), measured.quat)
-        p1, q1, k1 = skill_state_step(self.skill, query, query_quat, k, step_s)
-        p2, q2 = skill_step(self.skill, p1, q1, step_s, k1)
+        return _Query(np.asarray(measured.pos, dtype=np.float64) - delta, query_quat, delta, rho, self.stiffness_state)
+
+    def _complete(self, measured: Pose, query: _Query, p1: FloatArray, q1: FloatArray, p2: FloatArray,
+                  q2: FloatArray, k_next: FloatArray | None) -> Action:
+        """The action from the flow's poses x_1 = Phi(L) x and x_2 = Phi(L) x_1 at the query (`command`), and the
+        policy's state advanced (adaptation, stiffness state)."""
+        step_s = self.lookahead_s
+        delta, rho = query.delta, query.rho
         q1 = q1 / norm(q1)
-        here = Pose(pos=query, quat=on_goal_hemisphere(query_quat, q1))
+        here = Pose(pos=query.pos, quat=on_goal_hemisphere(query.quat, q1))
         xi1 = pose_twist(here.pos, here.quat, p1, q1, step_s)
         xi2 = pose_twist(p1, q1, p2, on_goal_hemisphere(q2, q1), step_s)
         accel = (xi2 - xi1) / step_s
         twist = xi1 - 0.5 * step_s * accel
-        if turned:  # back from the turned frame: q1 <- Exp(rho) q1, angular rates rotated by R(rho)
+        if rho is not None:  # back from the turned frame: q1 <- Exp(rho) q1, angular rates rotated by R(rho)
             q1 = quat_mul(rho, q1)
             twist[3:], accel[3:] = rotate(rho, twist[3:]), rotate(rho, accel[3:])
         learned = None
+        k = query.stiffness
         if k is not None:
             learned, clipped = self.skill.bound_stiffness(k)
             self.stiffness_clipped_steps += int(clipped)
-            self.stiffness_state = skill_state_step(self.skill, query, query_quat, k, self._flow_period_s)[2]
+            self.stiffness_state = k_next
         self.adapter.update(measured.pos, self.speed * twist[:3], self._period_s)
         self.adapter.update_rotation(measured.pos, measured.quat, self.speed * twist[3:], self._period_s)
         push = np.concatenate([self.adapter.offset, np.zeros(3)])
-        anchor = Pose(pos=here.pos + delta, quat=on_goal_hemisphere(measured.quat, q1) if turned else here.quat)
+        anchor = Pose(pos=here.pos + delta, quat=on_goal_hemisphere(measured.quat, q1) if rho is not None
+                      else here.quat)
         return Action(Pose(pos=p1 + delta, quat=q1), _commanded_stiffness(self.stiffness, learned),
                       self.adapter.rotational_stiffness(measured.pos), self.speed * twist, self.speed**2 * accel,
                       anchor, push)
+
+
+@dataclass(frozen=True)
+class _Query:
+    """Where a closed-loop policy queries its flow this period (`ClosedLoopPolicy._query`): the position p - delta
+    and quaternion Exp(rho)^-1 q in the adaptation's frame, the frame shift delta, Exp(rho) (None: not turned) and
+    the stiffness state (None: a skill without stiffness)."""
+
+    pos: FloatArray
+    quat: Any
+    delta: FloatArray
+    rho: FloatArray | None
+    stiffness: FloatArray | None
 
 
 class OpenLoopPolicy(_PoseSkillPolicy):

@@ -2,7 +2,7 @@
 
 The parts are timed by wrapping, for the duration of the profile only, the instance methods that do them (the
 environment's and the policy's own objects, nothing global): the controlled physics steps with the per-step sensing
-(``env._run_period``), the observation and success check (``env._observe``), the policy with its flow queries
+(``env.run_period``), the observation and success check (``env._observe``), the policy with its flow queries
 (``policy.act``), the feed-forward lead (``controller.pose_lead``), the nullspace IK (``nullspace.update``) and
 the instability check (``env._instability``). "other" is the rest of the loop (validation, the action's stiffness,
 the policy's observation, bookkeeping). The episode's reset (start pose, grasp settling) is timed apart and left out
@@ -17,7 +17,7 @@ from typing import Any, Callable, Sequence
 from envs.execution.episode import run_episode
 
 PARTS: tuple[tuple[str, str, str], ...] = (
-    ("control_and_sensing", "env", "_run_period"),
+    ("control_and_sensing", "env", "run_period"),
     ("observation_and_success", "env", "_observe"),
     ("policy", "policy", "act"),
     ("feedforward_lead", "controller", "pose_lead"),
