@@ -139,6 +139,76 @@ def flow_steps(xs, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_f
                   b_hidden, w_out, b_out, clamp, n_extra, relu)
 
 
+CHART_EUCLIDEAN = 0
+CHART_SPHERE = 1
+"""The charts `chart_flow_steps` computes itself (rflow.inference.TangentChart's Euclidean and quaternion maps)."""
+
+
+@_jit
+def chart_flow_steps(points, out, chart, goal, right_conj_goal, right_goal, mean, std, phi_t, offset, hid, latent,
+                     cond, n_cond, moved, n_moved, w_first, b_first, w_hidden, b_hidden, w_out, b_out, clamp, n_extra,
+                     relu):
+    """The closed-loop step of every row of points (B, P) into out (B, P), each with the arithmetic of the single
+    point path (rflow.generate.next_point on one point: TangentChart.log, (v - mean) / std, `flow_step`,
+    x std + mean, TangentChart.exp), operation for operation, so each row equals that path to the last bit.
+
+    Returns:
+        -1, or the first row the chart rejects (not finite; a quaternion with |q|^2 off 1 by more than 2e-6), where
+        the caller raises as the single path does.
+    """
+    dim = mean.shape[0]
+    x = np.empty(dim)
+    q = np.empty(4)
+    for r in range(points.shape[0]):
+        p = points[r]
+        if chart == CHART_EUCLIDEAN:
+            total = 0.0
+            for i in range(dim):
+                x[i] = p[i] - goal[i]
+                total += x[i]
+            if not math.isfinite(total):
+                return r
+        else:
+            w0, x0, y0, z0 = p[0], p[1], p[2], p[3]
+            n2 = w0 * w0 + x0 * x0 + y0 * y0 + z0 * z0
+            if not abs(n2 - 1.0) <= 2e-6:
+                return r
+            for i in range(4):
+                acc = 0.0
+                for k in range(4):
+                    acc += right_conj_goal[i, k] * p[k]
+                q[i] = acc
+            w, qx, qy, qz = q[0], q[1], q[2], q[3]
+            s = math.sqrt(qx * qx + qy * qy + qz * qz)
+            if s < 1e-4 and w > 0:
+                f = 1.0 + s * s / 6.0
+                x[0], x[1], x[2] = f * qx, f * qy, f * qz
+            elif s == 0.0:
+                x[0], x[1], x[2] = math.pi, 0.0, 0.0
+            else:
+                f = math.atan2(s, w) / s
+                x[0], x[1], x[2] = f * qx, f * qy, f * qz
+        for i in range(dim):
+            x[i] = (x[i] - mean[i]) / std[i]
+        flow_step(x, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_first, b_first, w_hidden, b_hidden,
+                  w_out, b_out, clamp, n_extra, relu)
+        for i in range(dim):
+            x[i] = x[i] * std[i] + mean[i]
+        if chart == CHART_EUCLIDEAN:
+            for i in range(dim):
+                out[r, i] = goal[i] + x[i]
+        else:
+            t = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+            f = 1.0 - t * t / 6.0 if t < 1e-4 else math.sin(t) / t
+            q[0], q[1], q[2], q[3] = math.cos(t), f * x[0], f * x[1], f * x[2]
+            for i in range(4):
+                acc = 0.0
+                for k in range(4):
+                    acc += right_goal[i, k] * q[k]
+                out[r, i] = acc
+    return -1
+
+
 BLOCK_POINTS = 128
 """Points per block of `flow_pass`, a compile-time constant (the last block is padded): the inner loops run across a
 block's points with a known trip count, so the compiler vectorises and unrolls them (AVX2: 4 doubles per

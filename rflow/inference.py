@@ -178,11 +178,27 @@ class NumpyImitationFlow:
         flow_kernel.flow_step(x, phi_t, self.offset, self._hid, self._latent, *self._weights)
         return x.copy()
 
+    def chart_steps(self, points: np.ndarray, out: np.ndarray, chart: TangentChart, mean: np.ndarray, std: np.ndarray,
+                    dt: float | None = None) -> int:
+        """The single-point closed-loop step of every row of points (B, P), Euclidean or quaternion, into out, in one
+        compiled call (`flow_kernel.chart_flow_steps`: the chart's maps, the normalisation and `step_single`
+        operation for operation); -1, or the first row the chart rejects."""
+        phi_t = self.step_matrix(self.dt if dt is None else dt)
+        kind = flow_kernel.CHART_EUCLIDEAN if chart.name == "euclidean" else flow_kernel.CHART_SPHERE
+        rot = chart.rotations()
+        return int(flow_kernel.chart_flow_steps(points, out, kind, chart.goal, rot[0], rot[1],
+                                                np.ascontiguousarray(mean, dtype=np.float64),
+                                                np.ascontiguousarray(std, dtype=np.float64), phi_t, self.offset,
+                                                self._hid, self._latent, *self._weights))
+
     def step_rows(self, xs: np.ndarray, dt: float | None = None) -> None:
         """`step_single` of every row of xs (B, D), C-contiguous float64, in place and in one compiled call: each
         row's result equals its own `step_single` to the last bit."""
         phi_t = self.step_matrix(self.dt if dt is None else dt)
         flow_kernel.flow_steps(xs, phi_t, self.offset, self._hid, self._latent, *self._weights)
+
+
+_EYE4 = np.eye(4)
 
 
 class TangentChart:
@@ -210,6 +226,13 @@ class TangentChart:
             self._inv_half = matmul(u / np.sqrt(lam), u.T)
             self._d = self.goal.shape[-1]
             self._rows, self._cols = np.triu_indices(self._d, k=1)
+
+    def rotations(self) -> tuple[np.ndarray, np.ndarray]:
+        """The quaternion chart's right multiplications by conj(g) and g (4, 4) (identity placeholders otherwise),
+        for the compiled batch of steps (`ImitationFlowInference.chart_steps`)."""
+        if self.name == "sphere":
+            return self._right_conj_goal, self._right_goal
+        return _EYE4, _EYE4
 
     def log(self, point: np.ndarray) -> np.ndarray:
         """Tangent vector (D,) of one point (SPD: also a batch). Raises RFlowError off the manifold or on NaN."""

@@ -83,7 +83,7 @@ def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
     from envs.jsonable import to_jsonable
 
     evaluation = {k: v for k, v in config.evaluation.settings().items()
-                  if k not in ("seed", "workers", "unit_timeout_s", "backend", "ray_address")}
+                  if k not in ("seed", "workers", "unit_timeout_s", "backend", "ray_address", "lockstep")}
     return to_jsonable({"command": "pih benchmark", "demo_seeds": list(config.demo_seeds),
                         "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "epochs": config.epochs,
                         "task": config.task.to_dict(), "evaluation": evaluation})

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.execution.config import DEFAULT_LOOKAHEAD_S, MODES, EvaluationConfig  # noqa: E402
+from envs.execution.config import DEFAULT_LOOKAHEAD_S, MAX_LOCKSTEP, MODES, EvaluationConfig  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, seed  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
@@ -116,6 +116,9 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     run.add_argument("--seed", type=seed, default=d.seed, help="seed of the start poses, 0..2**32-1")
     add_start_arguments(run)  # the task's start range and time limit
     run.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel processes")
+    run.add_argument("--lockstep", type=count(MAX_LOCKSTEP), default=d.lockstep,
+                     help="episodes each worker runs side by side, one control period at a time for all (the flow "
+                          "queried once for them); the records do not depend on it")
     run.add_argument("--backend", choices=BACKENDS, default=d.backend,
                      help="process: local worker processes; ray: Ray actors (pip install -e '.[cluster]')")
     run.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray on all cores)")
@@ -138,7 +141,7 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
         scene_from_task=scene_from_task(args), hole_at_goal=args.hole_at_goal, workers=args.workers,
         unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s, backend=args.backend,
         ray_address=args.ray_address, stiffness=args.stiffness,
-        contact_adaptation=not args.no_contact_adaptation)
+        contact_adaptation=not args.no_contact_adaptation, lockstep=args.lockstep)
 
 
 def checked_config(args: argparse.Namespace) -> EvaluationConfig:
