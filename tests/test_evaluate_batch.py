@@ -5,6 +5,7 @@ nothing is left behind on bad input."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -17,7 +18,7 @@ import pytest
 
 from batch import Journal
 from envs.execution.evaluate import EvaluationConfig, evaluate, journal_run
-from envs.task import Task
+from envs.task import Task, preset
 from rflow.skill_io import save_skill
 from scripts.cli import main as pih
 from skill_fixtures import tiny_skill
@@ -239,3 +240,17 @@ def test_a_fault_is_one_error_line_with_the_resume_command_and_exit_1(model, tmp
     out, err = capsys.readouterr()
     assert "pih evaluate: error: lost the Ray head at 10.0.0.1:6379" in err and "--resume" in err
     assert "(2 worker(s))" in out
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_lockstep_evaluation_equals_one_episode_at_a_time_in_the_imperfect_cell(model, workers):
+    """Episodes in lockstep (each slot on a copy of the worker's model as built) give the records of one episode at a
+    time also where every episode writes its perturbation into its model (the realistic preset: friction, payload,
+    joint friction, pads, torque noise)."""
+    task = dataclasses.replace(preset("realistic"), time_limit_s=0.4)
+    alone = evaluate(model, EvaluationConfig(episodes=7, task=task, workers=workers, lockstep=1), progress=False)
+    batched = evaluate(model, EvaluationConfig(episodes=7, task=task, workers=workers, lockstep=3), progress=False)
+    a, b = without_wall_times(alone.to_dict()), without_wall_times(batched.to_dict())
+    assert (a["config"].pop("lockstep"), b["config"].pop("lockstep")) == (1, 3)
+    assert a == b and len(a["per_episode"]) == 7
+    assert len({json.dumps(r["perturbation"], sort_keys=True) for r in a["per_episode"]}) == 7  # all perturbed apart
