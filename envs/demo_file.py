@@ -16,6 +16,11 @@ Optional:
                             (to 1e-9 relative), positive definite and finite at every sample, and
                             stiffness[n, -1] == goal_stiffness for every n (to 1e-9 relative)
     goal_stiffness (3, 3)   the shared goal stiffness; present exactly when ``stiffness`` is
+    ends_apart   () bool    the demos end apart, as recorded (real demonstrations rarely end in one pose): then
+                            goal_pos / goal_quat are the mean of the last samples (position mean, quaternion mean),
+                            each demo's end lies within END_SPREAD_M / END_SPREAD_DEG of it, and ``residual_pos_m``
+                            / ``residual_rot_deg`` hold each end's distance from it. `pih train` learns such demos
+                            each relative to its own end (`anchored_at_goal`). Absent: False.
 
 Files are written by envs.output.save_npz (atomically, with pih's marker array "pih") and read with
 ``allow_pickle=False``.
@@ -51,6 +56,13 @@ GOAL_TOL_RAD: float = 1e-6
 UNIT_TOL: float = 1e-6
 #: Largest |K - K^T| and |K_end - K_goal| of a stored stiffness, relative to max |K|.
 STIFFNESS_REL_TOL: float = 1e-9
+#: Demos that end apart (``ends_apart``) must end this close to their mean goal (a larger spread is a mistake,
+#: e.g. demos of two different holes).
+END_SPREAD_M: float = 0.02
+END_SPREAD_DEG: float = 20.0
+#: ... and the stored goal must be their mean end to this tolerance.
+MEAN_GOAL_TOL_M: float = 1e-9
+MEAN_GOAL_TOL_RAD: float = 1e-9
 
 
 @dataclass(frozen=True)
@@ -69,6 +81,7 @@ class DemoSet:
     residual_rot_deg: FloatArray | None = None
     stiffness: FloatArray | None = None
     goal_stiffness: FloatArray | None = None
+    ends_apart: bool = False
 
     @property
     def num_demos(self) -> int:
@@ -123,14 +136,64 @@ def validate_demos(demos: DemoSet, source: str = "demos") -> None:
         raise EnvError(f"{source}: 'goal_quat' {goal_quat.tolist()} is not unit")
     pos_err = np.linalg.norm(pos[:, -1] - goal_pos, axis=-1)
     rot_err = quat_angle_rad(quat[:, -1], goal_quat)
-    for n in range(pos.shape[0]):
-        if pos_err[n] > GOAL_TOL_M or rot_err[n] > GOAL_TOL_RAD:
-            raise EnvError(f"{source}: demo {n} does not end at the goal (final sample off by "
-                           f"{pos_err[n] * 1e3:.3g} mm, {np.rad2deg(rot_err[n]):.3g} deg)")
+    if demos.ends_apart:
+        _check_ends_apart(demos, pos_err, rot_err, source)
+    else:
+        for n in range(pos.shape[0]):
+            if pos_err[n] > GOAL_TOL_M or rot_err[n] > GOAL_TOL_RAD:
+                raise EnvError(f"{source}: demo {n} does not end at the goal (final sample off by "
+                               f"{pos_err[n] * 1e3:.3g} mm, {np.rad2deg(rot_err[n]):.3g} deg; demos that end "
+                               f"apart are marked ends_apart)")
     for name, arr in (("residual_pos_m", demos.residual_pos_m), ("residual_rot_deg", demos.residual_rot_deg)):
         if arr is not None and np.asarray(arr).shape != (pos.shape[0],):
             raise EnvError(f"{source}: '{name}' must have shape ({pos.shape[0]},), got {np.asarray(arr).shape}")
     validate_stiffness(demos, source)
+
+
+def _check_ends_apart(demos: DemoSet, pos_err: FloatArray, rot_err: FloatArray, source: str) -> None:
+    """Demos that end apart: the goal is their mean end and no end lies farther than END_SPREAD_M / _DEG from it."""
+    from envs.poses import mean_quat
+
+    pos, quat = np.asarray(demos.pos), np.asarray(demos.quat)
+    mean_pos = np.mean(pos[:, -1], axis=0)
+    if norm(mean_pos - np.asarray(demos.goal_pos)) > MEAN_GOAL_TOL_M or \
+            float(quat_angle_rad(mean_quat(quat[:, -1]), demos.goal_quat)) > MEAN_GOAL_TOL_RAD:
+        raise EnvError(f"{source}: the demos end apart but the goal is not the mean of their ends")
+    worst = int(np.argmax(pos_err / END_SPREAD_M + np.rad2deg(rot_err) / END_SPREAD_DEG))
+    if pos_err[worst] > END_SPREAD_M or np.rad2deg(rot_err[worst]) > END_SPREAD_DEG:
+        raise EnvError(f"{source}: demo {worst} ends {pos_err[worst] * 1e3:.3g} mm, {np.rad2deg(rot_err[worst]):.3g} "
+                       f"deg from the demos' mean goal (at most {END_SPREAD_M * 1e3:g} mm, {END_SPREAD_DEG:g} deg: "
+                       f"demos of one skill)")
+    if demos.stiffness is not None:
+        raise EnvError(f"{source}: demos that end apart carry no stiffness")
+
+
+def anchored_at_goal(demos: DemoSet) -> tuple[FloatArray, FloatArray]:
+    """Each demo moved rigidly so that it ends at the goal: the rigid motion T_n = (R_n, t_n) that takes the demo's
+    end pose (p_N, q_N) to the goal (g_p, g_q), applied to every sample,
+
+        R_n = R(g_q conj(q_N)),    p' = g_p + R_n (p - p_N),    q' = g_q conj(q_N) q,
+
+    so each demo is what it was relative to its own end (its own target: where the part sat, how the peg sat in the
+    hand), now relative to the goal, as a demonstration recorded at the goal would be. The shape of each demo is kept
+    (unlike `envs.demo_import.snap_to_goal`, which bends its last part onto the goal). Demos that end at the goal are
+    returned as they are.
+    """
+    from rflow.quaternion import quat_conj, quat_mul, quat_to_mat
+
+    pos, quat = np.asarray(demos.pos, dtype=np.float64), np.asarray(demos.quat, dtype=np.float64)
+    if not demos.ends_apart:
+        return pos, quat
+    goal_pos, goal_quat = np.asarray(demos.goal_pos, dtype=np.float64), np.asarray(demos.goal_quat, dtype=np.float64)
+    new_pos, new_quat = np.empty_like(pos), np.empty_like(quat)
+    for n in range(pos.shape[0]):
+        turn = quat_mul(goal_quat, quat_conj(quat[n, -1]))  # g_q conj(q_N)
+        new_pos[n] = goal_pos + (pos[n] - pos[n, -1]) @ quat_to_mat(turn).T
+        new_quat[n] = quat_mul(turn[None], quat[n])
+    new_quat /= np.linalg.norm(new_quat, axis=-1, keepdims=True)
+    new_pos[:, -1] = goal_pos
+    new_quat[:, -1] = goal_quat
+    return new_pos, new_quat
 
 
 def validate_stiffness(demos: DemoSet, source: str = "demos") -> None:
@@ -203,6 +266,8 @@ def save_demos(path: str | os.PathLike[str], demos: DemoSet) -> Path:
     if demos.stiffness is not None:
         arrays["stiffness"] = np.asarray(demos.stiffness, dtype=np.float64)
         arrays["goal_stiffness"] = np.asarray(demos.goal_stiffness, dtype=np.float64)
+    if demos.ends_apart:
+        arrays["ends_apart"] = np.bool_(True)
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise EnvError(f"cannot write demos to {out}: folder {folder} does not exist")
@@ -217,6 +282,13 @@ def _scalar(archive: Any, key: str, source: str, kind: type) -> Any:
         return kind(value.item())
     except (TypeError, ValueError):
         raise EnvError(f"{source}: '{key}' is not a {kind.__name__} (dtype {value.dtype})") from None
+
+
+def _flag(archive: Any, key: str, source: str) -> bool:
+    value = archive[key]
+    if value.shape != () or value.dtype != np.bool_:
+        raise EnvError(f"{source}: '{key}' must be a boolean scalar, got dtype {value.dtype} shape {value.shape}")
+    return bool(value.item())
 
 
 def load_demos(path: str | os.PathLike[str]) -> DemoSet:
@@ -243,6 +315,7 @@ def load_demos(path: str | os.PathLike[str]) -> DemoSet:
             shape = _scalar(archive, "shape", src, str)
             config_text = _scalar(archive, "config_json", src, str)
             optional = {k: np.asarray(archive[k], dtype=float) for k in OPTIONAL_KEYS if k in archive.files}
+            ends_apart = "ends_apart" in archive.files and _flag(archive, "ends_apart", src)
     except EnvError:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as err:
@@ -266,6 +339,7 @@ def load_demos(path: str | os.PathLike[str]) -> DemoSet:
         residual_rot_deg=optional.get("residual_rot_deg"),
         stiffness=optional.get("stiffness"),
         goal_stiffness=optional.get("goal_stiffness"),
+        ends_apart=bool(ends_apart),
     )
     validate_demos(demos, source=src)
     return demos

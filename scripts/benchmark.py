@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--shape", help="peg and hole shape (default: the task's, else square)")
     run.add_argument("--epochs", type=int, default=None, help="training epochs (default: `pih train`'s)")
     run.add_argument("--workers", type=int, default=2, help="training and evaluation processes (default 2)")
+    run.add_argument("--demo-noise", metavar="SPEC",
+                     help="record each replicate's demos as a real cell would (`pih demos --noise`, e.g. 'realistic'); "
+                          "the hole is then placed at the demos' mean goal")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     out = parser.add_argument_group("output")
     out.add_argument("--out", type=Path, required=True, help="protocol folder (new, or one to continue)")
@@ -72,9 +75,10 @@ def protocol_from_args(args: argparse.Namespace) -> ProtocolConfig:
         raise EnvError(f"--episodes {args.episodes}: must be 1..{MAX_EPISODES}")
     if args.workers < 1:
         raise EnvError(f"--workers {args.workers}: must be >= 1")
-    evaluation = EvaluationConfig(episodes=args.episodes, task=task.override(shape=task.shape or "square"))
+    evaluation = EvaluationConfig(episodes=args.episodes, task=task.override(shape=task.shape or "square"),
+                                  hole_at_goal=args.demo_noise is not None)
     return ProtocolConfig(demo_seeds=seeds, start_seed_offset=args.start_seed_offset, num_demos=args.demos,
-                          epochs=args.epochs, evaluation=evaluation)
+                          epochs=args.epochs, evaluation=evaluation, demo_noise=args.demo_noise)
 
 
 def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
@@ -84,7 +88,8 @@ def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
 
     evaluation = {k: v for k, v in config.evaluation.settings().items()
                   if k not in ("seed", "workers", "unit_timeout_s", "backend", "ray_address", "lockstep")}
-    return to_jsonable({"command": "pih benchmark", "demo_seeds": list(config.demo_seeds),
+    noise = {} if config.demo_noise is None else {"demo_noise": config.demo_noise}
+    return to_jsonable({"command": "pih benchmark", **noise, "demo_seeds": list(config.demo_seeds),
                         "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "epochs": config.epochs,
                         "task": config.task.to_dict(), "evaluation": evaluation})
 
@@ -139,7 +144,15 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
     if not demos_path.exists():
         report(f"seed {demo_seed}: recording {config.num_demos} {config.task.shape} demos")
         collection = collect_demos(config.num_demos, demo_seed, SceneConfig.from_task(config.task), task=config.task)
-        save_demos(demos_path, collection.demos)
+        demos = collection.demos
+        if config.demo_noise is not None:
+            from envs.demo_noise import DemoNoise, add_demo_noise
+
+            demos = add_demo_noise(demos, DemoNoise.parse(config.demo_noise), demo_seed)
+            report(f"seed {demo_seed}: demos with noise {config.demo_noise!r}, ends "
+                   f"{demos.config['noise']['end_scatter_rms_mm']:.2f} mm / "
+                   f"{demos.config['noise']['end_scatter_rms_deg']:.2f} deg root-mean-square from their mean")
+        save_demos(demos_path, demos)
     if not (model_dir / "skill.json").exists():
         report(f"seed {demo_seed}: training (seed {demo_seed})")
         overrides: dict[str, Any] = {"seed": demo_seed}

@@ -5,6 +5,7 @@ the demo file's ``stiffness``, learned with `pih train --stiffness expert`. The 
 task options, envs/task.py); the demo file records the task, and `pih train` copies it into the checkpoint.
 
     pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--task NAME|FILE.toml] [--video runs/demos.mp4]
+    pih demos --num 7 --seed 0 --noise realistic --out runs/noisy.npz   # as a real cell records them (envs/demo_noise.py)
     pih demos --check 100 --seed 0            # success rate of the scripted expert over 100 starts
     pih demos --import rec.npz --tool-offset franka-tcp --dt-s 0.001 --out demos.npz [--snap-goal]
 """
@@ -41,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f"samples M per demo, 2..{MAX_SAMPLES:,} (default 4000, as the paper)")
     demos.add_argument("--entry-speed-mm-s", type=number(above=0.0), default=10.0,
                        help="speed at which the peg enters the hole, mm/s (default 10; 5 for a 0.2 mm clearance)")
+    demos.add_argument("--noise", metavar="SPEC",
+                       help="record the demos as a real cell would (envs/demo_noise.py): 'realistic' (3 mm / 3 deg "
+                            "end scatter, timing jitter, approach curvature, sensor noise) and/or FIELD=VALUE pairs, "
+                            "e.g. 'realistic,final_pos_scatter_m=0.004'; the file's demos then end apart")
     demos.add_argument("--check", type=count(MAX_EPISODES), metavar="N",
                        help="instead of recording, run the expert from N seeded starts and report the success rate")
     out = parser.add_argument_group("output")
@@ -105,6 +110,11 @@ def main(args: argparse.Namespace) -> int:
     expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed_mm_s * 1e-3)
     if args.check is not None:
         return _check(args, scene, expert)
+    noise = None
+    if args.noise is not None:
+        from envs.demo_noise import DemoNoise
+
+        noise = DemoNoise.parse(args.noise)
     check_outputs(args, [], args.num, args.samples)
     if args.video is not None:
         check_camera(args.camera)
@@ -135,14 +145,24 @@ def main(args: argparse.Namespace) -> int:
         print(f"wrote {video.close()} ({video.frames} frames)")
     from envs.demo_file import save_demos
 
-    path = save_demos(args.out, collection.demos)
     demos = collection.demos
+    if noise is not None:
+        from envs.demo_noise import add_demo_noise
+
+        demos = add_demo_noise(demos, noise, args.seed)
+    path = save_demos(args.out, demos)
     executed = [a.wall_s for a in collection.attempts]
     print(f"wrote {path}: {demos.num_demos} demos x {demos.num_samples} samples, dt {demos.dt * 1e3:.4f} ms, "
           f"shape {demos.shape}, clearance {demos.clearance_m * 1e3:g} mm; {len(collection.failures)} failed "
           f"attempts; {sum(executed) / len(executed):.2f} s per attempt")
-    print(f"settled residual before snapping to the goal: max {max(demos.residual_pos_m) * 1e3:.4f} mm, "
-          f"{max(demos.residual_rot_deg):.4f} deg")
+    if demos.ends_apart:
+        spread = demos.config["noise"]
+        print(f"noise {args.noise}: the demos end apart, {spread['end_scatter_rms_mm']:.2f} mm and "
+              f"{spread['end_scatter_rms_deg']:.2f} deg root-mean-square from their mean goal (the file's goal); "
+              f"farthest {max(demos.residual_pos_m) * 1e3:.2f} mm, {max(demos.residual_rot_deg):.2f} deg")
+    else:
+        print(f"settled residual before snapping to the goal: max {max(demos.residual_pos_m) * 1e3:.4f} mm, "
+              f"{max(demos.residual_rot_deg):.4f} deg")
     if demos.stiffness is not None:
         lam = np.linalg.eigvalsh(demos.stiffness)
         print(f"stiffness commanded and recorded (envs/stiffness_schedule.py): eigenvalues {lam.min():.0f} to "

@@ -165,7 +165,9 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     R^3 x S^3 x SPD(3) whatever ``joint`` says, and skill.json's metadata["stiffness"] also records the
     source and the Log-Euclidean distance of the stiffness generated from each demo's start to the
     demo's (rflow.skill_io.stiffness_reproduction). With ``workers`` >= 2 the separate models train in
-    parallel processes (`rflow.fit_processes`), to the same weights.
+    parallel processes (`rflow.fit_processes`), to the same weights. Demos that end apart (a demo file with
+    ``ends_apart``, e.g. from `pih demos --noise` or `--import --ends-apart`) are learned each relative to its own end
+    (`envs.demo_file.anchored_at_goal`), the skill's goal being their mean end.
 
     Returns:
         The checkpoint directory.
@@ -176,14 +178,15 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
         RFlowError: ``out`` holds something other than a checkpoint, or a checkpoint without ``overwrite``
             (checked before training); training failures, bad subsampling, stiffness outside ``bounds``.
     """
-    from envs.demo_file import load_demos
+    from envs.demo_file import anchored_at_goal, load_demos
     from envs.execution.figures import plot_loss
     from rflow.skill_io import check_checkpoint_target, file_sha256, fit_pose_skill, save_skill, stiffness_reproduction, subsample as take_every
     cfg = skill_train_config() if config is None else config
     check_checkpoint_target(out, overwrite)
     demos = load_demos(demos_path)
     task = demos_task(demos, demos_path)
-    pos, quat = take_every(demos.pos, subsample), take_every(demos.quat, subsample)
+    anchored_pos, anchored_quat = anchored_at_goal(demos)  # demos that end apart: each relative to its own end
+    pos, quat = take_every(anchored_pos, subsample), take_every(anchored_quat, subsample)
     k_demo = None if stiffness is None else demo_stiffness(demos, stiffness, bounds, demos_path)
     k = None if k_demo is None else take_every(k_demo, subsample)
     dt = demos.dt * subsample
@@ -207,6 +210,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
         "train_dt_s": dt,
         "goal_pos": demos.goal_pos.tolist(),
         "goal_quat": demos.goal_quat.tolist(),
+        "ends_apart": demos.ends_apart,
         "demo_starts": {"pos": demos.pos[:, 0].tolist(), "quat": demos.quat[:, 0].tolist()},
         "scene": {k: scene[k] for k in SCENE_METADATA if k in scene} if scene else None,
         "task": task.to_dict(),

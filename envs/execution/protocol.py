@@ -61,6 +61,9 @@ class ProtocolConfig:
         epochs: training epochs (None: `pih train`'s default).
         evaluation: the evaluation of every replicate (its ``seed`` is replaced per replicate); its task is the
             protocol's: the demos are recorded in its scene (its shape; None: square).
+        demo_noise: record the demos as a real cell would (envs.demo_noise.DemoNoise.parse spec, seeded with the demo
+            seed; None: the expert's clean demos). The demos then end apart, and the evaluation must place the hole
+            at their mean goal (``evaluation.hole_at_goal``).
     """
 
     demo_seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
@@ -68,6 +71,7 @@ class ProtocolConfig:
     num_demos: int = 7
     epochs: int | None = None
     evaluation: EvaluationConfig = field(default_factory=lambda: EvaluationConfig(episodes=200))
+    demo_noise: str | None = None
 
     def __post_init__(self) -> None:
         seeds = self.demo_seeds
@@ -82,6 +86,13 @@ class ProtocolConfig:
             raise EnvError(f"num_demos={self.num_demos!r} must be an integer >= 1")
         if self.epochs is not None and (not isinstance(self.epochs, int) or self.epochs < 1):
             raise EnvError(f"epochs={self.epochs!r} must be an integer >= 1")
+        if self.demo_noise is not None:
+            from envs.demo_noise import DemoNoise
+
+            DemoNoise.parse(self.demo_noise)
+            if not self.evaluation.hole_at_goal:
+                raise EnvError("demos with noise end apart: their evaluation places the hole at their mean goal "
+                               "(hole_at_goal)")
 
     @property
     def task(self) -> Task:
