@@ -100,15 +100,21 @@ class ImportConfig:
         num_samples: M, samples per demo after resampling (4000, as the paper).
         snap_goal: blend demos that end off the common goal onto it (else such demos are an error).
         snap_fraction: the blend covers this last fraction of every demo's duration.
+        ends_apart: keep demos that end off the common goal as they are, the goal their mean end (the file's
+            ``ends_apart``; `pih train` learns each relative to its own end). Not with ``snap_goal``.
     """
 
     num_samples: int = 4000
     snap_goal: bool = False
     snap_fraction: float = 0.2
+    ends_apart: bool = False
 
     def __post_init__(self) -> None:
         if int(self.num_samples) != self.num_samples or self.num_samples < 2:
             raise EnvError(f"ImportConfig.num_samples={self.num_samples} must be an integer >= 2")
+        if self.snap_goal and self.ends_apart:
+            raise EnvError("--snap-goal and --ends-apart exclude each other: blend the demos onto the goal, or keep "
+                           "their ends")
         if not (np.isfinite(self.snap_fraction) and 0.0 < self.snap_fraction <= 1.0):
             raise EnvError(f"ImportConfig.snap_fraction={self.snap_fraction} must lie in (0, 1]")
 
@@ -431,11 +437,16 @@ def import_demos(recorded: RecordedDemos, tool_offset: Pose, grasp: Pose, dt: fl
         stiffness = common_length_stiffness(recorded.stiffness, dt, config.num_samples)
         goal_k, jump_k = common_goal_stiffness(stiffness)
     off = np.flatnonzero((jump_m > GOAL_TOL_M) | (jump_rad > GOAL_TOL_RAD) | (jump_k > STIFFNESS_REL_TOL))
-    if off.size and not config.snap_goal:
+    ends_apart = bool(off.size) and config.ends_apart
+    if ends_apart and stiffness is not None:
+        raise EnvError("--ends-apart: demos with a recorded stiffness must end at one goal stiffness and pose; "
+                       "use --snap-goal")
+    if off.size and not config.snap_goal and not ends_apart:
         listing = ", ".join(f"demo {n}: {jump_m[n] * 1e3:.3f} mm / {np.rad2deg(jump_rad[n]):.3f} deg"
                             + (f" / stiffness {jump_k[n]:.2g} relative" if stiffness is not None else "") for n in off)
         raise EnvError(f"{off.size} of {len(jump_m)} demos do not end at the common goal ({listing}; tolerance "
-                       f"{GOAL_TOL_M * 1e3:g} mm / {np.rad2deg(GOAL_TOL_RAD):.2g} deg); pass --snap-goal to blend "
+                       f"{GOAL_TOL_M * 1e3:g} mm / {np.rad2deg(GOAL_TOL_RAD):.2g} deg); pass --ends-apart to keep "
+                       f"their ends (the skill learns each demo relative to its own end) or --snap-goal to blend "
                        f"them onto it over the last {100 * config.snap_fraction:g} % of each demo")
     snapped = bool(off.size) and config.snap_goal
     if snapped:
@@ -455,6 +466,7 @@ def import_demos(recorded: RecordedDemos, tool_offset: Pose, grasp: Pose, dt: fl
         "num_samples": config.num_samples,
         "snap_goal": config.snap_goal,
         "snapped": snapped,
+        "ends_apart": ends_apart,
         "snap_fraction": config.snap_fraction,
         "snap_duration_s": snap_duration_s,
         "goal_jump_mm": (jump_m * 1e3).tolist(),
@@ -464,6 +476,7 @@ def import_demos(recorded: RecordedDemos, tool_offset: Pose, grasp: Pose, dt: fl
     }
     demos = DemoSet(pos=pos, quat=quat, dt=new_dt, goal_pos=goal.pos, goal_quat=goal.quat, shape=shape,
                     clearance_m=clearance_m, config=record, residual_pos_m=jump_m,
-                    residual_rot_deg=np.rad2deg(jump_rad), stiffness=stiffness, goal_stiffness=goal_k)
+                    residual_rot_deg=np.rad2deg(jump_rad), stiffness=stiffness, goal_stiffness=goal_k,
+                    ends_apart=ends_apart)
     return ImportResult(demos=demos, jump_m=jump_m, jump_rad=jump_rad, snapped=snapped,
                         snap_duration_s=snap_duration_s)

@@ -1,6 +1,6 @@
 """`pih demos --import`: convert demos recorded at another tool frame (e.g. a real Panda) into a demo file.
 
-    pih demos --import recorded.npz --tool-offset franka-tcp --dt-s 0.001 --out demos.npz [--snap-goal]
+    pih demos --import recorded.npz --tool-offset franka-tcp --dt-s 0.001 --out demos.npz [--ends-apart | --snap-goal]
     pih demos --import recorded.npz --tool-offset 0,0,0.1034,0.92388,0,0,-0.38268 --out demos.npz
     pih demos --import datasets/demos-lerobot --format lerobot --out demos.npz     # an export of `pih export`
 
@@ -44,6 +44,9 @@ def add_import_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--snap-goal", action="store_true",
                        help="with --import: blend demos that end off their common goal onto it (minimum-jerk "
                             "blend over the last 20 %% of each demo) instead of failing")
+    group.add_argument("--ends-apart", action="store_true",
+                       help="with --import: keep demos that end off their common goal as they are; the goal is "
+                            "their mean end and `pih train` learns each demo relative to its own end")
 
 
 def run_import(args: argparse.Namespace) -> int:
@@ -65,7 +68,7 @@ def run_import(args: argparse.Namespace) -> int:
         raise EnvError("--tool-offset is required with --import (e.g. --tool-offset franka-tcp)")
     if args.tool_offset is not None:
         parse_tool_offset(args.tool_offset)
-    config = ImportConfig(num_samples=args.samples, snap_goal=args.snap_goal)
+    config = ImportConfig(num_samples=args.samples, snap_goal=args.snap_goal, ends_apart=args.ends_apart)
     task = task_from_args(args)
     shape, clearance_m = task.shape or "square", task.clearance_m
     if args.import_format == "npz":
@@ -97,6 +100,9 @@ def run_import(args: argparse.Namespace) -> int:
     for n, (jump_m, jump_rad) in enumerate(zip(result.jump_m, result.jump_rad)):
         print(f"demo {n}: {recorded.lengths[n]} samples, jump to the common goal {jump_m * 1e3:.4f} mm, "
               f"{np.rad2deg(jump_rad):.4f} deg")
+    if result.demos.ends_apart:
+        print(f"kept apart: the goal is the demos' mean end, {np.sqrt(np.mean(result.jump_m ** 2)) * 1e3:.3f} mm and "
+              f"{np.rad2deg(np.sqrt(np.mean(result.jump_rad ** 2))):.3f} deg root-mean-square from it")
     if result.snapped:
         print(f"snapped onto the common goal: minimum-jerk blend over the last {100 * config.snap_fraction:g} % "
               f"({result.snap_duration_s:.3f} s) of each demo")

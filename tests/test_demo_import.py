@@ -167,6 +167,22 @@ def test_snap_goal_blends_only_the_last_part_onto_the_common_goal(tmp_path: Path
     assert demos.config["snapped"] is True
 
 
+def test_ends_apart_keeps_the_demos_and_their_mean_goal(tmp_path: Path, grasp, capsys) -> None:
+    ends = np.array([[0.002, 0.0, 0.0], [-0.002, 0.001, 0.0], [0.0, 0.0, 0.0]])
+    pos, quat = peg_tip_demos(m=100, end_offsets_m=ends)
+    tool_pos, tool_quat = to_tool_frame(pos, quat, OFFSET, grasp)
+    source = write_npz(tmp_path / "rec.npz", pos=tool_pos, quat=tool_quat, dt=0.01)
+    code, out = run_import(tmp_path, source, "--tool-offset", OFFSET_ARG, "--samples", "100", "--ends-apart")
+    assert code == 0 and "kept apart: the goal is the demos' mean end" in capsys.readouterr().out
+    demos = load_demos(out)
+    assert demos.ends_apart and demos.config["ends_apart"] is True
+    np.testing.assert_allclose(demos.pos, pos, atol=1e-9)  # nothing blended
+    np.testing.assert_allclose(demos.goal_pos, pos[:, -1].mean(axis=0), atol=1e-12)
+    code, out = run_import(tmp_path, source, "--tool-offset", OFFSET_ARG, "--samples", "100", "--ends-apart",
+                           "--snap-goal", "--overwrite")
+    assert code == 2 and "exclude each other" in capsys.readouterr().err
+
+
 def test_small_quaternion_norm_errors_are_normalised(tmp_path: Path, grasp) -> None:
     pos, quat = peg_tip_demos(n=1)
     tool_pos, tool_quat = to_tool_frame(pos, quat, OFFSET, grasp)
