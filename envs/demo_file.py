@@ -179,7 +179,7 @@ def anchored_at_goal(demos: DemoSet) -> tuple[FloatArray, FloatArray]:
     (unlike `envs.demo_import.snap_to_goal`, which bends its last part onto the goal). Demos that end at the goal are
     returned as they are.
     """
-    from rflow.quaternion import quat_conj, quat_mul, quat_to_mat
+    from rflow.quaternion import quat_conj, quat_mul, rotate
 
     pos, quat = np.asarray(demos.pos, dtype=np.float64), np.asarray(demos.quat, dtype=np.float64)
     if not demos.ends_apart:
@@ -188,7 +188,7 @@ def anchored_at_goal(demos: DemoSet) -> tuple[FloatArray, FloatArray]:
     new_pos, new_quat = np.empty_like(pos), np.empty_like(quat)
     for n in range(pos.shape[0]):
         turn = quat_mul(goal_quat, quat_conj(quat[n, -1]))  # g_q conj(q_N)
-        new_pos[n] = goal_pos + (pos[n] - pos[n, -1]) @ quat_to_mat(turn).T
+        new_pos[n] = goal_pos + rotate(np.broadcast_to(turn, (pos.shape[1], 4)), pos[n] - pos[n, -1])
         new_quat[n] = quat_mul(turn[None], quat[n])
     new_quat /= np.linalg.norm(new_quat, axis=-1, keepdims=True)
     new_pos[:, -1] = goal_pos

@@ -38,6 +38,7 @@ from envs.demo_file import DemoSet
 from envs.errors import EnvError
 from envs.poses import (make_continuous, mean_quat, minimum_jerk, quat_angle_rad, quat_from_rotvec, quat_mul,
                         resample_trajectory, rotate)
+from rflow.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -204,8 +205,8 @@ def _scaled_scatter(draws: FloatArray, rms: float) -> FloatArray:
 def _normal_to(direction: FloatArray, rng: np.random.Generator) -> FloatArray:
     """A unit vector normal to ``direction``, in a random direction about it (any unit vector for a zero one)."""
     d = np.asarray(direction, dtype=np.float64)
-    length = float(np.linalg.norm(d))
+    length = norm(d)
     v = rng.normal(size=3)
     if length > 0.0:
-        v -= (v @ d) / length**2 * d
-    return v / np.linalg.norm(v)
+        v -= dot(v, d) / length**2 * d
+    return v / norm(v)
