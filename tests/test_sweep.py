@@ -162,3 +162,19 @@ def test_a_two_axis_map_puts_every_cell_in_its_square() -> None:
              for i, (c, e) in enumerate((c, e) for c in (0.001, 0.0002) for e in (0.0, 0.001))]
     grid = success_map(cells, "clearance_m", "hole_error_m").grids[0]
     np.testing.assert_allclose(grid, [[0.0, 10.0], [20.0, 30.0]])  # rows: clearance descending (numbers grow upwards)
+
+
+def test_a_sweep_in_lockstep_gives_the_records_of_one_episode_at_a_time(model_dir) -> None:
+    """Each cell's episodes in lockstep on that cell's slots (groups may straddle two cells) give the records of one
+    episode at a time."""
+    from envs.execution.sweep import sweep
+
+    def records(lockstep: int) -> list[dict]:
+        base = EvaluationConfig(episodes=4, task=Task(time_limit_s=0.3), lockstep=lockstep)
+        cells = sweep_cells(base, SweepAxes(clearance_m=(0.001, 0.0005)))
+        result = sweep(str(model_dir), cells, progress=False)
+        assert result.complete
+        return [{k: v for k, v in r.items() if k != "wall_s"} for r in result.to_dict()["per_episode"]]
+
+    alone, batched = records(1), records(3)
+    assert batched == alone and len(alone) == 8 and {r["cell"] for r in alone} == {0, 1}

@@ -25,7 +25,7 @@ from envs.errors import EnvError
 from envs.execution.episode import StartPose, run_episode
 from envs.execution.config import SCENE_FROM_TASK
 from envs.execution.episode import record_from_dict
-from envs.execution.evaluate import EvaluationConfig, _failed_unit, build_setup, run_settings
+from envs.execution.evaluate import EvaluationConfig, SlotMaker, _failed_unit, build_setup, run_settings
 from envs.execution.result import failure_kinds, finite_max, finite_median, finite_min
 from envs.execution.statistics import wilson_interval
 
@@ -123,26 +123,51 @@ def init_sweep_worker(setup: SweepSetup) -> dict[str, Any]:
     return {"setup": setup, "cache": OrderedDict()}
 
 
-def _cell_context(context: dict[str, Any], cell: int) -> tuple[Any, Any]:
-    cache: OrderedDict[int, tuple[Any, Any]] = context["cache"]
+def _cell_slots(context: dict[str, Any], cell: int, slots: int = 1) -> list[tuple[Any, Any]]:
+    """At least ``slots`` (env, policy) pairs of ``cell`` (envs.execution.evaluate.SlotMaker for the lockstep's extra
+    ones), cached for the last MAX_CACHED_CELLS cells."""
+    cache: OrderedDict[int, tuple[list[tuple[Any, Any]], Any]] = context["cache"]
     if cell not in cache:
         setup: SweepSetup = context["setup"]
-        _, env, policy = build_setup(setup.model_dir, setup.configs[cell])
-        cache[cell] = (env, policy)
+        skill, env, policy = build_setup(setup.model_dir, setup.configs[cell])
+        cache[cell] = ([(env, policy)], SlotMaker(skill, setup.configs[cell], env))
         while len(cache) > MAX_CACHED_CELLS:
             cache.popitem(last=False)
     cache.move_to_end(cell)
-    return cache[cell]
+    made, make = cache[cell]
+    while len(made) < slots:
+        made.append(make())
+    return made[:slots]
 
 
 def run_sweep_unit(context: dict[str, Any], unit: tuple[int, StartPose]) -> dict[str, Any]:
     """The record (dict) of one episode of one cell, tagged with the cell index."""
     cell, start = unit
-    env, policy = _cell_context(context, cell)
+    ((env, policy),) = _cell_slots(context, cell)
     gain = context["setup"].configs[cell].feedforward_gain
     record = run_episode(env, policy, start, feedforward_gain=gain)[0].to_dict()
     record["cell"] = cell
     return record
+
+
+def run_sweep_group(context: dict[str, Any], units: list[tuple[int, StartPose]]) -> list[dict[str, Any]]:
+    """The records (dicts) of consecutive episodes, those of each cell run in lockstep (envs.execution.lockstep) on
+    that cell's slots; the same records as `run_sweep_unit` one by one."""
+    from envs.execution.lockstep import run_lockstep
+
+    records: list[dict[str, Any]] = []
+    i = 0
+    while i < len(units):
+        cell = units[i][0]
+        j = i
+        while j < len(units) and units[j][0] == cell:
+            j += 1
+        envs, policies = zip(*_cell_slots(context, cell, j - i))
+        gain = context["setup"].configs[cell].feedforward_gain
+        for record in run_lockstep(envs, policies, [start for _, start in units[i:j]], feedforward_gain=gain):
+            records.append({**record.to_dict(), "cell": cell})
+        i = j
+    return records
 
 
 def failed_sweep_unit(key: str, unit: tuple[int, StartPose], reason: str) -> dict[str, Any]:
@@ -278,7 +303,8 @@ def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal:
     setup = SweepSetup(str(model_dir), tuple(c.config for c in cells))
     try:
         outcome = run_batch(units, setup, init_sweep_worker, run_sweep_unit, failed_sweep_unit,
-                            cells[0].config.batch_config(), journal, lambda key, record: bar.update(1))
+                            cells[0].config.batch_config(), journal, lambda key, record: bar.update(1),
+                            group_size=cells[0].config.lockstep, work_group=run_sweep_group)
     finally:
         bar.close()
     by_cell: dict[int, list[dict[str, Any]]] = {c.index: [] for c in cells}
