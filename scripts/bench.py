@@ -194,7 +194,8 @@ def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
     reference = strip([run_episode(env, policy, s, feedforward_gain=config.feedforward_gain)[0] for s in starts])
     one_at_a_time = time.perf_counter() - wall
     figures: dict[str, Any] = {"episodes": len(starts), "periods": periods, "physics_s": physics_s,
-                               "one_at_a_time": {"wall_s": one_at_a_time, "ratio_to_physics": physics_s / one_at_a_time}}
+                               "one_at_a_time": {"wall_s": one_at_a_time,
+                                                 "ratio_to_physics": physics_s / one_at_a_time}}
     equal = True
     for slots, threads in [(k, 1) for k in sizes] + [(8 if quick else 32, 2)]:
         wall = time.perf_counter()

@@ -5,7 +5,7 @@ the demo file's ``stiffness``, learned with `pih train --stiffness expert`. The 
 task options, envs/task.py); the demo file records the task, and `pih train` copies it into the checkpoint.
 
     pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--task NAME|FILE.toml] [--video runs/demos.mp4]
-    pih demos --num 7 --seed 0 --noise realistic --out runs/noisy.npz   # as a real cell records them (envs/demo_noise.py)
+    pih demos --num 7 --seed 0 --noise realistic --out runs/noisy.npz   # as a real cell records them
     pih demos --check 100 --seed 0            # success rate of the scripted expert over 100 starts
     pih demos --import rec.npz --tool-offset franka-tcp --dt-s 0.001 --out demos.npz [--snap-goal]
 """
