@@ -129,16 +129,6 @@ def flow_step(x, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_fir
                clamp, n_extra, relu)
 
 
-@_jit
-def flow_steps(xs, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_first, b_first, w_hidden, b_hidden,
-               w_out, b_out, clamp, n_extra, relu):
-    """`flow_step` on every row of xs (B, D) in place, one row after the other: the closed-loop steps of a batch of
-    episodes with the arithmetic of one (envs.execution.lockstep), in one call."""
-    for r in range(xs.shape[0]):
-        flow_step(xs[r], phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_first, b_first, w_hidden,
-                  b_hidden, w_out, b_out, clamp, n_extra, relu)
-
-
 CHART_EUCLIDEAN = 0
 CHART_SPHERE = 1
 """The charts `chart_flow_steps` computes itself (rflow.inference.TangentChart's Euclidean and quaternion maps)."""

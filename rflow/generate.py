@@ -159,7 +159,8 @@ def next_point(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = N
 
 def next_points_rowwise(model: RiemannianFlow, points: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
     """`next_point` of each of the points (B, *point_shape), row by row with the arithmetic of a single point (the
-    control loop's: Log_g and Exp_g of `rflow.inference.TangentChart`, one compiled flow call for all rows), so
+    control loop's: Log_g and Exp_g of `rflow.inference.TangentChart`, for the Euclidean and quaternion charts in one
+    compiled call for all rows), so
     row i equals ``next_point(model, points[i], dt)`` to the last bit; for batches of episodes in lockstep.
 
     Raises:
@@ -179,11 +180,7 @@ def next_points_rowwise(model: RiemannianFlow, points: npt.ArrayLike, dt: float 
             chart.log(arr[bad])  # raises what the single point's query raises
             raise RFlowError(f"point {bad} of the batch is off the manifold")
         return out
-    xs = np.empty((arr.shape[0], model.dim))
-    for i in range(arr.shape[0]):
-        xs[i] = (chart.log(arr[i]) - norm.mean) / norm.std
-    model.inference.step_rows(xs, dt)
-    return np.stack([chart.exp(x * norm.std + norm.mean) for x in xs])
+    return np.stack([next_point(model, point, dt) for point in arr])  # other charts: the single path, row by row
 
 
 def velocity(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = None) -> np.ndarray:

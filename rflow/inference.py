@@ -191,12 +191,6 @@ class NumpyImitationFlow:
                                                 np.ascontiguousarray(std, dtype=np.float64), phi_t, self.offset,
                                                 self._hid, self._latent, *self._weights))
 
-    def step_rows(self, xs: np.ndarray, dt: float | None = None) -> None:
-        """`step_single` of every row of xs (B, D), C-contiguous float64, in place and in one compiled call: each
-        row's result equals its own `step_single` to the last bit."""
-        phi_t = self.step_matrix(self.dt if dt is None else dt)
-        flow_kernel.flow_steps(xs, phi_t, self.offset, self._hid, self._latent, *self._weights)
-
 
 _EYE4 = np.eye(4)
 

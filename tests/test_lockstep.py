@@ -144,3 +144,36 @@ def test_slots_must_not_share_a_model(skill, starts):
         run_lockstep([one, one], [make_policy(skill, "closed-loop")] * 2, starts[:1])
     with pytest.raises(EnvError, match="one policy per environment"):
         run_lockstep([env()], [], starts[:1])
+
+
+def test_an_exception_in_the_physics_ends_only_its_episode(skill, starts, alone):
+    """Whatever escapes the env's physics (here a RuntimeError) is that episode's "error: ...", alone or in lockstep."""
+    broken = env()
+
+    def boom(period):
+        raise RuntimeError("physics broke on purpose")
+
+    broken.run_period = boom
+    record, _ = run_episode(broken, make_policy(skill, "closed-loop"), starts[0])
+    assert record.failure == "error" and "physics broke on purpose" in record.reason
+    records = run_lockstep([broken, env()], [make_policy(skill, "closed-loop") for _ in range(2)], starts[:2],
+                           threads=2)
+    assert records[0].failure == "error" and without_wall(records[1]) == alone[None][1]
+
+
+def test_a_policy_whose_own_part_fails_in_a_batched_query_ends_only_its_episode(skill, starts):
+    from envs.execution.episode import EpisodeRun
+
+    envs = [env() for _ in range(2)]
+    policies = [make_policy(skill, "closed-loop") for _ in range(2)]
+    runs = [EpisodeRun(e, p, s) for e, p, s in zip(envs, policies, starts[3:5])]
+    for run in runs:
+        assert run.begin()
+
+    def boom(*args):
+        raise RuntimeError("adaptation broke on purpose")
+
+    policies[1].adapter.update = boom  # the second: the first has already taken its step when it fails
+    actions = act_for(runs)
+    assert actions[1] is None and runs[1].record.failure == "error" and "on purpose" in runs[1].record.reason
+    assert actions[0] is not None and runs[0].running and policies[0]._step == 1  # one step, not one per try

@@ -201,7 +201,7 @@ def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool =
     while run.running:
         period = run.command(run.act())
         if period is not None:
-            env.run_period(period)
+            run.physics(period)
             run.complete(period)
     return run.finish()
 
@@ -210,8 +210,8 @@ class EpisodeRun:
     """One episode as the steps of its control periods, so that a loop can interleave many episodes
     (envs.execution.lockstep) while each runs exactly the arithmetic of `run_episode`, which is this class run
     alone: ``begin``; while ``running``: ``act`` (or an action from a batched policy), ``command`` -> a prepared
-    period, the env's ``run_period``, ``complete``; then ``finish``. Any exception inside ends the episode as
-    "error: ..." (never raised)."""
+    period, ``physics``, ``complete``; then ``finish``. Any exception inside ends the episode as "error: ..." (never
+    raised)."""
 
     def __init__(self, env: Any, policy: Policy, start: StartPose, record_trace: bool = False,
                  on_step: Callable[[Any], None] | None = None, feedforward_gain: float = 1.0,
@@ -257,7 +257,7 @@ class EpisodeRun:
             self._default_k = env.controller.config.translational_stiffness * np.eye(3)
             self.running = not env.done
         except Exception as err:  # an episode must never abort the batch
-            self._fail(err)
+            self.fail(err)
         return self.running
 
     def observation(self) -> Any:
@@ -269,7 +269,7 @@ class EpisodeRun:
         try:
             return self.policy.act(self.observation())
         except Exception as err:
-            self._fail(err)
+            self.fail(err)
             return None
 
     def command(self, action: Any) -> Any:
@@ -285,13 +285,23 @@ class EpisodeRun:
             target = led_pose(env, action, self.gain, stiffness)  # = feedforward_pose, stiffness made once
             period = env.prepare_period(target, stiffness)
         except Exception as err:
-            self._fail(err)
+            self.fail(err)
             return None
         self._action, self._target = action, target
         return period
 
+    def physics(self, period: Any) -> None:
+        """The env's physics of the prepared period (``env.run_period``; safe on a thread of its own: it touches this
+        episode's env only)."""
+        try:
+            self.env.run_period(period)
+        except Exception as err:
+            self.fail(err)
+
     def complete(self, period: Any) -> None:
-        """Score the period the env ran (``env.finish_period``) and book it."""
+        """Score the period the env ran (``env.finish_period``) and book it (nothing after an error in ``physics``)."""
+        if not self.running:
+            return
         env = self.env
         try:
             result = env.finish_period(period)
@@ -304,7 +314,7 @@ class EpisodeRun:
                 self.on_step(env)
             self.running = not env.done
         except Exception as err:
-            self._fail(err)
+            self.fail(err)
 
     def finish(self) -> tuple[EpisodeRecord, EpisodeTrace | None]:
         """The episode's record (scored from the env's last observation) and trace."""
@@ -314,7 +324,7 @@ class EpisodeRun:
             try:
                 self._score()
             except Exception as err:
-                self._fail(err)
+                self.fail(err)
         rec.wall_s = time.perf_counter() - self._wall
         trace = None
         rows, commanded = self._rows, self._commanded
@@ -355,7 +365,7 @@ class EpisodeRun:
             rec.min_stiffness_n_m, rec.max_stiffness_n_m = float(eig.min()), float(eig.max())
             rec.start_stiffness_eig_n_m, rec.final_stiffness_eig_n_m = eig[0].tolist(), eig[-1].tolist()
 
-    def _fail(self, err: BaseException) -> None:
+    def fail(self, err: BaseException) -> None:
         """End the episode as "error: Type: message at file:line" (an episode must never abort the batch)."""
         rec = self.record
         last = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None

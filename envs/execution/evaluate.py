@@ -151,13 +151,8 @@ def build_slots(model_dir: str | os.PathLike[str], config: EvaluationConfig, slo
         as `build_setup`.
     """
     skill, env, policy = build_setup(model_dir, config)
-    envs, policies = [env], [policy]
-    make = SlotMaker(skill, config, env)
-    for _ in range(slots - 1):
-        slot_env, slot_policy = make()
-        envs.append(slot_env)
-        policies.append(slot_policy)
-    return skill, envs, policies
+    envs, policies = zip(*SlotPool(env, policy, SlotMaker(skill, config, env)).take(slots))
+    return skill, list(envs), list(policies)
 
 
 def _policy_for(skill: Any, config: EvaluationConfig) -> Any:
@@ -176,7 +171,22 @@ def _init_worker(setup: _Setup) -> dict[str, Any]:
     torch.set_num_threads(1)
     skill, env, policy = build_setup(setup.model_dir, setup.config)
     return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain,
-            "slot": SlotMaker(skill, setup.config, env)}
+            "slots": SlotPool(env, policy, SlotMaker(skill, setup.config, env))}
+
+
+class SlotPool:
+    """The lockstep slots of a worker (envs.execution.lockstep): its first environment and policy, and more made by
+    ``make()`` when a group needs them, kept for the next groups."""
+
+    def __init__(self, env: Any, policy: Any, make: Callable[[], tuple[Any, Any]]):
+        self._slots = [(env, policy)]
+        self._make = make
+
+    def take(self, slots: int) -> list[tuple[Any, Any]]:
+        """The first ``slots`` (env, policy) pairs, made as needed."""
+        while len(self._slots) < slots:
+            self._slots.append(self._make())
+        return self._slots[:slots]
 
 
 class SlotMaker:
@@ -203,14 +213,11 @@ def _run_unit(context: dict[str, Any], start: StartPose) -> dict[str, Any]:
 
 
 def _run_group(context: dict[str, Any], starts: list[StartPose]) -> list[dict[str, Any]]:
-    """The records (as dicts) of episodes run in lockstep (envs.execution.lockstep) on the context's slots: its
-    environment and policy and as many more as the group needs (``context["slot"]()``, made once per worker)."""
+    """The records (as dicts) of episodes run in lockstep (envs.execution.lockstep) on the context's slots
+    (`SlotPool`)."""
     from envs.execution.lockstep import run_lockstep
 
-    slots = context.setdefault("slots", [(context["env"], context["policy"])])
-    while len(slots) < len(starts):
-        slots.append(context["slot"]())
-    envs, policies = zip(*slots[:len(starts)])
+    envs, policies = zip(*context["slots"].take(len(starts)))
     records = run_lockstep(envs, policies, starts, feedforward_gain=context["gain"],
                            privileged=context.get("privileged", False))
     return [r.to_dict() for r in records]
@@ -276,7 +283,7 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     env_scene = env.scene.config
     if starts is None:
         starts = evaluation_starts(metadata_starts(skill.metadata, f"checkpoint {model_dir}"), config)
-    here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "slot": SlotMaker(skill, config, env)}
+    here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "slots": SlotPool(env, policy, SlotMaker(skill, config, env))}
     del env, policy  # workers build their own
     outcome, records, earlier_s = run_episodes(starts, _Setup(str(model_dir), config), _init_worker, here, config,
                                                progress, journal, f"evaluate ({config.mode})")
@@ -373,6 +380,7 @@ __all__ = [
     "build_setup",
     "build_slots",
     "SlotMaker",
+    "SlotPool",
     "check_goal_reachable",
     "evaluate",
     "iter_replays",

@@ -37,7 +37,7 @@ from envs.errors import EnvError
 from envs.execution.config import EvaluationConfig
 from envs.execution.episode import StartPose
 from envs.execution.episode import record_from_dict
-from envs.execution.evaluate import build_env, run_episodes, run_settings
+from envs.execution.evaluate import SlotPool, build_env, run_episodes, run_settings
 from envs.execution.result import EvaluationResult
 from envs.execution.starts import evaluation_starts, metadata_starts
 from envs.execution.policy_protocol import Policy, PolicyTask, is_policy, policy_task
@@ -205,7 +205,7 @@ def _init_policy_worker(setup: _PolicySetup) -> dict[str, Any]:
     torch.set_num_threads(1)
     env, policy = build_policy_setup(setup.spec, setup.metadata, setup.config)
     return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain, "privileged": setup.spec.privileged,
-            "slot": _PolicySlotMaker(setup)}
+            "slots": SlotPool(env, policy, _PolicySlotMaker(setup))}
 
 
 class _PolicySlotMaker:
@@ -253,7 +253,7 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
     if starts is None:
         starts = evaluation_starts(metadata_starts(metadata, "the demo file"), config)
     here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "privileged": spec.privileged,
-            "slot": _PolicySlotMaker(_PolicySetup(spec, metadata, config))}
+            "slots": SlotPool(env, policy, _PolicySlotMaker(_PolicySetup(spec, metadata, config)))}
     del env, policy  # workers build their own
     outcome, records, earlier_s = run_episodes(starts, _PolicySetup(spec, metadata, config), _init_policy_worker,
                                                here, config, progress, journal, f"evaluate ({spec.spec})")

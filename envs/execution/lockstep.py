@@ -32,8 +32,9 @@ from envs.execution.episode import EpisodeRecord, EpisodeRun, StartPose
 def act_for(runs: Sequence[EpisodeRun]) -> list[Any]:
     """The actions of the running ``runs``' policies for the coming period: one ``act_many(policies, observations)``
     call for each group of policies of one class that has it and of one ``batch_key()`` (e.g. the same skill), ``act``
-    for the others. ``act_many`` must leave every policy as it was when it raises; the slots of a failed batched
-    query then ``act`` one by one, so an error ends only the episodes it belongs to, as their own ``act`` would."""
+    for the others. ``act_many`` must leave every policy as it was when it raises (the slots of a failed batched
+    query then ``act`` one by one) and puts the exception of a policy whose own part failed in its place, so an error
+    ends only the episodes it belongs to, as their own ``act`` would. None for a slot whose episode ended."""
     actions: list[Any] = [None] * len(runs)
     groups: dict[Any, list[int]] = {}
     for i, run in enumerate(runs):
@@ -54,6 +55,9 @@ def act_for(runs: Sequence[EpisodeRun]) -> list[Any]:
                 actions[i] = runs[i].act()
             continue
         for i, action in zip(members, batch):
+            if isinstance(action, Exception):
+                runs[i].fail(action)
+                action = None
             actions[i] = action
     return actions
 
@@ -93,7 +97,7 @@ def run_lockstep(envs: Sequence[Any], policies: Sequence[Any], starts: Sequence[
     if len({id(e.model) for e in envs}) != len(envs):
         raise EnvError("lockstep slots must not share an MjModel (an episode's perturbation writes into its model)")
     queue = list(enumerate(starts))[::-1]  # pop() from the end: episodes start in the given order
-    records: list[EpisodeRecord | None] = [None] * len(starts)
+    records: list[EpisodeRecord] = [None] * len(starts)  # type: ignore[list-item]  # each set as it ends
     slots: list[tuple[int, EpisodeRun] | None] = [None] * len(envs)
 
     def finish(index: int, run: EpisodeRun) -> None:
@@ -122,10 +126,10 @@ def run_lockstep(envs: Sequence[Any], policies: Sequence[Any], starts: Sequence[
             periods = [run.command(action) for (_, run), action in zip(live, actions)]
             stepped = [(run, period) for (_, run), period in zip(live, periods) if period is not None]
             if pool is not None:
-                list(pool.map(lambda rp: rp[0].env.run_period(rp[1]), stepped))
+                list(pool.map(lambda rp: rp[0].physics(rp[1]), stepped))
             else:
                 for run, period in stepped:
-                    run.env.run_period(period)
+                    run.physics(period)
             for run, period in stepped:
                 run.complete(period)
             for slot, run in live:
@@ -133,4 +137,4 @@ def run_lockstep(envs: Sequence[Any], policies: Sequence[Any], starts: Sequence[
                     index = slots[slot][0]  # type: ignore[index]
                     finish(index, run)
                     fill(slot)
-    return [r for r in records if r is not None]
+    return records

@@ -338,10 +338,11 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         return (id(self.skill), self.lookahead_s, self.speed, self._flow_period_s)
 
     @staticmethod
-    def act_many(policies: Sequence[ClosedLoopPolicy], observations: Sequence[Observation]) -> list[Action]:
+    def act_many(policies: Sequence[ClosedLoopPolicy], observations: Sequence[Observation]) -> list[Any]:
         """`Policy.act` of several closed-loop policies of one skill (``batch_key``), each with its observation:
         the flow queries of all of them as one batch (`skill_state_steps`, row by row the arithmetic of one query,
-        so each action is the one its own ``act`` gives to the last bit). Changes no policy when it raises.
+        so each action is the one its own ``act`` gives to the last bit). Changes no policy when it raises; a policy
+        whose own part fails after the batched query gets the exception in its place (envs.execution.lockstep).
 
         Raises:
             EnvError: a query the skill rejects (NaN, off the manifold).
@@ -354,12 +355,15 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         p1, q1, k1 = skill_state_steps(skill, pos, quat, k, lookahead)
         p2, q2, _ = skill_state_steps(skill, p1, q1, k1, lookahead)
         k_next = None if k is None else skill_state_steps(skill, pos, quat, k, policies[0]._flow_period_s)[2]
-        actions = []
+        actions: list[Any] = []
         for i, (policy, observation, query) in enumerate(zip(policies, observations, queries)):
-            policy._step += 1
-            policy.sense(observation)
-            actions.append(policy._complete(observation.tcp, query, p1[i], q1[i], p2[i], q2[i],
-                                            None if k_next is None else k_next[i]))
+            try:
+                policy._step += 1
+                policy.sense(observation)
+                actions.append(policy._complete(observation.tcp, query, p1[i], q1[i], p2[i], q2[i],
+                                                None if k_next is None else k_next[i]))
+            except Exception as err:  # this policy's own part: its episode ends, the others go on
+                actions.append(err)
         return actions
 
     def _query(self, measured: Pose) -> _Query:

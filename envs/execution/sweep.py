@@ -25,7 +25,8 @@ from envs.errors import EnvError
 from envs.execution.episode import StartPose, run_episode
 from envs.execution.config import SCENE_FROM_TASK
 from envs.execution.episode import record_from_dict
-from envs.execution.evaluate import EvaluationConfig, SlotMaker, _failed_unit, build_setup, run_settings
+from envs.execution.evaluate import (EvaluationConfig, SlotMaker, SlotPool, _failed_unit, build_setup,
+                                     run_settings)
 from envs.execution.result import failure_kinds, finite_max, finite_median, finite_min
 from envs.execution.statistics import wilson_interval
 
@@ -124,20 +125,17 @@ def init_sweep_worker(setup: SweepSetup) -> dict[str, Any]:
 
 
 def _cell_slots(context: dict[str, Any], cell: int, slots: int = 1) -> list[tuple[Any, Any]]:
-    """At least ``slots`` (env, policy) pairs of ``cell`` (envs.execution.evaluate.SlotMaker for the lockstep's extra
-    ones), cached for the last MAX_CACHED_CELLS cells."""
-    cache: OrderedDict[int, tuple[list[tuple[Any, Any]], Any]] = context["cache"]
+    """``slots`` (env, policy) pairs of ``cell`` (envs.execution.evaluate.SlotPool), the pools of the last
+    MAX_CACHED_CELLS cells kept."""
+    cache: OrderedDict[int, SlotPool] = context["cache"]
     if cell not in cache:
         setup: SweepSetup = context["setup"]
         skill, env, policy = build_setup(setup.model_dir, setup.configs[cell])
-        cache[cell] = ([(env, policy)], SlotMaker(skill, setup.configs[cell], env))
+        cache[cell] = SlotPool(env, policy, SlotMaker(skill, setup.configs[cell], env))
         while len(cache) > MAX_CACHED_CELLS:
             cache.popitem(last=False)
     cache.move_to_end(cell)
-    made, make = cache[cell]
-    while len(made) < slots:
-        made.append(make())
-    return made[:slots]
+    return cache[cell].take(slots)
 
 
 def run_sweep_unit(context: dict[str, Any], unit: tuple[int, StartPose]) -> dict[str, Any]:
@@ -156,17 +154,11 @@ def run_sweep_group(context: dict[str, Any], units: list[tuple[int, StartPose]])
     from envs.execution.lockstep import run_lockstep
 
     records: list[dict[str, Any]] = []
-    i = 0
-    while i < len(units):
-        cell = units[i][0]
-        j = i
-        while j < len(units) and units[j][0] == cell:
-            j += 1
-        envs, policies = zip(*_cell_slots(context, cell, j - i))
+    for cell, members in itertools.groupby(units, key=lambda unit: unit[0]):
+        starts = [start for _, start in members]
+        envs, policies = zip(*_cell_slots(context, cell, len(starts)))
         gain = context["setup"].configs[cell].feedforward_gain
-        for record in run_lockstep(envs, policies, [start for _, start in units[i:j]], feedforward_gain=gain):
-            records.append({**record.to_dict(), "cell": cell})
-        i = j
+        records += [{**r.to_dict(), "cell": cell} for r in run_lockstep(envs, policies, starts, feedforward_gain=gain)]
     return records
 
 
