@@ -190,7 +190,7 @@ def rotate(quat: npt.ArrayLike, vec: npt.ArrayLike) -> FloatArray:
     """Rotate vector(s) by unit quaternion(s): q * (0, v) * conj(q)."""
     v = np.asarray(vec, dtype=float)
     q = quat if is_torch(quat) else np.asarray(quat, dtype=float)
-    if v.shape == (3,) and q.shape == (4,) and not is_torch(q):  # one vector and one quaternion: the same products in Python floats
+    if v.shape == (3,) and q.shape == (4,) and not is_torch(q):  # one vector, one quaternion: products in Python floats
         w, x, y, z = q.tolist()
         return np.array(hamilton(*hamilton(w, x, y, z, 0.0, *v.tolist()), w, -x, -y, -z)[1:])
     qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)

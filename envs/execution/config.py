@@ -143,7 +143,8 @@ class EvaluationConfig:
                            "demos' scene")
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
-        if isinstance(self.lockstep, bool) or not isinstance(self.lockstep, int) or not 1 <= self.lockstep <= MAX_LOCKSTEP:
+        lockstep = self.lockstep
+        if isinstance(lockstep, bool) or not isinstance(lockstep, int) or not 1 <= lockstep <= MAX_LOCKSTEP:
             raise EnvError(f"lockstep={self.lockstep!r} must be an integer from 1 to {MAX_LOCKSTEP}")
         try:
             self.batch_config()

@@ -283,7 +283,8 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     env_scene = env.scene.config
     if starts is None:
         starts = evaluation_starts(metadata_starts(skill.metadata, f"checkpoint {model_dir}"), config)
-    here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "slots": SlotPool(env, policy, SlotMaker(skill, config, env))}
+    here = {"env": env, "policy": policy, "gain": config.feedforward_gain,
+            "slots": SlotPool(env, policy, SlotMaker(skill, config, env))}
     del env, policy  # workers build their own
     outcome, records, earlier_s = run_episodes(starts, _Setup(str(model_dir), config), _init_worker, here, config,
                                                progress, journal, f"evaluate ({config.mode})")
