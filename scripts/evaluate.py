@@ -108,8 +108,10 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     skill.add_argument("--speed", type=number(above=0.0), default=d.speed,
                        help="time scaling of the learned flow, both modes")
     skill.add_argument("--stiffness",
-                       help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`) "
-                            "or 'constant:K' (K I, K > 0 in N/m) (default: the controller's)")
+                       help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`), "
+                            "'constant:K' (K I, K > 0 in N/m) or 'schedule[:FREE/LATERAL/AXIAL]' (closed loop: the "
+                            "expert's schedule, N/m, at the measured height above the nominal hole) (default: the "
+                            "controller's)")
     skill.add_argument("--no-contact-adaptation", action="store_true",
                        help="closed loop: run the bare learned flow, without the axial push, frame shift and "
                             "rotational compliance near the hole (envs/execution/adaptation.py; the ablation)")

@@ -55,7 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     axes.add_argument("--hole-error-deg", help="hole-pose angle errors, deg")
     axes.add_argument("--pos-range-mm", help="start position ranges, mm (half-width of the box)")
     axes.add_argument("--stiffness", help="commanded translational stiffness per cell: 'learned' (a skill from "
-                                          "`pih train --stiffness`) or 'constant:K' (K I, K > 0 in N/m), e.g. "
+                                          "`pih train --stiffness`), 'constant:K' (K I, K > 0 in N/m) or "
+                                          "'schedule[:FREE/LATERAL/AXIAL]', e.g. "
                                           "learned,constant:500,constant:1500,constant:4000")
     run = parser.add_argument_group("run")
     run.add_argument("--episodes", type=count(MAX_EPISODES), default=30, help=f"episodes per cell, 1..{MAX_EPISODES:,}")
@@ -101,7 +102,7 @@ def parse_values(option: str, text: str | None, scale: float) -> tuple[float, ..
 
 
 def parse_stiffness(text: str | None) -> tuple[str, ...]:
-    """Comma-separated stiffness settings ("learned", "constant:K"). Raises EnvError naming the option."""
+    """Comma-separated stiffness settings ("learned", "constant:K", "schedule[:F/L/A]"). Raises EnvError naming the option."""
     from envs.execution.policy import StiffnessSetting
 
     if text is None:

@@ -253,3 +253,33 @@ def test_pih_evaluate_bad_stiffness_figure_exits_2_before_any_episode(tmp_path, 
     err = capsys.readouterr().err.strip()
     assert err.startswith("pih evaluate: error:") and words in err and "\n" not in err
     assert not out.exists() and not (tmp_path / "k.png").exists()
+
+
+def test_schedule_stiffness_setting_commands_the_teachers_k_of_the_measured_height():
+    """"schedule" commands the expert's K(h) at the measured pose's height above the nominal mouth (h from the
+    skill's goal and the mouth depth the reset gives), free-space stiffness far above, the hole's at the goal."""
+    from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
+
+    setting = StiffnessSetting.parse("schedule:2000/400/700")
+    assert setting.schedule == StiffnessSchedule(2000.0, 400.0, 700.0)
+    assert StiffnessSetting.parse("schedule").schedule == StiffnessSchedule()
+    skill = tiny_skill()
+    policy = ClosedLoopPolicy(skill, stiffness=setting)
+    goal, axis = skill.goal_pos, policy.adapter.axis  # axis: the insertion direction, into the hole
+    depth = 0.02
+    policy.reset_at(Pose(pos=goal - 0.1 * axis, quat=skill.goal_quat), 0.01, mouth_depth_m=depth)
+    far = policy.command(0, Pose(pos=goal - 0.1 * axis, quat=skill.goal_quat)).stiffness
+    assert np.allclose(far, 2000.0 * np.eye(3))
+    at_goal = policy.scheduled_stiffness(goal)
+    assert np.allclose(at_goal, 400.0 * (np.eye(3) - np.outer(axis, axis)) + 700.0 * np.outer(axis, axis))
+    mid = goal - (depth + 0.015) * axis  # 15 mm above the mouth: between h_hole = 5 mm and h_free = 30 mm
+    assert np.allclose(policy.scheduled_stiffness(mid), expert_stiffness(mid, goal - depth * axis, -axis,
+                                                                           setting.schedule))
+    assert 700.0 < np.linalg.eigvalsh(policy.scheduled_stiffness(mid)).max() < 2000.0
+    with pytest.raises(EnvError, match="nominal hole"):
+        policy.reset_at(Pose(pos=goal, quat=skill.goal_quat), 0.01)
+    with pytest.raises(EnvError, match="closed loop"):
+        OpenLoopPolicy(skill, stiffness=setting)
+    for bad in ("schedule:1/2", "schedule:a/b/c", "schedule:0/300/300", "schedule:1500/300/nan"):
+        with pytest.raises(EnvError, match="stiffness 'schedule"):
+            StiffnessSetting.parse(bad)

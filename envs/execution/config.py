@@ -16,6 +16,7 @@ from envs.errors import EnvError
 from envs.task import Task, check_number
 
 if TYPE_CHECKING:
+    from envs.stiffness_schedule import StiffnessSchedule
     from rflow.skill_io import PoseSkill
 
 MODES: tuple[str, ...] = ("closed-loop", "open-loop")
@@ -23,30 +24,56 @@ DEFAULT_LOOKAHEAD_S: float = 0.05
 """Closed-loop lookahead along the learned flow (tuned on the default scene, see envs/execution/evaluate.py)."""
 
 
-STIFFNESS_KINDS: tuple[str, ...] = ("learned", "constant")
+STIFFNESS_KINDS: tuple[str, ...] = ("learned", "constant", "schedule")
 
 
 @dataclass(frozen=True)
 class StiffnessSetting:
-    """Which translational stiffness a policy commands: "learned" (the skill's) or "constant" (K I, N/m)."""
+    """Which translational stiffness a policy commands: "learned" (the skill's), "constant" (K I, N/m) or
+    "schedule" (the scripted expert's schedule K(h), `envs.stiffness_schedule`, at the measured pose's height h
+    above the nominal hole's mouth: what the cell believes, never the true hole; the teacher a learned
+    stiffness can at best reproduce)."""
 
     kind: str
     constant_n_m: float = 0.0
+    schedule: StiffnessSchedule | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in STIFFNESS_KINDS:
             raise EnvError(f"stiffness kind {self.kind!r} must be one of {', '.join(STIFFNESS_KINDS)}")
         if self.kind == "constant" and not (np.isfinite(self.constant_n_m) and self.constant_n_m > 0.0):
             raise EnvError(f"constant stiffness {self.constant_n_m!r} N/m must be a positive finite number")
+        if self.kind == "schedule" or self.schedule is not None:
+            from envs.stiffness_schedule import StiffnessSchedule  # imports MuJoCo: only when asked for
+
+            if self.kind != "schedule" or not isinstance(self.schedule, StiffnessSchedule):
+                raise EnvError("a 'schedule' stiffness needs a StiffnessSchedule, and only it takes one")
 
     @classmethod
     def parse(cls, text: str) -> "StiffnessSetting":
-        """"learned" or "constant:K" (K in N/m, > 0). Raises EnvError naming the text."""
+        """"learned", "constant:K" (K in N/m, > 0), "schedule" (the expert's) or "schedule:FREE/LATERAL/AXIAL"
+        (its three stiffnesses in N/m). Raises EnvError naming the text."""
         if text == "learned":
             return cls("learned")
         kind, _, value = str(text).partition(":")
+        if kind == "schedule":
+            from envs.stiffness_schedule import StiffnessSchedule
+
+            if not value:
+                return cls("schedule", schedule=StiffnessSchedule())
+            parts = value.split("/")
+            try:
+                free, lateral, axial = (float(v) for v in parts)
+            except ValueError:
+                raise EnvError(f"stiffness {text!r}: expected schedule:FREE/LATERAL/AXIAL, three stiffnesses in "
+                               "N/m") from None
+            try:
+                return cls("schedule", schedule=StiffnessSchedule(free, lateral, axial))
+            except EnvError as err:
+                raise EnvError(f"stiffness {text!r}: {err}") from None
         if kind != "constant" or not value:
-            raise EnvError(f"stiffness {text!r} must be 'learned' or 'constant:K' with K in N/m")
+            raise EnvError(f"stiffness {text!r} must be 'learned', 'constant:K' with K in N/m, or 'schedule[:FREE/"
+                           "LATERAL/AXIAL]'")
         try:
             k = float(value)
         except ValueError:
@@ -99,7 +126,8 @@ class EvaluationConfig:
             recorded "wall_timeout" (None: no limit).
         backend: "process" (local processes) or "ray".
         ray_address: HOST:PORT of a Ray cluster (None: a local Ray instance on all cores).
-        stiffness: the translational stiffness commanded ("learned": the skill's, "constant:K": K I in N/m;
+        stiffness: the translational stiffness commanded ("learned": the skill's, "constant:K": K I in N/m,
+            "schedule[:FREE/LATERAL/AXIAL]": the expert's schedule from the nominal hole;
             None: the controller's default), see envs.execution.policy.StiffnessSetting.
         contact_adaptation: closed loop: adapt to the contact near the hole (axial push, frame shift, rotational
             compliance; envs.execution.adaptation); False runs the bare learned flow (the ablation).

@@ -33,7 +33,9 @@ the skill's start stiffness and is integrated alongside, one exact flow step of 
 ``speed``) per control step from [measured pose, K]. Open loop, K is generated with the trajectory. Either
 way the commanded K is the generated one with its eigenvalues clipped to the skill's [k_min, k_max]
 (`PoseSkill.bound_stiffness`, counted in ``stiffness_clipped_steps``). `StiffnessSetting` chooses between
-that learned stiffness, a constant isotropic K, or none (the controller's default);
+that learned stiffness, a constant isotropic K, the scripted expert's schedule K(h) at the measured pose's
+height above the nominal mouth (closed loop; the teacher itself, as a learned stiffness could at best
+reproduce it), or none (the controller's default);
 `envs.execution.feedforward.command_stiffness` makes the 6x6 matrix for env.step.
 """
 
@@ -48,6 +50,7 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
+from envs.stiffness_schedule import expert_stiffness
 from envs.execution.config import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.execution.policy_protocol import Action, Observation
 from envs.poses import (Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec,
@@ -234,11 +237,14 @@ def generate_plan(skill: PoseSkill, start: Pose, duration_s: float, period_s: fl
 
 
 def _commanded_stiffness(setting: StiffnessSetting | None, learned: FloatArray | None) -> FloatArray | None:
-    """The translational stiffness a policy commands: the learned (already bounded) one, K I, or None."""
+    """The translational stiffness a policy commands: the learned (already bounded) one, K I, or None (a
+    "schedule" is the closed loop's, `ClosedLoopPolicy.scheduled_stiffness`)."""
     if setting is None:
         return None
     if setting.kind == "constant":
         return setting.constant_n_m * np.eye(3)
+    if setting.kind == "schedule":
+        raise EnvError("stiffness 'schedule' reads the measured pose: only the closed loop commands it")
     return None if learned is None else learned.copy()
 
 
@@ -294,6 +300,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         self.adapter = ContactAdapter(adaptation, skill.goal_pos, rotate(skill.goal_quat, [0.0, 0.0, 1.0]))
         self.stiffness_state: FloatArray | None = None
         self.stiffness_clipped_steps = 0
+        self._mouth_depth_m: float | None = None
         self._period_s = 0.0
         self._flow_period_s = 0.0
         self._step = 0
@@ -312,9 +319,12 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         """Start an episode: no push, frame shift or search; ``mouth_depth_m``: how far the goal lies beyond the
         nominal hole's mouth along the axis (None: no stall search); the stiffness state (stiffness skills) starts
         at the skill's start stiffness."""
+        if self.stiffness is not None and self.stiffness.kind == "schedule" and mouth_depth_m is None:
+            raise EnvError("stiffness 'schedule' needs the nominal hole's mouth (reset with an observation)")
         self._step = 0
         self._flow_period_s = float(period_s) * self.speed
         self._period_s = float(period_s)
+        self._mouth_depth_m = mouth_depth_m
         self.adapter.reset(mouth_depth_m)
         self.stiffness_state = self.skill.start_stiffness if self.skill.has_stiffness else None
         self.stiffness_clipped_steps = 0
@@ -404,9 +414,20 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         push = np.concatenate([self.adapter.offset, np.zeros(3)])
         anchor = Pose(pos=here.pos + delta, quat=on_goal_hemisphere(measured.quat, q1) if rho is not None
                       else here.quat)
-        return Action(Pose(pos=p1 + delta, quat=q1), _commanded_stiffness(self.stiffness, learned),
-                      self.adapter.rotational_stiffness(measured.pos), self.speed * twist, self.speed**2 * accel,
-                      anchor, push)
+        scheduled = self.stiffness is not None and self.stiffness.kind == "schedule"
+        commanded = self.scheduled_stiffness(measured.pos) if scheduled else _commanded_stiffness(self.stiffness, learned)
+        return Action(Pose(pos=p1 + delta, quat=q1), commanded, self.adapter.rotational_stiffness(measured.pos),
+                      self.speed * twist, self.speed**2 * accel, anchor, push)
+
+    def scheduled_stiffness(self, pos: npt.ArrayLike) -> FloatArray:
+        """K(h) of the "schedule" stiffness (`envs.stiffness_schedule.expert_stiffness`) at the measured peg_tip
+        position: h = (p - o) . (-a), the height above the nominal mouth o = g - d a (g the skill's goal, a its
+        insertion axis, d the goal's depth below the nominal mouth, from `reset`), axis -a out of the hole."""
+        setting, depth = self.stiffness, self._mouth_depth_m
+        if setting is None or setting.schedule is None or depth is None:
+            raise EnvError("scheduled_stiffness needs a 'schedule' stiffness and a reset with the nominal hole")
+        axis = self.adapter.axis
+        return expert_stiffness(pos, self.adapter.goal_pos - depth * axis, -axis, setting.schedule)
 
 
 @dataclass(frozen=True)
@@ -435,6 +456,8 @@ class OpenLoopPolicy(_PoseSkillPolicy):
             raise EnvError(f"speed factor {speed} must be > 0")
         if stiffness is not None:
             stiffness.check_skill(skill)
+            if stiffness.kind == "schedule":
+                raise EnvError("stiffness 'schedule' reads the measured pose: use the closed loop")
         self.stiffness = stiffness
         self.skill = skill
         self.duration_s = float(duration_s)

@@ -1,6 +1,6 @@
 """Success maps: one skill evaluated over a grid of task settings (clearance x hole-pose error x ...).
 
-The commanded translational stiffness is an axis too ("learned", "constant:K"; envs.execution.policy.
+The commanded translational stiffness is an axis too ("learned", "constant:K", "schedule"; envs.execution.policy.
 StiffnessSetting), so the learned variable stiffness and constant ones run over the same starts and settings.
 
 Every cell of the grid (the Cartesian product of the axes) is an EvaluationConfig derived from a base one;
@@ -40,7 +40,7 @@ class SweepAxes:
 
     Attributes:
         clearance_m, hole_error_m, chamfer_m, hole_error_deg, pos_range_m: values per axis.
-        stiffness: commanded stiffness per cell, "learned" or "constant:K" (K in N/m).
+        stiffness: commanded stiffness per cell, "learned", "constant:K" (K in N/m) or "schedule[:F/L/A]".
     """
 
     clearance_m: tuple[float, ...] = ()
