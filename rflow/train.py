@@ -25,6 +25,7 @@ import torch
 from tqdm import tqdm
 
 from pihutil.atomic import write_atomic
+from rflow.adam import FusedAdam
 from rflow.cpu_dispatch import check_torch_dispatch
 from rflow.errors import RFlowError
 from rflow.manifolds import Manifold, get_manifold
@@ -254,6 +255,30 @@ def identity_prior(network: ImitationFlow, half_width: torch.Tensor, num: int) -
     return prior_deviation(network, z, q)
 
 
+def _optimizer(name: str, params: list[torch.nn.Parameter], lr: float) -> Any:
+    """The optimizer ``name`` of `OPTIMIZERS` over ``params``: Adam on its fused kernel (`rflow.adam.FusedAdam`, no
+    torch.optim), the others from torch.optim (SGD fused: one kernel per step on CPU)."""
+    if name == "adam":
+        return FusedAdam(params, lr)
+    kinds = {"adamax": torch.optim.Adamax, "sgd": torch.optim.SGD, "rmsprop": torch.optim.RMSprop}
+    return kinds[name](params, lr=lr, **({"fused": True} if name == "sgd" else {}))
+
+
+def _cosine_factor(step: int, total: int, final: float) -> float:
+    """The cosine decay of the lr at optimizer step ``step`` (from 0): final + (1 - final) (1 + cos(pi k / K)) / 2
+    with k = min(step, K), K = ``total`` steps (1 at the first step, ``final`` from the last on)."""
+    return final + (1 - final) * 0.5 * (1 + math.cos(math.pi * min(step, total) / total))
+
+
+def _set_lr(opt: Any, lr: float) -> None:
+    """Set the learning rate of the next step (a FusedAdam's, or every param group's of a torch.optim optimizer)."""
+    if isinstance(opt, FusedAdam):
+        opt.lr = lr
+    else:
+        for group in opt.param_groups:
+            group["lr"] = lr
+
+
 def fit(
     demos: npt.ArrayLike,
     manifold: str | Manifold,
@@ -306,16 +331,11 @@ def fit(
     )
     network.float().train()
     params = list(network.parameters())
-    optimizers = {"adam": torch.optim.Adam, "adamax": torch.optim.Adamax, "sgd": torch.optim.SGD,
-                  "rmsprop": torch.optim.RMSprop}
-    fused = {"fused": True} if config.optimizer in ("adam", "sgd") else {}  # one kernel per step on CPU
-    opt = optimizers[config.optimizer](params, lr=config.lr, **fused)
+    opt = _optimizer(config.optimizer, params, config.lr)
     steps_per_epoch = max(1, math.ceil(config.transitions_per_epoch / config.batch_size))
     total = steps_per_epoch * config.epochs
     final = config.lr_final_fraction
-    sched = torch.optim.lr_scheduler.LambdaLR(  # cosine decay from lr to final * lr
-        opt, lambda k: final + (1 - final) * 0.5 * (1 + math.cos(math.pi * min(k, total) / total))
-    )
+    step_count = 0
     z_t = torch.as_tensor(z, dtype=torch.float32)
     # at least prior_radius std wide: a dimension the demos never vary in (z = 0 throughout) still gets the prior
     prior_box = torch.as_tensor(config.prior_radius * np.maximum(np.abs(z).max(axis=0), 1.0), dtype=torch.float32)
@@ -350,7 +370,7 @@ def fit(
                 loss = nll + config.prior_weight * prior
             grad_norm = torch.zeros(())
             if torch.isfinite(loss):
-                opt.zero_grad(set_to_none=True)
+                opt.zero_grad()
                 loss.backward()
                 grad_norm = torch.nn.utils.clip_grad_norm_(params, config.grad_clip)
             if not (torch.isfinite(loss) and torch.isfinite(grad_norm)):
@@ -365,8 +385,9 @@ def fit(
                 )
                 err.history = history  # type: ignore[attr-defined]
                 raise err
+            _set_lr(opt, config.lr * _cosine_factor(step_count, total, final))
             opt.step()
-            sched.step()
+            step_count += 1
             epoch_loss += float(nll.detach())
         history.train_loss.append(epoch_loss / steps_per_epoch)
         if has_val:
