@@ -102,7 +102,8 @@ def parse_values(option: str, text: str | None, scale: float) -> tuple[float, ..
 
 
 def parse_stiffness(text: str | None) -> tuple[str, ...]:
-    """Comma-separated stiffness settings ("learned", "constant:K", "schedule[:F/L/A]"). Raises EnvError naming the option."""
+    """Comma-separated stiffness settings ("learned", "constant:K", "schedule[:F/L/A]"). Raises EnvError naming the
+    option."""
     from envs.execution.policy import StiffnessSetting
 
     if text is None:

@@ -50,11 +50,11 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
-from envs.stiffness_schedule import expert_stiffness
 from envs.execution.config import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.execution.policy_protocol import Action, Observation
 from envs.poses import (Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec,
                          quat_to_rotvec_one, rotate)
+from envs.stiffness_schedule import expert_stiffness
 from rflow.errors import RFlowError
 from rflow.generate import next_point, next_points_rowwise, rollout
 from rflow.skill_io import PoseSkill
@@ -414,8 +414,10 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         push = np.concatenate([self.adapter.offset, np.zeros(3)])
         anchor = Pose(pos=here.pos + delta, quat=on_goal_hemisphere(measured.quat, q1) if rho is not None
                       else here.quat)
-        scheduled = self.stiffness is not None and self.stiffness.kind == "schedule"
-        commanded = self.scheduled_stiffness(measured.pos) if scheduled else _commanded_stiffness(self.stiffness, learned)
+        if self.stiffness is not None and self.stiffness.kind == "schedule":
+            commanded = self.scheduled_stiffness(measured.pos)
+        else:
+            commanded = _commanded_stiffness(self.stiffness, learned)
         return Action(Pose(pos=p1 + delta, quat=q1), commanded, self.adapter.rotational_stiffness(measured.pos),
                       self.speed * twist, self.speed**2 * accel, anchor, push)
 
