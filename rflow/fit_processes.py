@@ -16,7 +16,7 @@ from __future__ import annotations
 import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -62,7 +62,8 @@ def _failure(key: str, unit: Any, reason: str) -> dict[str, Any]:
 
 
 def fit_in_processes(jobs: Mapping[str, FitJob], dt: float, config: TrainConfig, workers: int,
-                     progress: bool = True) -> dict[str, tuple[RiemannianFlow, TrainHistory]]:
+                     progress: bool = True, load: Callable[[Path], RiemannianFlow] = RiemannianFlow.load
+                     ) -> dict[str, tuple[RiemannianFlow, TrainHistory]]:
     """Fit every job's model with `rflow.train.fit`, ``workers`` at a time in spawned processes.
 
     Args:
@@ -71,6 +72,8 @@ def fit_in_processes(jobs: Mapping[str, FitJob], dt: float, config: TrainConfig,
         config: hyperparameters shared by the models.
         workers: processes at once (>= 1; 1 fits here, one model after the other).
         progress: print a line when each model is done.
+        load: reads a model back from the folder a worker saved it in (a subclass's ``load`` that knows more
+            manifolds by name, e.g. `rflow.skill_io.PoseFlow.load`).
 
     Returns:
         model name -> (model, history), in the order of ``jobs``.
@@ -109,5 +112,5 @@ def fit_in_processes(jobs: Mapping[str, FitJob], dt: float, config: TrainConfig,
             h = record["history"]
             history = TrainHistory([float(x) for x in h["train_loss"]], [float(x) for x in h["val_loss"]],
                                    float(h["seconds"]))
-            results[name] = (RiemannianFlow.load(Path(scratch) / name), history)
+            results[name] = (load(Path(scratch) / name), history)
     return results

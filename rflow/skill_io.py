@@ -1,8 +1,11 @@
 """A pose skill: RiemannianFlow models of a peg_tip pose trajectory, and their checkpoint directory.
 
-Two layouts, as in the paper or jointly (its "future work"):
+Three layouts, as in the paper, jointly (its "future work"), or as in the paper with a stiffness model beside:
   - "separate": a position model on R^3 (tangent p - g_p) and an orientation model on S^3 (tangent
     Log_{g_q}(q)), each its own RiemannianFlow;
+  - "separate_stiffness": the same two models, and beside them a model on R^3 x SPD(3) (`POSITION_STIFFNESS`:
+    points [p, vec(K)] (12,), tangent (9,)) that generates the translational stiffness K from the position, so
+    that learning the stiffness leaves the pose skill the two-model one (issue #22);
   - "joint": one model on the product R^3 x S^3 (`POSE`): points [p, q] (7,), tangent
     [p - g_p, Log_{g_q}(q)] (6,), built from the same two maps, one 6-D flow; or, for a skill that also
     varies its translational stiffness K (issue #10), one model on R^3 x S^3 x SPD(3) (`POSE_STIFFNESS`):
@@ -16,6 +19,7 @@ Checkpoint directory (``save_skill`` / ``load_skill``)::
                               training config and loss history per model
     DIR/position/             RiemannianFlow.save (model.json + weights.pt)   } "separate"
     DIR/orientation/          RiemannianFlow.save                             }
+    DIR/stiffness/            RiemannianFlow.save                               + "separate_stiffness"
     DIR/joint/                RiemannianFlow.save                               "joint"
     DIR/<extra files>         e.g. loss.png, written by a caller-supplied writer
 
@@ -45,8 +49,9 @@ from rflow.stiffness import StiffnessBounds, clip_eigenvalues, log_euclidean_mea
 
 SKILL_FILE = "skill.json"
 SKILL_FORMAT = "rflow.PoseSkill/1"
-LAYOUTS = ("separate", "joint")
-MODEL_DIRS: Mapping[str, tuple[str, ...]] = {"separate": ("position", "orientation"), "joint": ("joint",)}
+LAYOUTS = ("separate", "joint", "separate_stiffness")
+MODEL_DIRS: Mapping[str, tuple[str, ...]] = {"separate": ("position", "orientation"), "joint": ("joint",),
+                                             "separate_stiffness": ("position", "orientation", "stiffness")}
 
 
 POSE = ProductManifold("pose", ((EuclideanSpace(), (3,)), (UnitQuaternions(), (4,))))
@@ -60,7 +65,13 @@ tangent [p - g_p, Log_{g_q}(q), mandel(logm(G^-1/2 K G^-1/2))] (12,) at the goal
 part is the affine-invariant Log at the goal stiffness G in normal coordinates (dimensionless, see
 `rflow.manifolds.spd.normal_log_map`); Exp of any tangent vector is SPD."""
 
-JOINT_MANIFOLDS: Mapping[str, ProductManifold] = {m.name: m for m in (POSE, POSE_STIFFNESS)}
+POSITION_STIFFNESS = ProductManifold(
+    "position_stiffness", ((EuclideanSpace(), (3,)), (SPDNormalMatrices(), (3, 3))))
+"""R^3 x SPD(3) of peg_tip positions and translational stiffness: points [p (3), vec(K) (9)] (12,), tangent
+[p - g_p, mandel(logm(G^-1/2 K G^-1/2))] (9,) at the goal (g_p, G); the stiffness model of a "separate_stiffness"
+skill, whose K follows the position it is queried at."""
+
+JOINT_MANIFOLDS: Mapping[str, ProductManifold] = {m.name: m for m in (POSE, POSE_STIFFNESS, POSITION_STIFFNESS)}
 
 
 class PoseFlow(RiemannianFlow):
@@ -85,8 +96,8 @@ class PoseSkill:
     """The trained models of one pose skill plus what is needed to use and audit them.
 
     Attributes:
-        layout: "separate" (position + orientation) or "joint".
-        models: {"position": ..., "orientation": ...} or {"joint": ...}.
+        layout: "separate" (position + orientation), "joint" or "separate_stiffness" (+ stiffness).
+        models: {"position": ..., "orientation": ...}, {"joint": ...} or {"position", "orientation", "stiffness"}.
         metadata: JSON-ready facts about the demos (shape, clearance_m, demo_sha256, goal, dt, ...).
         training: per model name, {"config": TrainConfig as dict, "history": TrainHistory as dict}.
     """
@@ -105,18 +116,21 @@ class PoseSkill:
     @property
     def goal_pos(self) -> np.ndarray:
         """Goal position g_p (3,), m."""
-        return (self.models["position"].goal if self.layout == "separate" else self.models["joint"].goal[:3]).copy()
+        return (self.models["joint"].goal[:3] if self.layout == "joint" else self.models["position"].goal).copy()
 
     @property
     def goal_quat(self) -> np.ndarray:
         """Goal orientation g_q (4,), w-x-y-z."""
-        return (self.models["orientation"].goal if self.layout == "separate" else self.models["joint"].goal[3:7]).copy()
+        return (self.models["joint"].goal[3:7] if self.layout == "joint" else self.models["orientation"].goal).copy()
 
-    # ---- stiffness (a joint model on R^3 x S^3 x SPD(3), `POSE_STIFFNESS`) --------------------------------
+    # ---- stiffness (a joint model on R^3 x S^3 x SPD(3), `POSE_STIFFNESS`, or a model on R^3 x SPD(3) beside the
+    # ---- two pose models, `POSITION_STIFFNESS`) ---------------------------------------------------------------------
     @property
     def has_stiffness(self) -> bool:
-        """True when the skill also generates the translational stiffness (joint model on POSE_STIFFNESS)."""
-        return self.layout == "joint" and self.models["joint"].manifold.name == POSE_STIFFNESS.name
+        """True when the skill also generates the translational stiffness (a joint model on POSE_STIFFNESS, or the
+        "separate_stiffness" layout)."""
+        return self.layout == "separate_stiffness" or (self.layout == "joint"
+                                                       and self.models["joint"].manifold.name == POSE_STIFFNESS.name)
 
     def _require_stiffness(self) -> None:
         if not self.has_stiffness:
@@ -126,6 +140,8 @@ class PoseSkill:
     def goal_stiffness(self) -> np.ndarray:
         """Goal stiffness G (3, 3), N/m. Raises RFlowError for a skill without stiffness."""
         self._require_stiffness()
+        if self.layout == "separate_stiffness":
+            return self.models["stiffness"].goal[3:].reshape(3, 3).copy()
         return self.models["joint"].goal[7:].reshape(3, 3).copy()
 
     @property
@@ -161,6 +177,11 @@ class PoseSkill:
             k = np.asarray(self.goal_stiffness if stiffness is None else stiffness, float)
             parts.append(k.reshape(k.shape[:-2] + (9,)))
         return np.concatenate(parts, -1)
+
+    def stiffness_point(self, pos: npt.ArrayLike, stiffness: npt.ArrayLike) -> np.ndarray:
+        """The "separate_stiffness" stiffness model's point [p, vec(K)] (..., 12)."""
+        k = np.asarray(stiffness, float)
+        return np.concatenate([np.asarray(pos, float), k.reshape(k.shape[:-2] + (9,))], -1)
 
     def split_point(self, x: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(pos (..., 3), quat (..., 4), stiffness (..., 3, 3) or None) of joint-model points."""
@@ -300,7 +321,8 @@ def _check_finite_weights(model_dir: Path) -> None:
 
 
 def _check_models(skill: PoseSkill, src: Path) -> None:
-    expected = {"position": ("euclidean", (3,)), "orientation": ("sphere", (4,)), "joint": ("pose", (7,))}
+    expected = {"position": ("euclidean", (3,)), "orientation": ("sphere", (4,)), "joint": ("pose", (7,)),
+                "stiffness": (POSITION_STIFFNESS.name, (POSITION_STIFFNESS.point_size,))}
     for name, model in skill.models.items():
         manifold, shape = expected[name]
         if name == "joint" and model.manifold.name == POSE_STIFFNESS.name:
@@ -339,11 +361,12 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
         quat: (N, M, 4) unit quaternions w-x-y-z, all ending at the goal orientation.
         dt: sampling time (s).
         config: rflow.train.TrainConfig shared by the models (default: the paper's).
-        layout: "separate" (position on R^3 and orientation on S^3, as in the paper) or "joint"
-            (one model on R^3 x S^3, or on R^3 x S^3 x SPD(3) with ``stiffness``).
+        layout: "separate" (position on R^3 and orientation on S^3, as in the paper), "joint"
+            (one model on R^3 x S^3, or on R^3 x S^3 x SPD(3) with ``stiffness``) or "separate_stiffness" (the two
+            separate models and, with ``stiffness``, a third on R^3 x SPD(3)).
         progress: tqdm bars.
         stiffness: optional (N, M, 3, 3) translational stiffness (N/m, SPD, ending at one goal stiffness),
-            learned inside the joint model (layout "joint" only).
+            learned inside the joint model (layout "joint") or by the stiffness model (layout "separate_stiffness").
         bounds: [k_min, k_max] of the stiffness (default `StiffnessBounds()`); every demonstrated
             stiffness must lie inside, and the skill clips generated stiffness to them.
         workers: with 2 or more and the separate layout, the two models train at the same time in two
@@ -372,11 +395,17 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
     metadata: dict[str, Any] = {}
     if stiffness is not None:
         k, limits = _check_demo_stiffness(stiffness, p.shape[:2], layout, bounds)
-        data = {"joint": (np.concatenate([p, q, k.reshape(k.shape[:2] + (9,))], axis=-1), POSE_STIFFNESS)}
+        if layout == "separate_stiffness":
+            data = {"position": (p, "euclidean"), "orientation": (q, "sphere"),
+                    "stiffness": (np.concatenate([p, k.reshape(k.shape[:2] + (9,))], axis=-1), POSITION_STIFFNESS)}
+        else:
+            data = {"joint": (np.concatenate([p, q, k.reshape(k.shape[:2] + (9,))], axis=-1), POSE_STIFFNESS)}
         metadata["stiffness"] = {"k_min_n_m": limits.k_min_n_m, "k_max_n_m": limits.k_max_n_m,
                                  "start_n_m": log_euclidean_mean(k[:, 0]).tolist(), "goal_n_m": k[0, -1].tolist()}
     elif layout == "joint":
         data = {"joint": (np.concatenate([p, q], axis=-1), POSE)}
+    elif layout == "separate_stiffness":
+        raise RFlowError("the separate_stiffness layout needs the demos' stiffness")
     else:
         data = {"position": (p, "euclidean"), "orientation": (q, "sphere")}
     models: dict[str, RiemannianFlow] = {}
@@ -388,7 +417,7 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
             print(f"training the {' and '.join(data)} models in {min(workers, len(data))} processes "
                   f"({p.shape[0]} demos x {p.shape[1]} samples)", flush=True)
         fitted = fit_in_processes({name: (np.asarray(demos), manifold) for name, (demos, manifold) in data.items()},
-                                  dt, cfg, workers, progress)
+                                  dt, cfg, workers, progress, PoseFlow.load)
     else:
         fitted = {}
         for name, (demos, manifold) in data.items():
@@ -404,8 +433,9 @@ def fit_pose_skill(pos: npt.ArrayLike, quat: npt.ArrayLike, dt: float, config: A
 def _check_demo_stiffness(stiffness: npt.ArrayLike, lead: tuple[int, ...], layout: str,
                           bounds: StiffnessBounds | None) -> tuple[np.ndarray, StiffnessBounds]:
     """The demos' stiffness (N, M, 3, 3) as SPD float64, checked against the layout and the bounds."""
-    if layout != "joint":
-        raise RFlowError("stiffness is learned inside the joint model R^3 x S^3 x SPD(3): use layout 'joint'")
+    if layout not in ("joint", "separate_stiffness"):
+        raise RFlowError("stiffness is learned by a joint model R^3 x S^3 x SPD(3) (layout 'joint') or beside the "
+                         "pose models (layout 'separate_stiffness')")
     limits = StiffnessBounds() if bounds is None else bounds
     k = np.asarray(POSE_STIFFNESS.factors[2][0].check_points(np.asarray(stiffness, dtype=np.float64), "stiffness"))
     if k.shape != tuple(lead) + (3, 3):
@@ -443,9 +473,13 @@ def stiffness_reproduction(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.Array
     if p.ndim != 3 or k.shape != p.shape[:2] + (3, 3) or q.shape != p.shape[:2] + (4,):
         raise RFlowError(f"demos need pos (N, M, 3), quat (N, M, 4), stiffness (N, M, 3, 3); got {p.shape}, "
                          f"{q.shape}, {k.shape}")
-    model = skill.models["joint"]
-    starts = np.asarray(POSE_STIFFNESS.prepare(skill.joint_point(p, q, k)))[:, 0]
-    generated = skill.split_point(rollout(model, starts, p.shape[1] - 1, xi=1e-12).points)[2]
+    if skill.layout == "separate_stiffness":
+        starts = np.asarray(POSITION_STIFFNESS.prepare(skill.stiffness_point(p, k)))[:, 0]
+        points = rollout(skill.models["stiffness"], starts, p.shape[1] - 1, xi=1e-12).points
+        generated = points[..., 3:].reshape(points.shape[:-1] + (3, 3))
+    else:
+        starts = np.asarray(POSE_STIFFNESS.prepare(skill.joint_point(p, q, k)))[:, 0]
+        generated = skill.split_point(rollout(skill.models["joint"], starts, p.shape[1] - 1, xi=1e-12).points)[2]
     bounded, clipped = skill.bound_stiffness(generated)
     per_demo = profile_distance(k, bounded)
     change = np.abs(np.log(eigh_sym(bounded)[0] / eigh_sym(generated)[0]))

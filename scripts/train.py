@@ -63,11 +63,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--overwrite", action="store_true", help="replace an earlier checkpoint at --out")
     skill = parser.add_argument_group("skill")
     skill.add_argument("--joint", action="store_true",
-                       help="one joint 6-D model on R^3 x S^3 instead of separate position and orientation models")
+                       help="one joint 6-D model on R^3 x S^3 instead of separate position and orientation models "
+                            "(with --stiffness: one joint 12-D model on R^3 x S^3 x SPD(3))")
     skill.add_argument("--stiffness", choices=STIFFNESS_SOURCES,
-                       help="also learn the translational stiffness, in one joint 12-D model on R^3 x S^3 x SPD(3): "
-                            "'expert' = the stiffness recorded in the demo file, 'variability' = alpha (Sigma + eps "
-                            "I)^-1 from the demos' spread (rflow.stiffness)")
+                       help="also learn the translational stiffness, in a model on R^3 x SPD(3) beside the position "
+                            "and orientation models (or inside the joint model with --joint): 'expert' = the "
+                            "stiffness recorded in the demo file, 'variability' = alpha (Sigma + eps I)^-1 from the "
+                            "demos' spread (rflow.stiffness)")
     skill.add_argument("--k-min-n-m", type=number(above=0.0), default=DEFAULT_BOUNDS.k_min_n_m,
                        help="--stiffness: smallest eigenvalue of the commanded stiffness, N/m")
     skill.add_argument("--k-max-n-m", type=number(above=0.0), default=DEFAULT_BOUNDS.k_max_n_m,
@@ -161,8 +163,9 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
                 bounds: StiffnessBounds = DEFAULT_BOUNDS, overwrite: bool = False, workers: int = 1) -> Path:
     """Load demos, train the skill, write the checkpoint directory (see the module docstring).
 
-    With ``stiffness`` ("expert" or "variability", see `demo_stiffness`) the skill is one joint model on
-    R^3 x S^3 x SPD(3) whatever ``joint`` says, and skill.json's metadata["stiffness"] also records the
+    With ``stiffness`` ("expert" or "variability", see `demo_stiffness`) the skill also has a stiffness model on
+    R^3 x SPD(3) beside its two pose models (layout "separate_stiffness"), or with ``joint`` is one joint model on
+    R^3 x S^3 x SPD(3); skill.json's metadata["stiffness"] also records the
     source and the Log-Euclidean distance of the stiffness generated from each demo's start to the
     demo's (rflow.skill_io.stiffness_reproduction). With ``workers`` >= 2 the separate models train in
     parallel processes (`rflow.fit_processes`), to the same weights. Demos that end apart (a demo file with
@@ -191,8 +194,8 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     k = None if k_demo is None else take_every(k_demo, subsample)
     dt = demos.dt * subsample
     wall = time.perf_counter()
-    skill = fit_pose_skill(pos, quat, dt, cfg, "joint" if joint or k is not None else "separate", progress,
-                           stiffness=k, bounds=bounds, workers=workers)
+    layout = "joint" if joint else "separate" if k is None else "separate_stiffness"
+    skill = fit_pose_skill(pos, quat, dt, cfg, layout, progress, stiffness=k, bounds=bounds, workers=workers)
     train_s = time.perf_counter() - wall
     scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None
     if k is not None:

@@ -34,10 +34,11 @@ def write_stiffness_demo_file(folder: Path, **kwargs: object) -> Path:
     return save_demos(folder / "demos.npz", stiffness_demos(**kwargs))
 
 
-def small_stiffness_skill(config: TrainConfig = SMALL) -> tuple[PoseSkill, DemoSet]:
-    """A joint R^3 x S^3 x SPD(3) skill trained briefly on `stiffness_demos`, and those demos."""
+def small_stiffness_skill(config: TrainConfig = SMALL, layout: str = "joint") -> tuple[PoseSkill, DemoSet]:
+    """A joint R^3 x S^3 x SPD(3) skill (or, with ``layout`` "separate_stiffness", two pose models and one on
+    R^3 x SPD(3)) trained briefly on `stiffness_demos`, and those demos."""
     demos = stiffness_demos()
-    skill = fit_pose_skill(demos.pos, demos.quat, demos.dt, config, "joint", progress=False, stiffness=demos.stiffness)
+    skill = fit_pose_skill(demos.pos, demos.quat, demos.dt, config, layout, progress=False, stiffness=demos.stiffness)
     skill.metadata.update(shape=demos.shape, clearance_m=demos.clearance_m,
                           demo_starts={"pos": demos.pos[:, 0].tolist(), "quat": demos.quat[:, 0].tolist()})
     return skill, demos

@@ -120,9 +120,11 @@ def test_closed_loop_integrates_the_stiffness_state_instead_of_measuring_it(trai
     first = policy.command(0, start).stiffness
     assert np.allclose(first, skill.start_stiffness)
     plan = generate_plan(skill, start, 0.5, 0.05)
-    for step in range(1, 10):  # the arm does not move, yet the stiffness follows the flow from that pose
+    held = policy.stiffness_state  # the first period advances one full step: nothing was asked before it
+    assert not np.allclose(held, first)
+    for step in range(1, 10):  # the arm does not move: no progress, so the stiffness holds
         cmd = policy.command(step, start)
-    assert not np.allclose(cmd.stiffness, first)
+    assert np.allclose(cmd.stiffness, held) and np.array_equal(policy.stiffness_state, held)
     assert np.isfinite(cmd.stiffness).all() and policy.stiffness_clipped_steps == 0
     assert plan.stiffness is not None
 
@@ -283,3 +285,70 @@ def test_schedule_stiffness_setting_commands_the_teachers_k_of_the_measured_heig
     for bad in ("schedule:1/2", "schedule:a/b/c", "schedule:0/300/300", "schedule:1500/300/nan"):
         with pytest.raises(EnvError, match="stiffness 'schedule"):
             StiffnessSetting.parse(bad)
+
+
+@pytest.fixture(scope="module")
+def trained_beside():
+    return small_stiffness_skill(layout="separate_stiffness")
+
+
+def test_a_stiffness_model_beside_the_pose_models_is_spd_bounded_and_leaves_the_pose_skill(trained_beside, tmp_path):
+    """Layout "separate_stiffness": the pose models are the two-model skill's (the same weights as training them
+    without stiffness); the stiffness model on R^3 x SPD(3) generates SPD stiffness inside the bounds from 1000
+    starts and converges to the goal stiffness; the checkpoint round-trips."""
+    from rflow.skill_io import POSITION_STIFFNESS
+    from stiffness_fixtures import SMALL
+
+    skill, demos = trained_beside
+    assert skill.layout == "separate_stiffness" and skill.has_stiffness
+    plain = fit_pose_skill(demos.pos, demos.quat, demos.dt, SMALL, "separate", progress=False)
+    for name in ("position", "orientation"):
+        for a, b in zip(skill.models[name].network.state_dict().values(), plain.models[name].network.state_dict().values()):
+            assert np.array_equal(a.numpy(), b.numpy())
+    model = skill.models["stiffness"]
+    v = np.asarray(POSITION_STIFFNESS.log(POSITION_STIFFNESS.prepare(skill.stiffness_point(demos.pos, demos.stiffness)),
+                                          model.goal)).reshape(-1, 9)
+    centre, half = 0.5 * (v.max(0) + v.min(0)), np.maximum(v.max(0) - v.min(0), 0.1)
+    starts = np.asarray(POSITION_STIFFNESS.exp(centre + np.random.default_rng(0).uniform(-1, 1, (STARTS, 9)) * half,
+                                               model.goal))
+    raw = rollout(model, starts, steps=200, xi=1e-12).points[..., 3:].reshape(STARTS, -1, 3, 3)
+    assert np.linalg.eigvalsh(raw).min() > 0.0
+    lam = np.linalg.eigvalsh(skill.bound_stiffness(raw)[0])
+    assert lam.min() >= 100.0 * (1 - 1e-9) and lam.max() <= 3000.0 * (1 + 1e-9)
+    late = rollout(model, rollout(model, starts, 200, xi=1e-12).points[:, -1], steps=100, xi=1e-12, dt=1.0)
+    final = late.points[:, -1, 3:].reshape(-1, 3, 3)
+    assert profile_distance(np.broadcast_to(skill.goal_stiffness, final.shape)[:, None], final[:, None]).max() < 1e-3
+    assert np.allclose(skill.goal_stiffness, demos.stiffness[0, -1])
+    loaded = load_skill(save_skill(tmp_path / "ck", skill))
+    assert loaded.layout == "separate_stiffness" and np.allclose(loaded.goal_stiffness, skill.goal_stiffness)
+    rep = stiffness_reproduction(skill, demos.pos, demos.quat, demos.stiffness)
+    assert np.isfinite(rep["log_euclidean_mean"]) and len(rep["log_euclidean_per_demo"]) == demos.pos.shape[0]
+
+
+def test_the_stiffness_state_follows_the_measured_progress_not_the_clock(trained_beside):
+    """Closed loop: a peg that makes the step the flow asked for advances the stiffness by one full flow step, a
+    peg that makes half of it by half a step, a peg held still not at all; open loop generates K with the plan."""
+    from envs.execution.policy import progress_ratio, stiffness_step
+
+    skill, demos = trained_beside
+    start = Pose(pos=demos.pos[0, 0], quat=demos.quat[0, 0])
+    assert progress_ratio([0.0, 0.0, 0.0], [0.0, 0.0, 1e-3]) == 0.0
+    assert progress_ratio([0.0, 0.0, 5e-4], [0.0, 0.0, 1e-3]) == 0.5
+    assert progress_ratio([0.0, 0.0, 3e-3], [0.0, 0.0, 1e-3]) == 1.0
+    assert progress_ratio([0.0, 0.0, -1e-3], [0.0, 0.0, 1e-3]) == 0.0
+    assert progress_ratio([1.0, 0.0, 0.0], [0.0, 0.0, 1e-9]) == 1.0  # nothing asked (at the goal)
+    for fraction in (1.0, 0.5, 0.0):
+        policy = ClosedLoopPolicy(skill, stiffness=StiffnessSetting.parse("learned"))
+        policy.reset_at(start, 0.01)
+        first = policy.command(0, start)
+        k1 = policy.stiffness_state
+        assert np.allclose(k1, stiffness_step(skill, start.pos, start.quat, skill.start_stiffness, 0.01))
+        moved = Pose(pos=start.pos + fraction * first.twist[:3] * 0.01, quat=start.quat)
+        policy.command(1, moved)
+        if fraction == 0.0:
+            assert np.array_equal(policy.stiffness_state, k1)
+        else:
+            expected = stiffness_step(skill, moved.pos, moved.quat, k1, fraction * 0.01)
+            assert np.allclose(policy.stiffness_state, expected, rtol=1e-9, atol=1e-9)
+    plan = generate_plan(skill, start, 2.0, 0.01)
+    assert plan.stiffness is not None and np.allclose(plan.stiffness[0], skill.start_stiffness)

@@ -26,11 +26,14 @@ and ``act(observation)`` read the measured tcp pose only (`reset_at` and `comman
 
 Measured quaternions are put on the goal's hemisphere first (q and -q are the same orientation).
 
-Stiffness (issue #10). A skill trained with `pih train --stiffness` is one joint model on R^3 x S^3 x SPD(3)
-that also generates the translational stiffness K (3x3, N/m, world frame). Closed loop, the pose part is
-queried at the measured pose as above, while K is the model's own state (it is not measured): it starts at
-the skill's start stiffness and is integrated alongside, one exact flow step of the control period (times
-``speed``) per control step from [measured pose, K]. Open loop, K is generated with the trajectory. Either
+Stiffness (issues #10, #22). A skill trained with `pih train --stiffness` also generates the translational
+stiffness K (3x3, N/m, world frame): with a model on R^3 x SPD(3) beside the two pose models (layout
+"separate_stiffness", the default) or inside one joint model on R^3 x S^3 x SPD(3) (``--joint``). Closed loop, the
+pose is queried at the measured pose as above, while K is the model's own state (it is not measured): it starts at
+the skill's start stiffness and follows the skill's progress, not the clock: each control period it takes one
+exact flow step of rho T from [measured pose, K] (T the control period times ``speed``), rho = `progress_ratio` of
+the peg's measured displacement over the last period to the flow's displacement asked for it, so the stiffness
+holds while the walls hold the peg. Open loop, K is generated with the trajectory. Either
 way the commanded K is the generated one with its eigenvalues clipped to the skill's [k_min, k_max]
 (`PoseSkill.bound_stiffness`, counted in ``stiffness_clipped_steps``). `StiffnessSetting` chooses between
 that learned stiffness, a constant isotropic K, the scripted expert's schedule K(h) at the measured pose's
@@ -167,6 +170,41 @@ def skill_state_steps(skill: PoseSkill, pos: npt.ArrayLike, quat: Sequence[npt.A
         raise EnvError(f"cannot query the skill at a batch of {p.shape[0]} poses: {err}") from None
 
 
+def stiffness_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, stiffness: npt.ArrayLike,
+                   horizon_s: float) -> FloatArray:
+    """A stiffness skill's stiffness state ``horizon_s`` later along its flow from [pose, K] (3, 3): the joint
+    model's K part, or the "separate_stiffness" stiffness model's from [p, K] (the orientation is not its input).
+
+    Raises:
+        EnvError: a skill without stiffness, NaN or malformed input, horizon <= 0.
+    """
+    if not skill.has_stiffness:
+        raise EnvError("stiffness_step needs a skill with a stiffness model")
+    if skill.layout == "joint":
+        k = skill_state_step(skill, pos, quat, stiffness, horizon_s)[2]
+        assert k is not None
+        return k
+    if not (np.isfinite(horizon_s) and horizon_s > 0.0):
+        raise EnvError(f"flow horizon {horizon_s} s must be > 0")
+    p = np.asarray(pos, dtype=np.float64)
+    try:
+        x = next_point(skill.models["stiffness"], skill.stiffness_point(p, stiffness), horizon_s)
+    except RFlowError as err:
+        raise EnvError(f"cannot query the stiffness model at pos {p.tolist()}: {err}") from None
+    return x[3:].reshape(3, 3)
+
+
+def progress_ratio(displacement: npt.ArrayLike, expected: npt.ArrayLike, floor_m: float = 1e-6) -> float:
+    """How much of the step the flow asked for the peg made: rho = clip(d . e / (e . e), 0, 1) for the measured
+    displacement d over a control period and the flow's displacement e asked for it; 1 when |e| < ``floor_m``
+    (at the goal, nothing is asked). A peg the walls hold makes rho ~ 0."""
+    e = np.asarray(expected, dtype=np.float64)
+    ee = dot(e, e)
+    if not ee >= floor_m * floor_m:
+        return 1.0
+    return min(1.0, max(0.0, dot(np.asarray(displacement, dtype=np.float64), e) / ee))
+
+
 @dataclass(frozen=True)
 class Plan:
     """A generated pose trajectory sampled every ``period_s`` (first sample = the start).
@@ -230,6 +268,11 @@ def generate_plan(skill: PoseSkill, start: Pose, duration_s: float, period_s: fl
         else:
             pos = rollout(skill.models["position"], start.pos[None], steps, xi_pos_m, period_s).points[0]
             quat = rollout(skill.models["orientation"], quat0[None], steps, xi_rot_rad, period_s).points[0]
+            if skill.has_stiffness:  # "separate_stiffness": K along the stiffness model's own flow from [p0, K0]
+                k0 = skill.start_stiffness if start_stiffness is None else start_stiffness
+                x = rollout(skill.models["stiffness"], skill.stiffness_point(start.pos, k0)[None], steps, 1e-12,
+                            period_s).points[0]
+                stiffness, clipped = skill.bound_stiffness(x[:, 3:].reshape(-1, 3, 3))
     except RFlowError as err:
         raise EnvError(f"cannot generate a plan from pos {start.pos.tolist()}: {err}") from None
     quat = on_goal_hemisphere(quat, skill.goal_quat)
@@ -301,6 +344,8 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         self.stiffness_state: FloatArray | None = None
         self.stiffness_clipped_steps = 0
         self._mouth_depth_m: float | None = None
+        self._last_pos: FloatArray | None = None
+        self._asked_step = np.zeros(3)
         self._period_s = 0.0
         self._flow_period_s = 0.0
         self._step = 0
@@ -325,6 +370,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         self._flow_period_s = float(period_s) * self.speed
         self._period_s = float(period_s)
         self._mouth_depth_m = mouth_depth_m
+        self._last_pos, self._asked_step = None, np.zeros(3)
         self.adapter.reset(mouth_depth_m)
         self.stiffness_state = self.skill.start_stiffness if self.skill.has_stiffness else None
         self.stiffness_clipped_steps = 0
@@ -338,10 +384,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         query = self._query(measured)
         p1, q1, k1 = skill_state_step(self.skill, query.pos, query.quat, query.stiffness, self.lookahead_s)
         p2, q2 = skill_step(self.skill, p1, q1, self.lookahead_s, k1)
-        k_next = None
-        if query.stiffness is not None:
-            k_next = skill_state_step(self.skill, query.pos, query.quat, query.stiffness, self._flow_period_s)[2]
-        return self._complete(measured, query, p1, q1, p2, q2, k_next)
+        return self._complete(measured, query, p1, q1, p2, q2)
 
     def batch_key(self) -> tuple:
         """Policies of one skill with one lookahead and speed answer together (`act_many`)."""
@@ -364,14 +407,12 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         k = None if queries[0].stiffness is None else np.array([q.stiffness for q in queries])
         p1, q1, k1 = skill_state_steps(skill, pos, quat, k, lookahead)
         p2, q2, _ = skill_state_steps(skill, p1, q1, k1, lookahead)
-        k_next = None if k is None else skill_state_steps(skill, pos, quat, k, policies[0]._flow_period_s)[2]
         actions: list[Any] = []
         for i, (policy, observation, query) in enumerate(zip(policies, observations, queries)):
             try:
                 policy._step += 1
                 policy.sense(observation)
-                actions.append(policy._complete(observation.tcp, query, p1[i], q1[i], p2[i], q2[i],
-                                                None if k_next is None else k_next[i]))
+                actions.append(policy._complete(observation.tcp, query, p1[i], q1[i], p2[i], q2[i]))
             except Exception as err:  # this policy's own part: its episode ends, the others go on
                 actions.append(err)
         return actions
@@ -389,7 +430,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         return _Query(np.asarray(measured.pos, dtype=np.float64) - delta, query_quat, delta, rho, self.stiffness_state)
 
     def _complete(self, measured: Pose, query: _Query, p1: FloatArray, q1: FloatArray, p2: FloatArray,
-                  q2: FloatArray, k_next: FloatArray | None) -> Action:
+                  q2: FloatArray) -> Action:
         """The action from the flow's poses x_1 = Phi(L) x and x_2 = Phi(L) x_1 at the query (`command`), and the
         policy's state advanced (adaptation, stiffness state)."""
         step_s = self.lookahead_s
@@ -408,7 +449,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         if k is not None:
             learned, clipped = self.skill.bound_stiffness(k)
             self.stiffness_clipped_steps += int(clipped)
-            self.stiffness_state = k_next
+            self.stiffness_state = self._next_stiffness(measured.pos, query, k, self.speed * twist[:3])
         self.adapter.update(measured.pos, self.speed * twist[:3], self._period_s)
         self.adapter.update_rotation(measured.pos, measured.quat, self.speed * twist[3:], self._period_s)
         push = np.concatenate([self.adapter.offset, np.zeros(3)])
@@ -420,6 +461,17 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
             commanded = _commanded_stiffness(self.stiffness, learned)
         return Action(Pose(pos=p1 + delta, quat=q1), commanded, self.adapter.rotational_stiffness(measured.pos),
                       self.speed * twist, self.speed**2 * accel, anchor, push)
+
+    def _next_stiffness(self, pos: npt.ArrayLike, query: _Query, k: FloatArray, velocity: FloatArray) -> FloatArray:
+        """The stiffness state after this period: one flow step of rho T from [query pose, K] (module docstring;
+        rho from the displacement since the last period against the step then asked for, 1 at the first
+        period); remembers this period's position and the step asked for now (``velocity`` T)."""
+        here = np.asarray(pos, dtype=np.float64)
+        rho = 1.0 if self._last_pos is None else progress_ratio(here - self._last_pos, self._asked_step)
+        self._last_pos, self._asked_step = here.copy(), velocity * self._period_s
+        if rho <= 0.0:
+            return k
+        return stiffness_step(self.skill, query.pos, query.quat, k, rho * self._flow_period_s)
 
     def scheduled_stiffness(self, pos: npt.ArrayLike) -> FloatArray:
         """K(h) of the "schedule" stiffness (`envs.stiffness_schedule.expert_stiffness`) at the measured peg_tip
