@@ -115,6 +115,9 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     skill.add_argument("--no-contact-adaptation", action="store_true",
                        help="closed loop: run the bare learned flow, without the axial push, frame shift and "
                             "rotational compliance near the hole (envs/execution/adaptation.py; the ablation)")
+    skill.add_argument("--adaptation-off", metavar="PARTS",
+                       help="closed loop: turn these parts of the contact adaptation off, comma-separated, of push, "
+                            "frame, compliance, search, seat (the ablation of each; default: none)")
     run.add_argument("--seed", type=seed, default=d.seed, help="seed of the start poses, 0..2**32-1")
     add_start_arguments(run)  # the task's start range and time limit
     run.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel processes")
@@ -134,6 +137,23 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
                       help="place the target hole at the demos' goal pose (demos recorded elsewhere)")
 
 
+def adaptation_parts(text: str | None) -> tuple[str, ...]:
+    """The parts of --adaptation-off ("push,frame"): distinct names of envs.execution.adaptation.ADAPTATION_PARTS.
+
+    Raises:
+        EnvError: an unknown or repeated part (one line naming the option).
+    """
+    from envs.execution.adaptation import ADAPTATION_PARTS
+
+    if text is None:
+        return ()
+    parts = tuple(part.strip() for part in text.split(","))
+    if any(part not in ADAPTATION_PARTS for part in parts) or len(set(parts)) != len(parts):
+        raise EnvError(f"--adaptation-off {text!r}: expected distinct parts of {', '.join(ADAPTATION_PARTS)}, "
+                       "comma-separated")
+    return parts
+
+
 def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
     """EvaluationConfig of the parsed options (validated there): the task of --task and the single task options,
     the scene the demos' but for the scene options given (all of them with --task or --preset)."""
@@ -143,7 +163,9 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
         scene_from_task=scene_from_task(args), hole_at_goal=args.hole_at_goal, workers=args.workers,
         unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s, backend=args.backend,
         ray_address=args.ray_address, stiffness=args.stiffness,
-        contact_adaptation=not args.no_contact_adaptation, lockstep=args.lockstep)
+        contact_adaptation=not args.no_contact_adaptation,
+        adaptation_off=adaptation_parts(getattr(args, "adaptation_off", None)),
+        lockstep=args.lockstep)
 
 
 def checked_config(args: argparse.Namespace) -> EvaluationConfig:

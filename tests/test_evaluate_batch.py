@@ -264,3 +264,31 @@ def test_a_bad_stiffness_is_one_line_and_exit_2_with_nothing_written(model, tmp_
     err = capsys.readouterr().err
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(model, tmp_path, capsys):
+    """`--adaptation-off` turns off the named parts (ContactAdaptation.without); all five are --no-contact-adaptation
+    to the last bit of every record; an unknown part is a one-line error, exit 2, nothing written."""
+    from envs.errors import EnvError
+    from envs.execution.adaptation import ADAPTATION_PARTS, ContactAdaptation
+
+    full = ContactAdaptation()
+    assert full.without(["compliance"]) == dataclasses.replace(full, rotational_stiffness=None)
+    assert full.without(["push", "seat"]) == dataclasses.replace(full, push_limit_m=0.0, seat_speed_m_s=0.0)
+    assert full.without(list(ADAPTATION_PARTS)) == ContactAdaptation.off()
+    with pytest.raises(EnvError, match="wiggle"):
+        full.without(["wiggle"])
+    common = ["evaluate", "--model", str(model), "--episodes", "2", "--time-limit-s", "0.3", "--quiet"]
+    assert pih([*common, "--no-contact-adaptation", "--json", str(tmp_path / "bare.json")]) == 0
+    assert pih([*common, "--adaptation-off", ",".join(ADAPTATION_PARTS), "--json", str(tmp_path / "all.json")]) == 0
+    bare, parts = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("bare", "all"))
+    assert parts["config"]["adaptation_off"] == list(ADAPTATION_PARTS)
+    for a, b in zip(bare["per_episode"], parts["per_episode"]):
+        a.pop("wall_s"), b.pop("wall_s")
+        assert a == b
+    capsys.readouterr()
+    out = tmp_path / "bad"
+    out.mkdir()
+    assert pih([*common, "--adaptation-off", "push,wiggle", "--json", str(out / "e.json")]) == 2
+    err = capsys.readouterr().err
+    assert "--adaptation-off" in err and len(err.strip().splitlines()) == 1 and list(out.iterdir()) == []

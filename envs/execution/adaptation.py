@@ -52,6 +52,7 @@ What each part contributes is measured in the README (the protocol figure and th
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,6 +63,16 @@ from envs.poses import quat_from_rotvec_one, quat_mul_one, quat_to_rotvec_one
 from rflow.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
+
+
+ADAPTATION_PARTS: dict[str, dict[str, object]] = {
+    "push": {"push_limit_m": 0.0},
+    "frame": {"frame_limit_m": 0.0, "frame_limit_deg": 0.0},
+    "compliance": {"rotational_stiffness": None},
+    "search": {"search_amplitude_m": 0.0},
+    "seat": {"seat_speed_m_s": 0.0},
+}
+"""The hand-written parts of the adaptation and the settings that turn each off (`ContactAdaptation.without`)."""
 
 
 @dataclass(frozen=True)
@@ -125,6 +136,22 @@ class ContactAdaptation:
         k = self.rotational_stiffness
         if k is not None and not (isinstance(k, (int, float)) and np.isfinite(k) and k > 0.0):
             raise EnvError(f"contact adaptation rotational_stiffness={k!r} must be > 0 N m/rad (or None)")
+
+    def without(self, parts: tuple[str, ...] | list[str]) -> "ContactAdaptation":
+        """These settings with the named parts of `ADAPTATION_PARTS` off (the ablation of each hand-written part):
+        "push" (the axial push), "frame" (the frame shift and turn), "compliance" (the lowered rotational
+        stiffness), "search" (the stall search), "seat" (the seat push). All five off is `off`.
+
+        Raises:
+            EnvError: a name that is not a part (one line naming it and the parts).
+        """
+        unknown = [part for part in parts if part not in ADAPTATION_PARTS]
+        if unknown:
+            raise EnvError(f"contact adaptation parts {unknown} unknown: expected some of {', '.join(ADAPTATION_PARTS)}")
+        changes: dict[str, object] = {}
+        for part in parts:
+            changes.update(ADAPTATION_PARTS[part])
+        return dataclasses.replace(self, **changes)
 
     @classmethod
     def off(cls) -> "ContactAdaptation":

@@ -13,6 +13,7 @@ import numpy as np
 from batch.errors import BatchError
 from batch.config import BatchConfig
 from envs.errors import EnvError
+from envs.execution.adaptation import ADAPTATION_PARTS
 from envs.task import Task, check_number
 
 if TYPE_CHECKING:
@@ -131,6 +132,8 @@ class EvaluationConfig:
             None: the controller's default), see envs.execution.policy.StiffnessSetting.
         contact_adaptation: closed loop: adapt to the contact near the hole (axial push, frame shift, rotational
             compliance; envs.execution.adaptation); False runs the bare learned flow (the ablation).
+        adaptation_off: parts of the adaptation turned off (envs.execution.adaptation.ADAPTATION_PARTS: "push",
+            "frame", "compliance", "search", "seat"), the ablation of each.
         lockstep: episodes a worker runs side by side, one control period at a time for all
             (envs.execution.lockstep); the records do not depend on it, only the wall time does.
     """
@@ -150,6 +153,7 @@ class EvaluationConfig:
     ray_address: str | None = None
     stiffness: str | None = None
     contact_adaptation: bool = True
+    adaptation_off: tuple[str, ...] = ()
     lockstep: int = DEFAULT_LOCKSTEP
 
     def __post_init__(self) -> None:
@@ -169,6 +173,11 @@ class EvaluationConfig:
         if unknown:
             raise EnvError(f"scene_from_task names {unknown}: only {', '.join(SCENE_FROM_TASK)} may replace the "
                            "demos' scene")
+        object.__setattr__(self, "adaptation_off", tuple(self.adaptation_off))
+        unknown = [part for part in self.adaptation_off if part not in ADAPTATION_PARTS]
+        if unknown or len(set(self.adaptation_off)) != len(self.adaptation_off):
+            raise EnvError(f"adaptation_off={list(self.adaptation_off)}: expected distinct parts of "
+                           f"{', '.join(ADAPTATION_PARTS)}")
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
         lockstep = self.lockstep

@@ -158,7 +158,8 @@ def build_slots(model_dir: str | os.PathLike[str], config: EvaluationConfig, slo
 def _policy_for(skill: Any, config: EvaluationConfig) -> Any:
     """The evaluation's policy on ``skill`` (mode, lookahead, stiffness, contact adaptation of ``config``)."""
     stiffness = None if config.stiffness is None else StiffnessSetting.parse(config.stiffness)
-    adaptation = ContactAdaptation() if config.contact_adaptation else ContactAdaptation.off()
+    adaptation = (ContactAdaptation() if config.contact_adaptation else ContactAdaptation.off()).without(
+        config.adaptation_off)
     return make_policy(skill, config.mode, config.lookahead_s, config.task.time_limit_s, config.speed, stiffness,
                        adaptation)
 
