@@ -278,6 +278,9 @@ def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(
     assert full.without(list(ADAPTATION_PARTS)) == ContactAdaptation.off()
     with pytest.raises(EnvError, match="wiggle"):
         full.without(["wiggle"])
+    for bad in (("wiggle",), ("push", "push")):
+        with pytest.raises(EnvError, match="adaptation_off"):
+            EvaluationConfig(adaptation_off=bad)
     common = ["evaluate", "--model", str(model), "--episodes", "2", "--time-limit-s", "0.3", "--quiet"]
     assert pih([*common, "--no-contact-adaptation", "--json", str(tmp_path / "bare.json")]) == 0
     assert pih([*common, "--adaptation-off", ",".join(ADAPTATION_PARTS), "--json", str(tmp_path / "all.json")]) == 0

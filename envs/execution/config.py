@@ -13,7 +13,6 @@ import numpy as np
 from batch.errors import BatchError
 from batch.config import BatchConfig
 from envs.errors import EnvError
-from envs.execution.adaptation import ADAPTATION_PARTS
 from envs.task import Task, check_number
 
 if TYPE_CHECKING:
@@ -174,10 +173,8 @@ class EvaluationConfig:
             raise EnvError(f"scene_from_task names {unknown}: only {', '.join(SCENE_FROM_TASK)} may replace the "
                            "demos' scene")
         object.__setattr__(self, "adaptation_off", tuple(self.adaptation_off))
-        unknown = [part for part in self.adaptation_off if part not in ADAPTATION_PARTS]
-        if unknown or len(set(self.adaptation_off)) != len(self.adaptation_off):
-            raise EnvError(f"adaptation_off={list(self.adaptation_off)}: expected distinct parts of "
-                           f"{', '.join(ADAPTATION_PARTS)}")
+        if self.adaptation_off:
+            self._check_adaptation_off()
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
         lockstep = self.lockstep
@@ -187,6 +184,14 @@ class EvaluationConfig:
             self.batch_config()
         except BatchError as err:
             raise EnvError(str(err)) from None
+
+    def _check_adaptation_off(self) -> None:
+        from envs.execution.adaptation import ADAPTATION_PARTS  # numba through envs.poses: only when asked for
+
+        unknown = [part for part in self.adaptation_off if part not in ADAPTATION_PARTS]
+        if unknown or len(set(self.adaptation_off)) != len(self.adaptation_off):
+            raise EnvError(f"adaptation_off={list(self.adaptation_off)}: expected distinct parts of "
+                           f"{', '.join(ADAPTATION_PARTS)}")
 
     def batch_config(self) -> BatchConfig:
         """How the episodes run as a batch (workers, wall-time limit, backend)."""
