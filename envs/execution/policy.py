@@ -181,9 +181,7 @@ def stiffness_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, st
     if not skill.has_stiffness:
         raise EnvError("stiffness_step needs a skill with a stiffness model")
     if skill.layout == "joint":
-        k = skill_state_step(skill, pos, quat, stiffness, horizon_s)[2]
-        assert k is not None
-        return k
+        return skill_state_step(skill, pos, quat, stiffness, horizon_s)[2]  # type: ignore[return-value]
     if not (np.isfinite(horizon_s) and horizon_s > 0.0):
         raise EnvError(f"flow horizon {horizon_s} s must be > 0")
     p = np.asarray(pos, dtype=np.float64)
