@@ -22,11 +22,12 @@ import numpy as np
 
 from batch import BatchConfig, BatchError, run_batch
 from rflow.errors import RFlowError
+from rflow.manifolds import Manifold
 from rflow.model import RiemannianFlow
 from rflow.train import TrainConfig, TrainHistory, fit
 
-FitJob = tuple[np.ndarray, str]
-"""(demos, manifold name) of one model, as `rflow.train.fit` takes them."""
+FitJob = tuple[np.ndarray, str | Manifold]
+"""(demos, manifold or its name) of one model, as `rflow.train.fit` takes them."""
 
 
 @dataclass(frozen=True)

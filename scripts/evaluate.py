@@ -138,20 +138,19 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
 
 
 def adaptation_parts(text: str | None) -> tuple[str, ...]:
-    """The parts of --adaptation-off ("push,frame"): distinct names of envs.execution.adaptation.ADAPTATION_PARTS.
+    """The parts of --adaptation-off ("push,frame"), checked by `envs.execution.adaptation.adaptation_parts`.
 
     Raises:
         EnvError: an unknown or repeated part (one line naming the option).
     """
-    from envs.execution.adaptation import ADAPTATION_PARTS
+    from envs.execution.adaptation import adaptation_parts as checked
 
     if text is None:
         return ()
-    parts = tuple(part.strip() for part in text.split(","))
-    if any(part not in ADAPTATION_PARTS for part in parts) or len(set(parts)) != len(parts):
-        raise EnvError(f"--adaptation-off {text!r}: expected distinct parts of {', '.join(ADAPTATION_PARTS)}, "
-                       "comma-separated")
-    return parts
+    try:
+        return checked(part.strip() for part in text.split(","))
+    except EnvError as err:
+        raise EnvError(f"--adaptation-off {text!r}: {err}") from None
 
 
 def config_from_args(args: argparse.Namespace) -> EvaluationConfig:

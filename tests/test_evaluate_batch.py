@@ -271,6 +271,8 @@ def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(
     to the last bit of every record; an unknown part is a one-line error, exit 2, nothing written."""
     from envs.errors import EnvError
     from envs.execution.adaptation import ADAPTATION_PARTS, ContactAdaptation
+    from envs.execution.evaluate import _policy_for
+    from rflow.skill_io import load_skill
 
     full = ContactAdaptation()
     assert full.without(["compliance"]) == dataclasses.replace(full, rotational_stiffness=None)
@@ -281,6 +283,11 @@ def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(
     for bad in (("wiggle",), ("push", "push")):
         with pytest.raises(EnvError, match="adaptation_off"):
             EvaluationConfig(adaptation_off=bad)
+    skill = load_skill(model)  # the evaluation's policy gets the config's parts off
+    assert _policy_for(skill, EvaluationConfig(adaptation_off=("compliance",))).adapter.config == \
+        full.without(["compliance"])
+    assert _policy_for(skill, EvaluationConfig(adaptation_off=tuple(ADAPTATION_PARTS))).adapter.config == \
+        ContactAdaptation.off()
     common = ["evaluate", "--model", str(model), "--episodes", "2", "--time-limit-s", "0.3", "--quiet"]
     assert pih([*common, "--no-contact-adaptation", "--json", str(tmp_path / "bare.json")]) == 0
     assert pih([*common, "--adaptation-off", ",".join(ADAPTATION_PARTS), "--json", str(tmp_path / "all.json")]) == 0

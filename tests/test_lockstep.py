@@ -11,7 +11,7 @@ import pytest
 
 from envs.env import EpisodeConfig, PegInHoleEnv
 from envs.errors import EnvError
-from envs.execution.episode import StartPose, run_episode
+from envs.execution.episode import EpisodeRun, StartPose, run_episode
 from envs.execution.evaluate import sample_starts
 from envs.execution.lockstep import act_for, run_lockstep
 from envs.execution.policy import ClosedLoopPolicy, StiffnessSetting, make_policy
@@ -123,14 +123,18 @@ def test_an_error_ends_only_its_own_episode(skill, starts, alone):
     assert without_wall(records[1]) == alone[None][1]
 
 
-def test_a_batched_query_that_raises_falls_back_to_each_slot(skill, starts):
+def _begun_runs(skill, starts):
+    """Two closed-loop episodes (starts 3 and 4) begun side by side: their envs, policies and runs."""
     envs = [env() for _ in range(2)]
     policies = [make_policy(skill, "closed-loop") for _ in range(2)]
-    from envs.execution.episode import EpisodeRun
-
     runs = [EpisodeRun(e, p, s) for e, p, s in zip(envs, policies, starts[3:5])]
     for run in runs:
         assert run.begin()
+    return envs, policies, runs
+
+
+def test_a_batched_query_that_raises_falls_back_to_each_slot(skill, starts):
+    envs, _, runs = _begun_runs(skill, starts)
     envs[0].data.site_xmat[envs[0].tcp_site] = np.nan  # slot 0's measured pose becomes NaN
     envs[0]._obs = envs[0]._observe(track=False)
     actions = act_for(runs)
@@ -162,13 +166,7 @@ def test_an_exception_in_the_physics_ends_only_its_episode(skill, starts, alone)
 
 
 def test_a_policy_whose_own_part_fails_in_a_batched_query_ends_only_its_episode(skill, starts):
-    from envs.execution.episode import EpisodeRun
-
-    envs = [env() for _ in range(2)]
-    policies = [make_policy(skill, "closed-loop") for _ in range(2)]
-    runs = [EpisodeRun(e, p, s) for e, p, s in zip(envs, policies, starts[3:5])]
-    for run in runs:
-        assert run.begin()
+    _, policies, runs = _begun_runs(skill, starts)
 
     def boom(*args):
         raise RuntimeError("adaptation broke on purpose")

@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Iterable
 
 import numpy as np
 import numpy.typing as npt
@@ -73,6 +74,19 @@ ADAPTATION_PARTS: dict[str, dict[str, object]] = {
     "seat": {"seat_speed_m_s": 0.0},
 }
 """The hand-written parts of the adaptation and the settings that turn each off (`ContactAdaptation.without`)."""
+
+
+def adaptation_parts(parts: Iterable[str]) -> tuple[str, ...]:
+    """``parts`` as a tuple of distinct names of `ADAPTATION_PARTS`.
+
+    Raises:
+        EnvError: an unknown or repeated part (one line naming them and the parts).
+    """
+    names = tuple(parts)
+    if any(name not in ADAPTATION_PARTS for name in names) or len(set(names)) != len(names):
+        raise EnvError(f"contact adaptation parts {list(names)}: expected distinct parts of "
+                       f"{', '.join(ADAPTATION_PARTS)}")
+    return names
 
 
 @dataclass(frozen=True)
@@ -137,19 +151,16 @@ class ContactAdaptation:
         if k is not None and not (isinstance(k, (int, float)) and np.isfinite(k) and k > 0.0):
             raise EnvError(f"contact adaptation rotational_stiffness={k!r} must be > 0 N m/rad (or None)")
 
-    def without(self, parts: tuple[str, ...] | list[str]) -> "ContactAdaptation":
+    def without(self, parts: Iterable[str]) -> "ContactAdaptation":
         """These settings with the named parts of `ADAPTATION_PARTS` off (the ablation of each hand-written part):
         "push" (the axial push), "frame" (the frame shift and turn), "compliance" (the lowered rotational
         stiffness), "search" (the stall search), "seat" (the seat push). All five off is `off`.
 
         Raises:
-            EnvError: a name that is not a part (one line naming it and the parts).
+            EnvError: an unknown or repeated part (`adaptation_parts`).
         """
-        unknown = [part for part in parts if part not in ADAPTATION_PARTS]
-        if unknown:
-            raise EnvError(f"contact adaptation parts {unknown} unknown: expected some of {', '.join(ADAPTATION_PARTS)}")
         changes: dict[str, object] = {}
-        for part in parts:
+        for part in adaptation_parts(parts):
             changes.update(ADAPTATION_PARTS[part])
         return dataclasses.replace(self, **changes)
 

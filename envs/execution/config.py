@@ -174,7 +174,12 @@ class EvaluationConfig:
                            "demos' scene")
         object.__setattr__(self, "adaptation_off", tuple(self.adaptation_off))
         if self.adaptation_off:
-            self._check_adaptation_off()
+            from envs.execution.adaptation import adaptation_parts  # numba through envs.poses: only when asked for
+
+            try:
+                adaptation_parts(self.adaptation_off)
+            except EnvError as err:
+                raise EnvError(f"adaptation_off: {err}") from None
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
         lockstep = self.lockstep
@@ -184,14 +189,6 @@ class EvaluationConfig:
             self.batch_config()
         except BatchError as err:
             raise EnvError(str(err)) from None
-
-    def _check_adaptation_off(self) -> None:
-        from envs.execution.adaptation import ADAPTATION_PARTS  # numba through envs.poses: only when asked for
-
-        unknown = [part for part in self.adaptation_off if part not in ADAPTATION_PARTS]
-        if unknown or len(set(self.adaptation_off)) != len(self.adaptation_off):
-            raise EnvError(f"adaptation_off={list(self.adaptation_off)}: expected distinct parts of "
-                           f"{', '.join(ADAPTATION_PARTS)}")
 
     def batch_config(self) -> BatchConfig:
         """How the episodes run as a batch (workers, wall-time limit, backend)."""

@@ -277,16 +277,14 @@ def generate_plan(skill: PoseSkill, start: Pose, duration_s: float, period_s: fl
     return Plan(period_s, pos, quat, skill.to_tangent(pos, quat), stiffness, clipped)
 
 
-def _commanded_stiffness(setting: StiffnessSetting | None, learned: FloatArray | None) -> FloatArray | None:
-    """The translational stiffness a policy commands: the learned (already bounded) one, K I, or None (a
-    "schedule" is the closed loop's, `ClosedLoopPolicy.scheduled_stiffness`)."""
+def _commanded_stiffness(setting: StiffnessSetting | None, own: FloatArray | None) -> FloatArray | None:
+    """The translational stiffness a policy commands: K I, the policy's own K (the learned one, already bounded,
+    or the closed loop's `ClosedLoopPolicy.scheduled_stiffness`), or None (the controller's default)."""
     if setting is None:
         return None
     if setting.kind == "constant":
         return setting.constant_n_m * np.eye(3)
-    if setting.kind == "schedule":
-        raise EnvError("stiffness 'schedule' reads the measured pose: only the closed loop commands it")
-    return None if learned is None else learned.copy()
+    return None if own is None else own.copy()
 
 
 class _PoseSkillPolicy:
@@ -453,12 +451,11 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         push = np.concatenate([self.adapter.offset, np.zeros(3)])
         anchor = Pose(pos=here.pos + delta, quat=on_goal_hemisphere(measured.quat, q1) if rho is not None
                       else here.quat)
-        if self.stiffness is not None and self.stiffness.kind == "schedule":
-            commanded = self.scheduled_stiffness(measured.pos)
-        else:
-            commanded = _commanded_stiffness(self.stiffness, learned)
-        return Action(Pose(pos=p1 + delta, quat=q1), commanded, self.adapter.rotational_stiffness(measured.pos),
-                      self.speed * twist, self.speed**2 * accel, anchor, push)
+        scheduled = self.stiffness is not None and self.stiffness.kind == "schedule"
+        own = self.scheduled_stiffness(measured.pos) if scheduled else learned
+        return Action(Pose(pos=p1 + delta, quat=q1), _commanded_stiffness(self.stiffness, own),
+                      self.adapter.rotational_stiffness(measured.pos), self.speed * twist, self.speed**2 * accel,
+                      anchor, push)
 
     def _next_stiffness(self, pos: npt.ArrayLike, query: _Query, k: FloatArray, velocity: FloatArray) -> FloatArray:
         """The stiffness state after this period: one flow step of rho T from [query pose, K] (module docstring;
