@@ -8,6 +8,8 @@ from dataclasses import dataclass
 from batch.errors import BatchError
 
 BACKENDS: tuple[str, ...] = ("process", "ray")
+START_METHODS: tuple[str, ...] = ("spawn", "fork")
+"""How the process backend starts a worker (`BatchConfig.start_method`)."""
 
 
 @dataclass(frozen=True)
@@ -23,8 +25,16 @@ class BatchConfig:
             this many times; after 1 + max_retries lost tries it is an infrastructure error (not journalled, so
             a resumed run tries it again). A lost worker that was still starting is replaced up to this many
             times in a row.
-        backend: "process" (spawned processes supervised here) or "ray".
+        backend: "process" (worker processes supervised here) or "ray".
         ray_address: None: start a local Ray instance on all local cores; else HOST:PORT of a cluster's head.
+        start_method: how the process backend starts a worker: "spawn", a fresh interpreter that imports what the
+            work needs (about 1 s with torch, 2 s with MuJoCo and the compiled kernels), or "fork", a copy of this
+            process with all it has imported (milliseconds; Linux only, elsewhere it spawns). Fork only work that
+            runs torch on one thread: a forked child that enters a parallel region of its parent's OpenMP pool
+            hangs (the evaluation's and the training's workers set one thread first thing).
+        start_timeout_s: process backend: a worker not ready this long after it was started (a spawned one stuck
+            importing, a forked one stuck on a lock that another thread of this process held at the fork) is
+            killed and counts as lost at start, so a start never hangs the batch.
     """
 
     workers: int = 1
@@ -32,6 +42,8 @@ class BatchConfig:
     max_retries: int = 2
     backend: str = "process"
     ray_address: str | None = None
+    start_method: str = "spawn"
+    start_timeout_s: float = 600.0
 
     def __post_init__(self) -> None:
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
@@ -43,6 +55,10 @@ class BatchConfig:
             raise BatchError(f"max_retries={self.max_retries!r} must be an integer >= 0")
         if self.backend not in BACKENDS:
             raise BatchError(f"backend={self.backend!r} must be one of {', '.join(BACKENDS)}")
+        if not (isinstance(self.start_timeout_s, (int, float)) and 0.0 < self.start_timeout_s < float("inf")):
+            raise BatchError(f"start_timeout_s={self.start_timeout_s!r} must be a positive number of seconds")
+        if self.start_method not in START_METHODS:
+            raise BatchError(f"start_method={self.start_method!r} must be one of {', '.join(START_METHODS)}")
         if self.ray_address is not None:
             host, _, port = self.ray_address.rpartition(":")
             if not host or not port.isdigit() or not 0 < int(port) < 65536:

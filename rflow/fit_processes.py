@@ -5,8 +5,9 @@ torch thread (``TrainConfig.threads``, 1 by default), so on two cores training b
 the wall time. Each model is the one `fit` gives in this process -- same seed, data and thread count -- so the
 weights are bit-identical to training the models one after the other.
 
-The processes are the batch runner's (`batch.runner.run_batch`, "process" backend): a process that dies
-trains its model again in a fresh one (up to twice), and neither that nor a Ctrl-C hangs training. Only arrays, configs and loss histories cross the process boundary: a worker
+The processes are the batch runner's (`batch.runner.run_batch`, "process" backend; forked where training runs on
+one thread, spawned otherwise): a process that dies trains its model again in a fresh one (up to twice), and
+neither that nor a Ctrl-C hangs training. Only arrays, configs and loss histories cross the process boundary: a worker
 writes its model with `RiemannianFlow.save` into a private temporary directory and this process reads it back
 with `RiemannianFlow.load` (torch.load with weights_only=True), so no model object is ever unpickled.
 """
@@ -40,12 +41,17 @@ class _FitSetup:
 
 
 def _init(setup: _FitSetup) -> _FitSetup:
-    """Worker start: tqdm gets a thread lock instead of the multiprocessing lock it would make (a semaphore that
-    a worker killed on Ctrl-C would leave for the resource tracker to warn about); workers print no progress."""
+    """Worker start: torch on the training's threads before any torch call (a forked worker must not enter its
+    parent's OpenMP pool); tqdm gets a thread lock instead of the multiprocessing lock it would make (a semaphore
+    that a worker killed on Ctrl-C would leave for the resource tracker to warn about); workers print no
+    progress."""
     import threading
 
+    import torch
     from tqdm import tqdm
 
+    if setup.config.threads is not None:
+        torch.set_num_threads(setup.config.threads)
     tqdm.set_lock(threading.RLock())
     return setup
 
@@ -58,6 +64,12 @@ def _fit_unit(setup: _FitSetup, unit: tuple[str, np.ndarray, str]) -> dict[str, 
     return {"history": asdict(history)}
 
 
+def _start(config: TrainConfig) -> str:
+    """Fork the workers when they train on one torch thread (a forked child must not enter its parent's OpenMP
+    pool, `batch.BatchConfig.start_method`); this process has imported torch already, so they start at once."""
+    return "fork" if config.threads == 1 else "spawn"
+
+
 def _failure(key: str, unit: Any, reason: str) -> dict[str, Any]:
     return {"failure": reason}
 
@@ -65,7 +77,7 @@ def _failure(key: str, unit: Any, reason: str) -> dict[str, Any]:
 def fit_in_processes(jobs: Mapping[str, FitJob], dt: float, config: TrainConfig, workers: int,
                      progress: bool = True, load: Callable[[Path], RiemannianFlow] = RiemannianFlow.load
                      ) -> dict[str, tuple[RiemannianFlow, TrainHistory]]:
-    """Fit every job's model with `rflow.train.fit`, ``workers`` at a time in spawned processes.
+    """Fit every job's model with `rflow.train.fit`, ``workers`` at a time in worker processes.
 
     Args:
         jobs: model name -> (demos, manifold name).
@@ -97,7 +109,8 @@ def fit_in_processes(jobs: Mapping[str, FitJob], dt: float, config: TrainConfig,
         units = [(name, (name, np.asarray(demos), manifold)) for name, (demos, manifold) in jobs.items()]
         try:
             outcome = run_batch(units, _FitSetup(dt, config, scratch), _init, _fit_unit, _failure,
-                                BatchConfig(workers=min(workers, max(1, len(units)))), on_record=report)
+                                BatchConfig(workers=min(workers, max(1, len(units))), start_method=_start(config)),
+                                on_record=report)
         except BatchError as err:  # e.g. a worker that could not start
             raise RFlowError(f"training in processes failed: {err}") from None
         if outcome.interrupted:

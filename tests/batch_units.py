@@ -5,7 +5,7 @@ A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep" | "kill_fi
 records on any backend, and whatever worker it runs on. "kill_first" kills its worker on its first ``times``
 tries (counted in files beside ``counter``); "meet" returns once ``count`` such units run at the same time
 (each leaves a file in ``folder``); a setup with "kill_starts" and "counter" kills that many workers in
-``init``.
+``init``, one with "hang_starts" and "counter" hangs that many in ``init``.
 """
 
 from __future__ import annotations
@@ -23,6 +23,8 @@ def init(setup: dict[str, Any]) -> dict[str, Any]:
         raise ValueError("init was told to fail")
     if "kill_starts" in setup and count(setup["counter"]) <= setup["kill_starts"]:
         os.kill(os.getpid(), signal.SIGKILL)
+    if "hang_starts" in setup and count(setup["counter"]) <= setup["hang_starts"]:
+        time.sleep(600.0)
     return {"offset": setup["offset"]}
 
 

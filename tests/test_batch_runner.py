@@ -1,7 +1,8 @@
 """batch.runner: a killed worker (mid-unit or while starting) changes no record, its unit runs again and the
 loss is listed; a unit lost on every try is an infrastructure error, outside the records and the journal; an
 overrunning unit and an escaped exception each become one failed record and the batch goes on; records do
-not depend on the number of workers; a journal resumes a run."""
+not depend on the number of workers; a journal resumes a run. The worker-process tests run with spawned and with
+forked workers (``BatchConfig.start_method``)."""
 
 from __future__ import annotations
 
@@ -16,17 +17,20 @@ from pathlib import Path
 import pytest
 
 from batch import BatchConfig, BatchError, Journal, run_batch
+from batch.config import START_METHODS
 from batch_units import failure, init, units, work
 
 SETUP = {"offset": 7}
+EACH_START = pytest.mark.parametrize("start", START_METHODS)
 
 
 def run(todo, config=BatchConfig(), **kwargs):
     return run_batch(todo, SETUP, init, work, failure, config, **kwargs)
 
 
-def test_records_follow_the_unit_order_and_the_context():
-    outcome = run(units(5), BatchConfig(workers=2))
+@EACH_START
+def test_records_follow_the_unit_order_and_the_context(start):
+    outcome = run(units(5), BatchConfig(workers=2, start_method=start))
     assert list(outcome.records) == [f"u{i:03d}" for i in range(5)]
     assert [r["value"] for r in outcome.records.values()] == [i * i + 7 for i in range(5)]
     assert outcome.complete and not outcome.interrupted
@@ -40,8 +44,9 @@ def kill_first(counter, times=1):
     return {"do": "kill_first", "counter": str(counter), "times": times}
 
 
-def test_a_worker_killed_mid_unit_changes_no_record_and_the_loss_is_listed(tmp_path):
-    outcome = run(units(6, {2: kill_first(tmp_path / "c")}), BatchConfig(workers=2))
+@EACH_START
+def test_a_worker_killed_mid_unit_changes_no_record_and_the_loss_is_listed(tmp_path, start):
+    outcome = run(units(6, {2: kill_first(tmp_path / "c")}), BatchConfig(workers=2, start_method=start))
     assert outcome.complete and outcome.records == run(units(6)).records
     (event,) = outcome.events
     assert (event["event"], event["unit"], event["unit_action"], event["tries"]) == ("worker_lost", "u002", "retried", 1)
@@ -75,13 +80,29 @@ def test_resume_runs_an_infrastructure_error_again(tmp_path):
     assert second.events == first.events  # the journal keeps the earlier segment's events
 
 
-def test_workers_killed_while_starting_are_replaced(tmp_path):
-    """Both first workers are killed in init (so neither finishes the batch before the other's loss is seen)."""
+@EACH_START
+def test_workers_killed_while_starting_are_replaced(tmp_path, start):
+    """The first two inits are killed; the first two units must run at the same time, so no worker finishes the
+    batch alone before both losses are seen (a forked replacement may start before the other first worker)."""
     setup = {**SETUP, "kill_starts": 2, "counter": str(tmp_path / "c")}
-    outcome = run_batch(units(4), setup, init, work, failure, BatchConfig(workers=2))
+    meet = {"do": "meet", "folder": str(tmp_path / "m"), "count": 2}
+    (tmp_path / "m").mkdir()
+    outcome = run_batch(units(4, {0: meet, 1: meet}), setup, init, work, failure,
+                        BatchConfig(workers=2, start_method=start))
     assert outcome.complete and outcome.records == run(units(4)).records
     assert [(e["event"], e["replaced"], e["where"]["exit_code"]) for e in outcome.events] == [
         ("worker_lost_at_start", True, -9)] * 2
+
+
+def test_workers_that_hang_while_starting_are_killed_and_replaced(tmp_path):
+    """Both first workers hang in init (as a forked child would on a lock held at the fork): each is killed at
+    the start limit and replaced; the batch ends with the usual records instead of waiting forever."""
+    setup = {**SETUP, "hang_starts": 2, "counter": str(tmp_path / "c")}
+    outcome = run_batch(units(4), setup, init, work, failure,
+                        BatchConfig(workers=2, start_method="fork", start_timeout_s=2.0))
+    assert outcome.complete and outcome.records == run(units(4)).records
+    assert [(e["event"], e["replaced"], e["where"]["exit_code"], e["detail"]) for e in outcome.events] == [
+        ("worker_lost_at_start", True, -9, "not ready 2 s after it was started")] * 2
 
 
 def test_workers_that_never_start_stop_the_batch_with_a_fault(tmp_path):
@@ -108,8 +129,10 @@ def test_a_worker_with_nothing_left_to_do_ends_while_the_others_run(tmp_path):
     assert outcome.records["u001"]["value"] is True  # u000's worker ended while u001 was running
 
 
-def test_a_unit_over_the_wall_time_limit_is_killed_and_recorded():
-    outcome = run(units(4, {1: {"do": "sleep", "seconds": 600.0}}), BatchConfig(workers=2, unit_timeout_s=5.0))
+@EACH_START
+def test_a_unit_over_the_wall_time_limit_is_killed_and_recorded(start):
+    outcome = run(units(4, {1: {"do": "sleep", "seconds": 600.0}}),
+                  BatchConfig(workers=2, unit_timeout_s=5.0, start_method=start))
     assert outcome.complete
     assert [r["reason"] for r in outcome.records.values()] == ["ok", "wall_timeout", "ok", "ok"]
 
@@ -166,7 +189,8 @@ def test_every_record_is_in_the_journal_as_it_finishes(tmp_path):
     assert counts == [1, 2, 3, 4]
 
 
-def test_ctrl_c_stops_workers_keeps_the_journal_and_prints_no_traceback(tmp_path):
+@EACH_START
+def test_ctrl_c_stops_workers_keeps_the_journal_and_prints_no_traceback(tmp_path, start):
     """A real SIGINT to the whole process group, as a terminal's Ctrl-C sends it."""
     journal = tmp_path / "j.jsonl"
     script = textwrap.dedent(f"""
@@ -176,7 +200,8 @@ def test_ctrl_c_stops_workers_keeps_the_journal_and_prints_no_traceback(tmp_path
         from batch_units import failure, init, units, work
         todo = units(6, {{i: {{"do": "sleep", "seconds": 600.0}} for i in range(2, 6)}})
         with Journal.open({str(journal)!r}, {{"run": 1}}) as j:
-            out = run_batch(todo, {{"offset": 0}}, init, work, failure, BatchConfig(workers=2), journal=j,
+            out = run_batch(todo, {{"offset": 0}}, init, work, failure, BatchConfig(workers=2, start_method={start!r}),
+                            journal=j,
                             on_record=lambda k, r: print("finished", k, flush=True))
         print("interrupted" if out.interrupted else "not interrupted", len(out.records), flush=True)
     """)
@@ -198,6 +223,7 @@ def test_ctrl_c_stops_workers_keeps_the_journal_and_prints_no_traceback(tmp_path
 
 def test_config_is_validated():
     for bad in ({"workers": 0}, {"unit_timeout_s": -1.0}, {"backend": "dask"},
-                {"backend": "ray", "ray_address": "nohost"}, {"ray_address": "127.0.0.1:6379"}, {"max_retries": -1}):
+                {"backend": "ray", "ray_address": "nohost"}, {"ray_address": "127.0.0.1:6379"}, {"max_retries": -1},
+                {"start_method": "forkserver"}, {"start_timeout_s": 0.0}, {"start_timeout_s": float("inf")}):
         with pytest.raises(BatchError):
             BatchConfig(**bad)

@@ -134,6 +134,7 @@ def _cpu_ticks(pid: int) -> int:
 
 
 def _children(pid: int) -> list[int]:
+    """The worker processes of ``pid`` (forked or spawned), less multiprocessing's resource tracker."""
     kids = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
@@ -142,7 +143,7 @@ def _children(pid: int) -> list[int]:
                 cmdline = (entry / "cmdline").read_bytes()
             except OSError:
                 continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"spawn_main" in cmdline:
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"resource_tracker" not in cmdline:
                 kids.append(int(entry.name))
     return kids
 

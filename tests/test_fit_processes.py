@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -14,7 +15,7 @@ import pytest
 import torch
 
 from rflow.errors import RFlowError
-from rflow.fit_processes import fit_in_processes
+from rflow.fit_processes import _start, fit_in_processes
 from rflow.skill_io import fit_pose_skill
 from tests.skill_fixtures import TINY, synthetic_demos, write_demo_file
 
@@ -38,6 +39,12 @@ def test_parallel_training_gives_the_sequential_weights_bit_for_bit() -> None:
         np.testing.assert_array_equal(one_by_one.models[name].goal, parallel.models[name].goal)
 
 
+def test_workers_training_on_one_thread_are_forked_and_others_spawned() -> None:
+    """A forked child that enters its parent's OpenMP pool hangs: only one-thread training forks."""
+    assert TINY.threads == 1 and _start(TINY) == "fork"
+    assert _start(dataclasses.replace(TINY, threads=2)) == _start(dataclasses.replace(TINY, threads=None)) == "spawn"
+
+
 def test_a_model_that_fails_to_train_is_named_in_the_error() -> None:
     demos = synthetic_demos()
     pos = demos.pos.copy()
@@ -53,7 +60,8 @@ def test_workers_must_be_a_positive_integer() -> None:
         fit_in_processes({"position": (demos.pos, "euclidean")}, demos.dt, TINY, workers=0)
 
 
-def _spawned_children(pid: int) -> list[int]:
+def _workers(pid: int) -> list[int]:
+    """The worker processes of ``pid``: its children (forked or spawned), less multiprocessing's resource tracker."""
     kids = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
@@ -61,7 +69,7 @@ def _spawned_children(pid: int) -> list[int]:
                 stat, cmdline = (entry / "stat").read_text(), (entry / "cmdline").read_bytes()
             except OSError:
                 continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"spawn_main" in cmdline:
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"resource_tracker" not in cmdline:
                 kids.append(int(entry.name))
     return kids
 
@@ -75,11 +83,11 @@ def test_sigint_during_parallel_training_stops_the_workers_and_writes_nothing(tm
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
-        while len(_spawned_children(proc.pid)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+        while len(_workers(proc.pid)) < 2 and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
-        workers = _spawned_children(proc.pid)
+        workers = _workers(proc.pid)
         assert len(workers) == 2, proc.poll()
-        time.sleep(6.0)  # both have imported torch and are training
+        time.sleep(6.0)  # both are training
         os.kill(proc.pid, signal.SIGINT)  # to the parent only (`kill -INT`): it must stop its workers itself
         _, stderr = proc.communicate(timeout=60)
     finally:
@@ -88,5 +96,4 @@ def test_sigint_during_parallel_training_stops_the_workers_and_writes_nothing(tm
     assert proc.returncode == 130, stderr
     assert "interrupted" in stderr and "leaked" not in stderr and "Traceback" not in stderr
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["demos.npz"]
-    assert not any(Path(f"/proc/{pid}").exists() and b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()
-                   for pid in workers)
+    assert not any(Path(f"/proc/{pid}").exists() for pid in workers)

@@ -191,9 +191,10 @@ class EvaluationConfig:
             raise EnvError(str(err)) from None
 
     def batch_config(self) -> BatchConfig:
-        """How the episodes run as a batch (workers, wall-time limit, backend)."""
+        """How the episodes run as a batch (workers, wall-time limit, backend); worker processes are forked, as
+        every episode worker runs torch on one thread (`batch.BatchConfig.start_method`)."""
         return BatchConfig(workers=self.workers, unit_timeout_s=self.unit_timeout_s, backend=self.backend,
-                           ray_address=self.ray_address)
+                           ray_address=self.ray_address, start_method="fork")
 
     def settings(self) -> dict[str, Any]:
         """Every field but the task, JSON-ready: a result's "config" (the task is recorded beside it)."""

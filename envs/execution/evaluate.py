@@ -2,7 +2,7 @@
 and replays of chosen episodes. Where the episodes start is envs.execution.starts; the result, its statistics and
 JSON, envs.execution.result.
 
-Batch. Episodes are the units of a `batch.run_batch`: in this process, in spawned worker processes or on
+Batch. Episodes are the units of a `batch.run_batch`: in this process, in forked worker processes or on
 Ray; each finished record goes into the run's journal (if any) as it ends, so an interrupted evaluation
 resumes from it with the same result. An episode over ``unit_timeout_s`` of wall time is the skill's
 outcome, a failed episode "wall_timeout" (the limit, 300 s against ~1 s per episode, leaves a wide margin
