@@ -58,6 +58,16 @@ class StiffnessSchedule:
             raise EnvError(f"StiffnessSchedule needs free_height_m > hole_height_m, got {self.free_height_m!r} "
                            f"and {self.hole_height_m!r}")
 
+    @classmethod
+    def parse(cls, text: str) -> "StiffnessSchedule":
+        """The schedule "FREE/LATERAL/AXIAL" (k_free, k_lateral_hole, k_axial_hole in N/m; the heights the
+        defaults'). Raises EnvError saying what is wrong (the caller names the input)."""
+        try:
+            free, lateral, axial = (float(v) for v in str(text).split("/"))
+        except ValueError:
+            raise EnvError("expected FREE/LATERAL/AXIAL, three stiffnesses in N/m") from None
+        return cls(free, lateral, axial)
+
     def goal_stiffness(self, hole_axis: npt.ArrayLike) -> FloatArray:
         """K_goal (3, 3), the in-hole stiffness every demo ends at."""
         return self._matrix(self.lateral_hole_n_m, self.axial_hole_n_m, _unit_axis(hole_axis))

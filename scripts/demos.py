@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,16 @@ if TYPE_CHECKING:  # the simulator loads in main(), never for --help
     from envs.demos import DemoAttempt
     from envs.expert import ExpertConfig
     from envs.scene_config import SceneConfig
+
+
+def expert_stiffness(text: str) -> Any:
+    """The `StiffnessSchedule` of --expert-stiffness (argparse type: a bad value is a one-line usage error)."""
+    from envs.stiffness_schedule import StiffnessSchedule
+
+    try:
+        return StiffnessSchedule.parse(text)
+    except EnvError as err:
+        raise argparse.ArgumentTypeError(f"{text!r}: {err}") from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,6 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="record the demos as a real cell would (envs/demo_noise.py): 'realistic' (3 mm / 3 deg "
                             "end scatter, timing jitter, approach curvature, sensor noise) and/or FIELD=VALUE pairs, "
                             "e.g. 'realistic,final_pos_scatter_m=0.004'; the file's demos then end apart")
+    demos.add_argument("--expert-stiffness", type=expert_stiffness, metavar="FREE/LATERAL/AXIAL",
+                       help="the stiffness schedule the expert commands and records, N/m: FREE in free space, "
+                            "LATERAL across and AXIAL along the hole axis near and in the hole (envs/"
+                            "stiffness_schedule.py; default 1500/300/1000)")
     demos.add_argument("--check", type=count(MAX_EPISODES), metavar="N",
                        help="instead of recording, run the expert from N seeded starts and report the success rate")
     out = parser.add_argument_group("output")
@@ -107,7 +121,8 @@ def main(args: argparse.Namespace) -> int:
 
     task = task_from_args(args)
     scene = SceneConfig.from_task(task, shape=task.shape or "square")
-    expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed_mm_s * 1e-3)
+    schedule = {} if args.expert_stiffness is None else {"stiffness": args.expert_stiffness}
+    expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed_mm_s * 1e-3, **schedule)
     if args.check is not None:
         return _check(args, scene, expert)
     noise = None

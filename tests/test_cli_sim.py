@@ -35,6 +35,20 @@ def test_demos_writes_a_valid_file(tmp_path: Path) -> None:
     assert demos.pos.shape == (1, 100, 3) and demos.config["seed"] == 1
 
 
+def test_demos_record_the_asked_expert_stiffness(tmp_path: Path, capsys) -> None:
+    """--expert-stiffness sets the schedule the expert commands: the file records it, every demo ends at its goal
+    stiffness (300 N/m across and along the axis here, not the default 1000 along it); a bad one is a usage error."""
+    out = tmp_path / "demos.npz"
+    assert main(["demos", "--num", "1", "--seed", "1", "--samples", "100", "--expert-stiffness", "1500/300/300",
+                 "--out", str(out)]) == 0
+    demos = load_demos(out)
+    assert demos.config["expert"]["stiffness"]["axial_hole_n_m"] == 300.0
+    np.testing.assert_allclose(np.linalg.eigvalsh(demos.goal_stiffness), [300.0] * 3)
+    np.testing.assert_allclose(demos.stiffness[0, -1], demos.goal_stiffness)
+    assert main(["demos", "--num", "1", "--expert-stiffness", "1500/300", "--out", str(tmp_path / "x.npz")]) == 2
+    assert "FREE/LATERAL/AXIAL" in capsys.readouterr().err and not (tmp_path / "x.npz").exists()
+
+
 def test_render_missing_demo_file_exits_2(tmp_path: Path, capsys) -> None:
     assert main(["render", "--demos", str(tmp_path / "nope.npz"), "--out", str(tmp_path / "x.mp4")]) == 2
     assert "not found" in capsys.readouterr().err

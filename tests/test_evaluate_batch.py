@@ -257,7 +257,7 @@ def test_lockstep_evaluation_equals_one_episode_at_a_time_in_the_imperfect_cell(
     assert len({json.dumps(r["perturbation"], sort_keys=True) for r in a["per_episode"]}) == 7  # all perturbed apart
 
 
-@pytest.mark.parametrize("value, message", [("schedule:1500/300", "schedule:FREE/LATERAL/AXIAL"),
+@pytest.mark.parametrize("value, message", [("schedule:1500/300", "FREE/LATERAL/AXIAL"),
                                             ("schedule:1500/-1/300", "lateral_hole_n_m"),
                                             ("stiff", "must be 'learned'")])
 def test_a_bad_stiffness_is_one_line_and_exit_2_with_nothing_written(model, tmp_path, capsys, value, message):

@@ -61,14 +61,8 @@ class StiffnessSetting:
 
             if not value:
                 return cls("schedule", schedule=StiffnessSchedule())
-            parts = value.split("/")
             try:
-                free, lateral, axial = (float(v) for v in parts)
-            except ValueError:
-                raise EnvError(f"stiffness {text!r}: expected schedule:FREE/LATERAL/AXIAL, three stiffnesses in "
-                               "N/m") from None
-            try:
-                return cls("schedule", schedule=StiffnessSchedule(free, lateral, axial))
+                return cls("schedule", schedule=StiffnessSchedule.parse(value))
             except EnvError as err:
                 raise EnvError(f"stiffness {text!r}: {err}") from None
         if kind != "constant" or not value:
