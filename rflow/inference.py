@@ -12,6 +12,7 @@ matrix powers of Phi = expm(V dt).
 from __future__ import annotations
 
 import math
+import multiprocessing
 
 import numpy as np
 import numpy.typing as npt
@@ -38,7 +39,10 @@ class NumpyImitationFlow:
     _MAX_CACHED_STEPS = 64  # step matrices kept per dt
     PARALLEL_MIN_POINTS = 16384
     """Batches of at least this many points run on all cores (flow_kernel.flow_pass_parallel), smaller ones on one:
-    a control loop or an evaluation worker's single rollout must not wake threads that compete with other workers."""
+    a control loop or an evaluation worker's single rollout must not wake threads that compete with other workers.
+    A worker process (a child of multiprocessing) runs every batch on one core: the workers share the cores
+    already, and a forked one must not enter a parallel region, since GNU OpenMP (numba's "omp" layer) terminates a
+    forked child whose parent ran one (`tests/test_inference.py`)."""
 
     def __init__(self, packed: PackedFlow, offset: np.ndarray, drift: np.ndarray, dt: float):
         self._packed = packed
@@ -142,7 +146,8 @@ class NumpyImitationFlow:
 
     def _pass(self, x: np.ndarray, sign: float, before: np.ndarray, after: np.ndarray) -> None:
         """x <- pass(x + before) + after in place: all layers (sign +1) or all inverses (sign -1)."""
-        run = flow_kernel.flow_pass_parallel if x.shape[0] >= self.PARALLEL_MIN_POINTS else flow_kernel.flow_pass
+        parallel = x.shape[0] >= self.PARALLEL_MIN_POINTS and multiprocessing.parent_process() is None
+        run = flow_kernel.flow_pass_parallel if parallel else flow_kernel.flow_pass
         run(x, sign, before, after, *self._weights)
 
     def step(self, p: npt.ArrayLike, dt: float | None = None) -> np.ndarray:

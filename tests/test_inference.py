@@ -40,6 +40,33 @@ def test_batch_inverse_equals_torch(model):
     assert np.allclose(model.inference.inverse(p), q, atol=1e-6, rtol=0)
 
 
+def _inverse_in_a_forked_child(model, p, conn):
+    conn.send(model.inference.inverse(p))
+
+
+def test_a_forked_worker_runs_a_large_batch_after_its_parent_ran_it_on_all_cores(model):
+    """A batch over PARALLEL_MIN_POINTS runs on all cores here; a forked worker gets the same rows on one core
+    (GNU OpenMP, numba's "omp" layer, terminates a forked child that enters a parallel region after its parent)."""
+    import multiprocessing
+
+    p = np.random.default_rng(4).normal(size=(model.inference.PARALLEL_MIN_POINTS + 10, 3))
+    here = model.inference.inverse(p)
+    ours, theirs = multiprocessing.Pipe()
+    child = multiprocessing.get_context("fork").Process(target=_inverse_in_a_forked_child, args=(model, p, theirs))
+    child.start()
+    theirs.close()  # the child's death then ends the pipe at once
+    try:
+        rows = ours.recv() if ours.poll(60) else None
+    except EOFError:
+        rows = None
+    finally:
+        child.join(10)
+        if child.is_alive():
+            child.kill()
+    assert rows is not None and child.exitcode == 0, f"the forked child sent nothing (exit code {child.exitcode})"
+    np.testing.assert_array_equal(rows, here)
+
+
 def test_batch_step_equals_torch(model):
     p = np.random.default_rng(1).normal(size=(300, 3))
     assert np.allclose(model.inference.step(p), torch_step(model, p), atol=1e-6, rtol=0)
