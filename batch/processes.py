@@ -97,7 +97,8 @@ class _Worker:
 
     def retire(self) -> None:
         """Ask an idle worker to return, so that its exit handlers release what it holds (e.g. the semaphores
-        of its locks); its interpreter then takes ~0.8 s to shut down, overlapping whatever still runs."""
+        of its locks); a spawned one's interpreter then takes ~0.8 s to shut down, overlapping whatever still
+        runs."""
         if self.ready and self.unit is None and not self.retired and self.process.is_alive():
             with contextlib.suppress(OSError, ValueError):
                 self.conn.send(None)
