@@ -63,6 +63,9 @@ def run_import(args: argparse.Namespace) -> int:
         raise EnvError("--out FILE.npz is required with --import")
     if args.video is not None:
         raise EnvError("--video records the scripted expert; it does not apply to --import")
+    for option, given in (("--noise", args.noise), ("--expert-stiffness", args.expert_stiffness)):
+        if given is not None:
+            raise EnvError(f"{option} shapes the scripted expert's demos; it does not apply to --import")
     check_output("--out", args.out, args.overwrite, suffix=".npz", inputs=[args.import_file])
     if args.tool_offset is None and args.import_format == "npz":
         raise EnvError("--tool-offset is required with --import (e.g. --tool-offset franka-tcp)")

@@ -367,3 +367,11 @@ def test_stiffness_off_the_common_goal_fails_unless_snapped(tmp_path: Path) -> N
     snapped = import_tcp(recorded, snap=True).demos
     np.testing.assert_array_equal(snapped.stiffness[:, -1], np.broadcast_to(snapped.goal_stiffness, (3, 3, 3)))
     save_demos(tmp_path / "d.npz", snapped)  # validates: symmetric, positive definite, ending at the goal
+
+
+@pytest.mark.parametrize("option", [("--noise", "realistic"), ("--expert-stiffness", "1500/300/300")])
+def test_options_of_the_scripted_expert_are_refused_with_import(tmp_path: Path, capsys, option) -> None:
+    """--noise and --expert-stiffness shape the expert's recordings; with --import they would be silently ignored."""
+    code, out = run_import(tmp_path, tmp_path / "rec.npz", "--tool-offset", OFFSET_ARG, *option)
+    err = capsys.readouterr().err
+    assert code == 2 and not out.exists() and err.count("\n") == 1 and option[0] in err and "--import" in err
