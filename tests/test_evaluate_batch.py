@@ -21,6 +21,7 @@ from envs.execution.evaluate import EvaluationConfig, evaluate, journal_run
 from envs.task import Task, preset
 from rflow.skill_io import save_skill
 from scripts.cli import main as pih
+from batch_units import worker_processes
 from skill_fixtures import tiny_skill
 
 PIH = str(Path(sys.executable).with_name("pih"))
@@ -133,21 +134,6 @@ def _cpu_ticks(pid: int) -> int:
     return int(fields[11]) + int(fields[12])
 
 
-def _children(pid: int) -> list[int]:
-    """The worker processes of ``pid`` (forked or spawned), less multiprocessing's resource tracker."""
-    kids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat = (entry / "stat").read_text()
-                cmdline = (entry / "cmdline").read_bytes()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"resource_tracker" not in cmdline:
-                kids.append(int(entry.name))
-    return kids
-
-
 @pytest.mark.slow
 def test_sigkill_of_a_worker_changes_no_episode_and_is_listed(model, tmp_path):
     out, journal = tmp_path / "e.json", tmp_path / "e.json.journal.jsonl"
@@ -157,7 +143,7 @@ def test_sigkill_of_a_worker_changes_no_episode_and_is_listed(model, tmp_path):
         _wait_for_records(journal, 1, proc)
         # the busiest worker: it has run an episode, so it is past its start (a worker still importing its libraries
         # on a loaded machine is lost "at start", another path: tests/test_batch_runner.py)
-        victims = sorted(_children(proc.pid), key=_cpu_ticks, reverse=True)
+        victims = sorted(worker_processes(proc.pid), key=_cpu_ticks, reverse=True)
         assert victims, "no worker process found"
         os.kill(victims[0], signal.SIGKILL)
         stdout, stderr = proc.communicate(timeout=300)

@@ -17,6 +17,7 @@ import torch
 from rflow.errors import RFlowError
 from rflow.fit_processes import _start, fit_in_processes
 from rflow.skill_io import fit_pose_skill
+from tests.batch_units import worker_processes
 from tests.skill_fixtures import TINY, synthetic_demos, write_demo_file
 
 
@@ -60,20 +61,6 @@ def test_workers_must_be_a_positive_integer() -> None:
         fit_in_processes({"position": (demos.pos, "euclidean")}, demos.dt, TINY, workers=0)
 
 
-def _workers(pid: int) -> list[int]:
-    """The worker processes of ``pid``: its children (forked or spawned), less multiprocessing's resource tracker."""
-    kids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat, cmdline = (entry / "stat").read_text(), (entry / "cmdline").read_bytes()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"resource_tracker" not in cmdline:
-                kids.append(int(entry.name))
-    return kids
-
-
 def test_sigint_during_parallel_training_stops_the_workers_and_writes_nothing(tmp_path: Path) -> None:
     demos = write_demo_file(tmp_path)
     out = tmp_path / "model"
@@ -83,9 +70,9 @@ def test_sigint_during_parallel_training_stops_the_workers_and_writes_nothing(tm
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
-        while len(_workers(proc.pid)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+        while len(worker_processes(proc.pid)) < 2 and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
-        workers = _workers(proc.pid)
+        workers = worker_processes(proc.pid)
         assert len(workers) == 2, proc.poll()
         time.sleep(6.0)  # both are training
         os.kill(proc.pid, signal.SIGINT)  # to the parent only (`kill -INT`): it must stop its workers itself
