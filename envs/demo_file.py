@@ -41,7 +41,6 @@ import numpy.typing as npt
 from envs.errors import EnvError
 from envs.output import save_npz, strict_json
 from envs.poses import quat_angle_rad
-from rflow.small_linalg import eigh_sym, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -132,7 +131,7 @@ def validate_demos(demos: DemoSet, source: str = "demos") -> None:
     if abs(norms[worst] - 1.0) > UNIT_TOL:
         raise EnvError(f"{source}: 'quat' is not unit at demo {worst[0]}, sample {worst[1]} "
                        f"(norm {norms[worst]:.6g})")
-    if abs(norm(goal_quat) - 1.0) > UNIT_TOL:
+    if abs(float(np.linalg.norm(goal_quat, axis=-1)) - 1.0) > UNIT_TOL:
         raise EnvError(f"{source}: 'goal_quat' {goal_quat.tolist()} is not unit")
     pos_err = np.linalg.norm(pos[:, -1] - goal_pos, axis=-1)
     rot_err = quat_angle_rad(quat[:, -1], goal_quat)
@@ -156,7 +155,7 @@ def _check_ends_apart(demos: DemoSet, pos_err: FloatArray, rot_err: FloatArray, 
 
     pos, quat = np.asarray(demos.pos), np.asarray(demos.quat)
     mean_pos = np.mean(pos[:, -1], axis=0)
-    if norm(mean_pos - np.asarray(demos.goal_pos)) > MEAN_GOAL_TOL_M or \
+    if float(np.linalg.norm(mean_pos - np.asarray(demos.goal_pos), axis=-1)) > MEAN_GOAL_TOL_M or \
             float(quat_angle_rad(mean_quat(quat[:, -1]), demos.goal_quat)) > MEAN_GOAL_TOL_RAD:
         raise EnvError(f"{source}: the demos end apart but the goal is not the mean of their ends")
     worst = int(np.argmax(pos_err / END_SPREAD_M + np.rad2deg(rot_err) / END_SPREAD_DEG))
@@ -225,7 +224,7 @@ def validate_stiffness(demos: DemoSet, source: str = "demos") -> None:
             where = np.unravel_index(np.argmax(asym), asym.shape)
             at = f" at demo {where[0]}, sample {where[1]}" if asym.ndim else ""
             raise EnvError(f"{source}: '{name}' is not symmetric{at} (max |K - K^T| / max |K| = {asym.max():.3g})")
-        low = eigh_sym(0.5 * (arr + np.swapaxes(arr, -1, -2)))[0][..., 0]
+        low = np.linalg.eigvalsh(0.5 * (arr + np.swapaxes(arr, -1, -2)))[..., 0]  # blas-ok: a validity check, no record
         if np.any(low <= 0.0):
             where = np.unravel_index(np.argmin(low), low.shape)
             at = f" at demo {where[0]}, sample {where[1]}" if low.ndim else ""

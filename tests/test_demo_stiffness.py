@@ -65,3 +65,22 @@ def test_pih_train_refuses_a_file_with_bad_stiffness(tmp_path, capsys, kind, wor
     err = capsys.readouterr().err.strip()
     assert err.startswith("pih train: error:") and words in err and "\n" not in err
     assert not (tmp_path / "ck").exists()
+
+
+def test_loading_a_demo_file_runs_no_compiled_kernel(tmp_path):
+    """`pih train` validates its demo file in the process that then forks the training workers, and nothing else
+    there needs numba: the validation (shapes, unit quaternions, the goal, SPD stiffness) is numpy, so that process
+    does not start numba's compiler (~0.45 s) for it."""
+    import subprocess
+    import sys
+
+    path = save_demos(tmp_path / "d.npz", stiffness_demos(n=3, m=20))
+    code = ("import numba.core.dispatcher as dispatcher\n"
+            "def refuse(self, *args, **kwargs):\n"
+            "    raise AssertionError(f'numba kernel {self.py_func.__qualname__} ran')\n"
+            "dispatcher.Dispatcher._compile_for_args = refuse\n"
+            "from envs.demo_file import load_demos\n"
+            f"print(load_demos({str(path)!r}).num_demos)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "3"

@@ -289,3 +289,22 @@ def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(
     assert pih([*common, "--adaptation-off", "push,wiggle", "--json", str(out / "e.json")]) == 2
     err = capsys.readouterr().err
     assert "--adaptation-off" in err and len(err.strip().splitlines()) == 1 and list(out.iterdir()) == []
+
+
+def test_forked_workers_run_on_the_context_built_before_the_fork(model, monkeypatch):
+    """Forked evaluation workers take their copy of the environment and policy the evaluation built in this process
+    (they do not build the scene and load the skill again), and their records are those of one process."""
+    from envs.execution import evaluate as evaluate_module
+
+    task = dataclasses.replace(preset("realistic"), time_limit_s=0.2)
+    here = evaluate(model, EvaluationConfig(episodes=4, task=task, workers=1), progress=False)
+
+    def no_second_build(setup):
+        raise AssertionError("a forked worker built its own environment")
+
+    monkeypatch.setattr(evaluate_module, "_init_worker", no_second_build)
+    forked = evaluate(model, EvaluationConfig(episodes=4, task=task, workers=2), progress=False)
+    assert forked.complete and forked.workers == 2
+    a, b = without_wall_times(here.to_dict()), without_wall_times(forked.to_dict())
+    assert (a["config"].pop("workers"), b["config"].pop("workers")) == (1, 2)
+    assert a == b and len(a["per_episode"]) == 4
