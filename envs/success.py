@@ -32,6 +32,7 @@ from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, as_vector, edge_lines, twist_angle_deg
 from envs.poses import rotate
 from envs.shapes import CrossSection
+from envs.success_kernel import NO_HOLE, NO_POLYGON, assess_tip
 from envs.task import SuccessConfig  # the tolerances are part of the task
 from rflow.quaternion import quat_to_mat
 from rflow.small_linalg import matmul, matvec
@@ -316,20 +317,42 @@ class EpisodeHoles:
         """
         if target not in holes:
             raise EnvError(f"target hole {target!r} is not among the holes {sorted(holes)}")
+        for spec in holes.values():
+            if spec.symmetry_order < 0:
+                raise EnvError(f"hole {spec.shape!r}: symmetry_order={spec.symmetry_order} must be >= 0")
         self.target, self.target_depth_m, self.config, self.peg = target, target_depth_m, config, peg
         self.frames = {shape: HoleFrame.of(spec) for shape, spec in holes.items()}
-        self._pos = np.array([spec.pos for spec in holes.values()])
-        self._axes = np.array([rotate(spec.quat, [0.0, 0.0, 1.0]) for spec in holes.values()])  # out of the holes
+        self._shapes = list(holes)
+        frames = list(self.frames.values())
+        walls = np.cumsum([0] + [len(f.wall_offsets) for f in frames])
+        section = peg.section
+        self._arguments = (  # assess_tip's arguments after the pose (envs.success_kernel)
+            np.array([f.pos for f in frames]), np.array([f.rot for f in frames]),
+            np.array([rotate(spec.quat, [0.0, 0.0, 1.0]) for spec in holes.values()]),  # out of the holes
+            np.array([spec.depth_m for spec in holes.values()], dtype=np.float64),
+            np.array([spec.inradius_m for spec in holes.values()], dtype=np.float64),
+            np.array([spec.chamfer_m for spec in holes.values()], dtype=np.float64),
+            np.array([spec.symmetry_order for spec in holes.values()], dtype=np.int64), walls.astype(np.int64),
+            np.concatenate([f.wall_normals.reshape(-1, 2) for f in frames]),
+            np.concatenate([f.wall_offsets.reshape(-1) for f in frames]), self._shapes.index(target),
+            np.ascontiguousarray(peg.corners, dtype=np.float64).reshape(-1, 3), bool(section.is_round),
+            float(section.radius_m), np.ascontiguousarray(R_FLIP_X, dtype=np.float64), MIN_ENTRY_DEPTH_M,
+            FLOOR_SLACK_M, float(target_depth_m), config.seat_tolerance_m, config.penetration_tolerance_m,
+            config.max_speed_m_s)
 
     def assess(self, pos: FloatArray, rot: FloatArray, speed_m_s: float) -> Assessment:
-        """`assess_insertion` of a checked peg_tip position (3,) and rotation matrix (3, 3) (class docstring)."""
-        depths = -np.einsum("hi,hi->h", pos - self._pos, self._axes)
-        if np.all(depths <= MIN_ENTRY_DEPTH_M):
-            return Assessment(None, frame_state(pos, rot, self.frames[self.target], speed_m_s=speed_m_s), False)
-        candidates = {shape: frame for (shape, frame), depth in zip(self.frames.items(), depths)
-                      if depth > MIN_ENTRY_DEPTH_M or shape == self.target}  # only these can hold the peg_tip
-        return frame_assessment(pos, rot, candidates, self.target, self.target_depth_m, self.config, self.peg,
-                                speed_m_s)
+        """`assess_insertion` of a checked peg_tip position (3,) and rotation matrix (3, 3) (class docstring), in one
+        compiled call (`envs.success_kernel.assess_tip`: the arithmetic of `frame_assessment`, bit for bit).
+
+        Raises:
+            EnvError: the peg_tip is below the target's chamfer and the target hole has no polygon.
+        """
+        hole, depth, lateral, tilt, yaw, in_hole, penetration, inserted = assess_tip(
+            pos, rot, *self._arguments, float(speed_m_s))
+        if hole == NO_POLYGON:
+            raise EnvError(f"hole {self.target!r} has no polygon to check the walls against")
+        state = InsertionState(depth, lateral, tilt, yaw, in_hole, penetration, float(speed_m_s))
+        return Assessment(None if hole == NO_HOLE else self._shapes[hole], state, inserted)
 
 
 class SuccessTracker:
