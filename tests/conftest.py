@@ -1,8 +1,10 @@
-"""Test-session defaults: headless rendering through Mesa EGL unless the caller chose a backend; the small trained
-skill that the slow physics tests share."""
+"""Test-session defaults: the CPU dispatch `pih` pins (before any test imports numpy or torch, so the tests run the
+arithmetic the commands run), headless rendering through Mesa EGL unless the caller chose a backend; the small
+trained skill that the slow physics tests share."""
 
 import os
 
+import rflow  # noqa: F401  (first: pins numpy's, torch's and MKL's kernel choices as `pih` does, rflow.cpu_dispatch)
 import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")

@@ -53,3 +53,26 @@ def test_training_and_episodes_equal_with_the_cpu_features_restricted(tmp_path):
     assert plain["capability"] == restricted["capability"] == "DEFAULT"  # the pin, not the host's AVX2/AVX512
     assert plain["weights"] == restricted["weights"]
     assert plain["records"] == restricted["records"]
+
+
+
+def test_numpy_runs_its_pinned_loops_here():
+    """This process runs numpy as `pih` pins it: its AVX-512 loops (whose arctan2, arccos, exp... round otherwise than
+    the baseline) are off, on any host."""
+    from numpy._core._multiarray_umath import __cpu_features__
+
+    assert os.environ["NPY_DISABLE_CPU_FEATURES"] == PINNED_ENVIRONMENT["NPY_DISABLE_CPU_FEATURES"]
+    assert not any(__cpu_features__.get(group, False) for group in ("X86_V4", "AVX512_SKX", "AVX512_ICL",
+                                                                      "AVX512_SPR"))
+
+
+def test_the_test_session_pins_numpy_before_a_test_module_imports_it():
+    """Most test modules import numpy before rflow, so the pin has to come from tests/conftest.py for the tests to run
+    the arithmetic the commands run: the check above, in a fresh session, after a module that imports numpy first."""
+    tests = Path(__file__).parent
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                           f"{tests / 'test_success.py'}::test_goal_pose_is_inserted",
+                           f"{Path(__file__)}::test_numpy_runs_its_pinned_loops_here"],
+                          capture_output=True, text=True, timeout=300, cwd=tests.parent,
+                          env={k: v for k, v in os.environ.items() if k not in PINNED_ENVIRONMENT})
+    assert done.returncode == 0 and "2 passed" in done.stdout, done.stdout[-3000:]
