@@ -38,11 +38,12 @@ from controllers import impedance_kernel as kernel
 from controllers.errors import ControllerError
 from controllers.mujoco_c import FUNCTIONS
 from controllers.validation import as_unit_quaternion, as_vector, site_id
-from rflow.small_linalg import eigh_sym, matvec, solve
+from rflow.small_linalg import eigh_sym
 
 PANDA_TORQUE_LIMITS_NM: tuple[float, ...] = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 PANDA_TORQUE_RATE_LIMIT_NM_PER_S: float = 1000.0
 _INERTIA_REGULARISATION: float = 1e-6  # added to J M^-1 J^T so Lambda stays finite at singularities
+_NO_ACCEL = np.zeros(6)  # pose_lead without an acceleration: a stand-in the kernel does not read (or write)
 
 
 @dataclass(frozen=True)
@@ -252,6 +253,7 @@ class CartesianImpedanceController:
         self._jac_minv = np.zeros((6, model.nv))
         self._target = np.zeros(7 + n + 1)  # [p_d, q_d, q_ref, use_q_ref]
         self._work, self._vec = kernel.work_buffers(n)
+        self._lead_scratch = (np.zeros((6, 6)), np.zeros((6, 6)), np.zeros(6), np.zeros((3, 6, 6)), np.zeros((6, 6)))
         self._last_tau = np.zeros(n)
         self._views: tuple = ()  # (data, its arrays the kernel reads), refreshed when another MjData comes
         self._fns = FUNCTIONS  # MuJoCo's C functions for the compiled physics step
@@ -356,6 +358,7 @@ class CartesianImpedanceController:
         Commanding x_cmd = x_d + delta makes the free-space closed loop Lambda x'' + D x' + K (x - x_cmd) = 0
         hold x = x_d along a path with twist xi and twist rate xi_dot, with the controller's own Lambda
         (regularised as in the control law) and modal damping D = P diag(2 zeta sqrt(w)) P^T, Lambda = P P^T.
+        The inputs are checked here; the rest is one compiled call (`impedance_kernel.pose_lead_into`).
 
         Args:
             data: MuJoCo data with current kinematics and mass matrix (after mj_forward or mj_step1).
@@ -371,21 +374,16 @@ class CartesianImpedanceController:
         """
         xi = as_vector(twist, 6, "twist")
         k = self.checked_stiffness(stiffness)
-        p, w = self._modal(data, k)
-        modal = (2.0 * self.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) * matvec(p.T, xi)
-        if accel is not None:
-            modal += matvec(p.T, as_vector(accel, 6, "accel"))
-        return solve(k, matvec(p, modal))
-
-    def _modal(self, data: mujoco.MjData, stiffness: npt.NDArray[np.float64]) -> tuple[npt.NDArray, npt.NDArray]:
-        """(P, w) of the double diagonalisation of this state's regularised Lambda and `stiffness` (copies)."""
-        mujoco.mj_jacSite(self.model, data, self._jac_pos, self._jac_rot, self.site_id)
-        mujoco.mj_solveM(self.model, data, self._jac_minv, self._jac)
-        lambda_inv, p, w = np.zeros((6, 6)), np.zeros((6, 6)), np.zeros(6)
-        kernel.inertia_inverse_into(self._jac, self._jac_minv, _INERTIA_REGULARISATION, lambda_inv)
-        if not kernel.modal_factors_into(lambda_inv, stiffness, p, w, self._work):
+        rate = _NO_ACCEL if accel is None else as_vector(accel, 6, "accel")
+        lead = np.empty(6)
+        status = kernel.pose_lead_into(self._fns, self.model._address, data._address, self.site_id, self._jac,
+                                       self._jac_minv, k, _INERTIA_REGULARISATION, 2.0 * self.config.damping_ratio,
+                                       xi, rate, accel is not None, *self._lead_scratch, lead)
+        if status == kernel.LEAD_NOT_POSITIVE_DEFINITE:
             raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed)")
-        return p, w
+        if status == kernel.LEAD_SINGULAR_STIFFNESS:
+            raise ControllerError("the stiffness is singular (a zero pivot)")
+        return lead
 
     def compute_torque(
         self,

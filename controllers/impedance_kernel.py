@@ -26,7 +26,7 @@ import numpy as np
 
 from controllers.mujoco_c import FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_jac, call_md, call_mdppi
 from rflow import quaternion
-from rflow.small_linalg import symmetric_eig
+from rflow.small_linalg import _solve_into, symmetric_eig
 
 STATUS_OK = 0
 STATUS_NOT_POSITIVE_DEFINITE = 1
@@ -113,6 +113,63 @@ def inertia_inverse_into(jac: np.ndarray, jac_minv: np.ndarray, regularisation: 
             out[i, j] = s
             out[j, i] = s
         out[i, i] += regularisation
+
+
+LEAD_OK, LEAD_NOT_POSITIVE_DEFINITE, LEAD_SINGULAR_STIFFNESS = range(3)
+"""What `pose_lead_into` returns."""
+
+
+@_jit
+def pose_lead_into(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarray, jac_minv: np.ndarray,
+                   stiffness: np.ndarray, regularisation: float, two_zeta: float, twist: np.ndarray,
+                   accel: np.ndarray, has_accel: bool, lambda_inv: np.ndarray, p: np.ndarray, w: np.ndarray,
+                   work: np.ndarray, k_copy: np.ndarray, out: np.ndarray) -> int:
+    """delta = K^-1 P (2 zeta sqrt(max(w, 0)) (P^T xi) + P^T xi_dot) into ``out`` (6,): the pose lead of
+    `CartesianImpedanceController.pose_lead` in one call, with the same arithmetic as its numpy steps (J and J M^-1
+    by mj_jacSite and mj_solveM, `inertia_inverse_into`, `modal_factors_into`, row sums with k ascending, and
+    rflow.small_linalg's elimination for K^-1).
+
+    Args:
+        fns, m, d, site, jac, jac_minv: as in `impedance_substep`.
+        stiffness: K (6, 6), checked SPD; regularisation: added to J M^-1 J^T; two_zeta: 2 zeta.
+        twist, accel: xi and xi_dot (6,), finite; ``has_accel`` False: no inertial term.
+        lambda_inv, p, k_copy: (6, 6) scratch; w: (6,) scratch; work: (3, 6, 6) scratch.
+
+    Returns:
+        LEAD_OK, LEAD_NOT_POSITIVE_DEFINITE (J M^-1 J^T) or LEAD_SINGULAR_STIFFNESS (``out`` then undefined).
+    """
+    nv = jac.shape[1]
+    call_mdppi(fns[FN_JAC_SITE], m, d, jac.ctypes.data, jac.ctypes.data + 3 * nv * 8, site)
+    call_mdppi(fns[FN_SOLVE_M], m, d, jac_minv.ctypes.data, jac.ctypes.data, 6)
+    inertia_inverse_into(jac, jac_minv, regularisation, lambda_inv)
+    if not modal_factors_into(lambda_inv, stiffness, p, w, work):
+        return LEAD_NOT_POSITIVE_DEFINITE
+    modal = np.empty(6)
+    for i in range(6):
+        s = 0.0
+        for k in range(6):  # (P^T xi)_i
+            s += p[k, i] * twist[k]
+        v = w[i]
+        v = v if (v >= 0.0 or math.isnan(v)) else 0.0  # np.maximum(w, 0.0)
+        modal[i] = (two_zeta * math.sqrt(v)) * s
+    if has_accel:
+        for i in range(6):
+            s = 0.0
+            for k in range(6):  # (P^T xi_dot)_i
+                s += p[k, i] * accel[k]
+            modal[i] += s
+    rhs = out.reshape(6, 1)
+    for i in range(6):
+        s = 0.0
+        for k in range(6):  # (P modal)_i
+            s += p[i, k] * modal[k]
+        rhs[i, 0] = s
+    for i in range(6):
+        for j in range(6):
+            k_copy[i, j] = stiffness[i, j]
+    if not _solve_into(k_copy, rhs):
+        return LEAD_SINGULAR_STIFFNESS
+    return LEAD_OK
 
 
 # The quaternion formulas are rflow.quaternion's, compiled here once: the same Python source as the array versions,

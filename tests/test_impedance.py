@@ -324,3 +324,46 @@ def test_the_tool_load_is_minus_the_weight_through_the_jacobian_before_each_step
 def test_a_bad_tool_load_raises_controller_error(model, mass, depth):
     with pytest.raises(ControllerError, match="tool load"):
         CartesianImpedanceController(model, "peg_tip").set_tool_load(mass, depth)
+
+
+def _pose_lead_in_numpy(controller, data, twist, accel, stiffness):
+    """The pose lead as it was computed before it was one compiled call: the bindings' mj_jacSite and mj_solveM,
+    the kernel's Lambda^-1 and modal factors, then matvec and solve of rflow.small_linalg."""
+    from controllers import impedance_kernel as kernel
+    from rflow.small_linalg import matvec, solve
+
+    model = controller.model
+    jac, jac_minv = np.zeros((6, model.nv)), np.zeros((6, model.nv))
+    mujoco.mj_jacSite(model, data, jac[:3], jac[3:], controller.site_id)
+    mujoco.mj_solveM(model, data, jac_minv, jac)
+    lambda_inv, p, w = np.zeros((6, 6)), np.zeros((6, 6)), np.zeros(6)
+    kernel.inertia_inverse_into(jac, jac_minv, 1e-6, lambda_inv)
+    assert kernel.modal_factors_into(lambda_inv, stiffness, p, w, np.zeros((3, 6, 6)))
+    modal = (2.0 * controller.config.damping_ratio * np.sqrt(np.maximum(w, 0.0))) * matvec(p.T, twist)
+    if accel is not None:
+        modal += matvec(p.T, accel)
+    return solve(stiffness, matvec(p, modal))
+
+
+def test_the_compiled_pose_lead_equals_its_numpy_steps_bit_for_bit(model):
+    """On random arm states, twists, accelerations and SPD stiffnesses (with and without an acceleration)."""
+    data, controller, _, _ = _start(model)
+    rng = np.random.default_rng(11)
+    home = data.qpos.copy()
+    for trial in range(60):
+        data.qpos[:] = home + rng.normal(0.0, 0.3, model.nq)
+        data.qvel[:] = rng.normal(0.0, 0.5, model.nv)
+        mujoco.mj_forward(model, data)
+        k = controller.default_stiffness if trial % 3 == 0 else _random_spd(rng, 3000.0)
+        twist, accel = rng.normal(0.0, 0.2, 6), (None if trial % 2 else rng.normal(0.0, 1.0, 6))
+        expected = _pose_lead_in_numpy(controller, data, twist, accel, k)
+        got = controller.pose_lead(data, twist, accel, None if trial % 3 == 0 else k)
+        assert np.array_equal(got, expected), (trial, got - expected)
+
+
+def test_a_non_finite_twist_or_acceleration_is_refused_by_name(model):
+    data, controller, _, _ = _start(model)
+    with pytest.raises(ControllerError, match="twist"):
+        controller.pose_lead(data, [0.0, np.nan, 0.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ControllerError, match="accel"):
+        controller.pose_lead(data, np.zeros(6), [np.inf, 0.0, 0.0, 0.0, 0.0, 0.0])
