@@ -13,7 +13,7 @@ the points where its lateral edges w_k - t z_P cross the plane z_H = -c. By conv
 prism {n_i . x <= d_i} exactly when all those points do, so the wall penetration is
     pen = max_k,i (n_i . x_k - d_i)      (<= 0: the walls allow the state; > 0: only by penetrating them)
 and for the round peg pen = max(|c_xy|) + r / cos(tilt) - r_hole over the axis points at the tip and at z_H = -c.
-An insertion counts (``criteria_hold``) when the peg_tip is in the target hole, its depth is within
+An insertion counts when the peg_tip is in the target hole, its depth is within
 ``seat_tolerance_m`` of the target depth, pen <= ``penetration_tolerance_m`` (MuJoCo's soft contacts penetrate
 ~1e-6 m under the forces here) and the peg moves slower than ``max_speed_m_s``; success needs that to hold
 for ``hold_s``. Lateral offset, tilt and yaw are therefore bounded by what the walls allow, not by
@@ -29,13 +29,12 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.geometry import R_FLIP_X, as_vector, edge_lines, twist_angle_deg
+from envs.geometry import R_FLIP_X, as_vector, edge_lines
 from envs.poses import rotate
 from envs.shapes import CrossSection
-from envs.success_kernel import NO_HOLE, NO_POLYGON, assess_tip
+from envs.success_kernel import NO_HOLE, NO_POLYGON, assess_tip, wall_penetration, wrap_symmetric
 from envs.task import SuccessConfig  # the tolerances are part of the task
 from rflow.quaternion import quat_to_mat
-from rflow.small_linalg import matmul, matvec
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -115,19 +114,14 @@ class Assessment:
 
 
 def wrap_symmetric_deg(angle_deg: float, symmetry_order: int) -> float:
-    """Wrap an angle into (-180/k, 180/k] deg; 0 for a round shape (k = 0).
+    """Wrap an angle into (-180/k, 180/k] deg; 0 for a round shape (k = 0) (`envs.success_kernel.wrap_symmetric`).
 
     Raises:
         EnvError: for a negative symmetry order.
     """
     if symmetry_order < 0:
         raise EnvError(f"symmetry_order={symmetry_order} must be >= 0")
-    if symmetry_order == 0:
-        return 0.0
-    period = 360.0 / symmetry_order
-    half = period / 2.0
-    wrapped = (float(angle_deg) + half) % period - half  # Python's float % is numpy's mod (sign of the divisor)
-    return half if abs(wrapped + half) <= 1e-8 + 1e-5 * half else wrapped  # np.isclose(wrapped, -half)
+    return wrap_symmetric(float(angle_deg), symmetry_order)
 
 
 @dataclass(frozen=True)
@@ -181,82 +175,30 @@ def insertion_state(peg_tip_pos: npt.ArrayLike, peg_tip_quat: npt.ArrayLike, hol
         speed_m_s: the peg's speed, carried into the state.
 
     Raises:
-        EnvError: if the pose is not 3 + 4 finite numbers or the quaternion is zero.
+        EnvError: if the pose is not 3 + 4 finite numbers or the quaternion is zero; a peg below the chamfer of a
+            hole without a polygon.
     """
     pos = as_vector(peg_tip_pos, 3, "peg_tip_pos")
     rot = quat_to_mat(as_vector(peg_tip_quat, 4, "peg_tip_quat"))
-    return frame_state(pos, rot, HoleFrame.of(hole), None if peg is None else PegFootprint.of(peg), speed_m_s)
-
-
-def _hole_offset(pos: FloatArray, frame: HoleFrame) -> FloatArray:
-    """r = R_H^T (p_P - p_H): the peg_tip in the hole frame."""
-    return matvec(frame.rot.T, pos - frame.pos)
-
-
-def _inside(offset: FloatArray, hole: HoleSpec) -> tuple[float, float, bool]:
-    """(depth, lateral, in_hole) of a peg_tip at ``offset`` in the hole frame (module docstring)."""
-    depth = float(-offset[2])
-    lateral = float(np.hypot(offset[0], offset[1]))
-    return depth, lateral, MIN_ENTRY_DEPTH_M < depth <= hole.depth_m + FLOOR_SLACK_M and lateral <= hole.inradius_m
-
-
-def frame_state(pos: FloatArray, rot: FloatArray, frame: HoleFrame, peg: PegFootprint | None = None,
-                speed_m_s: float = float("nan")) -> InsertionState:
-    """`insertion_state` of a checked peg_tip pose: position ``pos`` (3,) and rotation matrix ``rot`` (3, 3) in
-    the world, against a precomputed hole frame (no validation: the caller's inputs are finite)."""
-    hole = frame.spec
-    rot_peg = matmul(frame.rot.T, rot)
-    rot_rel = matmul(rot_peg, R_FLIP_X)
-    offset = _hole_offset(pos, frame)
-    depth, lateral, in_hole = _inside(offset, hole)
-    tilt = float(np.rad2deg(np.arccos(min(max(float(rot_rel[2, 2]), -1.0), 1.0))))  # = np.clip, without its overhead
-    yaw = wrap_symmetric_deg(twist_angle_deg(rot_rel), hole.symmetry_order)
-    penetration = float("nan")
-    if peg is not None and depth > hole.chamfer_m:
-        penetration = _wall_penetration(offset, rot_peg, frame, peg)
-    return InsertionState(depth, lateral, tilt, yaw, bool(in_hole), penetration, float(speed_m_s))
+    scorer = EpisodeHoles({hole.shape: hole}, hole.shape, hole.depth_m, SuccessConfig(),
+                          None if peg is None else PegFootprint.of(peg), shortcut=False)
+    return scorer.assess(pos, rot, speed_m_s).state
 
 
 def wall_penetration_m(tip: npt.NDArray[np.float64], rot_peg: npt.NDArray[np.float64], hole: HoleSpec,
                        peg: CrossSection) -> float:
     """pen of the module docstring, for a peg_tip at ``tip`` with orientation ``rot_peg``, both in the hole
-    frame, with the tip below the straight walls (tip_z < -chamfer).
+    frame, with the tip below the straight walls (tip_z < -chamfer) (`envs.success_kernel.wall_penetration`).
 
     Raises:
         EnvError: if ``hole.polygon`` is empty (a HoleSpec without geometry).
     """
-    return _wall_penetration(tip, rot_peg, HoleFrame.of(hole), PegFootprint.of(peg))
-
-
-def _wall_penetration(tip: FloatArray, rot_peg: FloatArray, frame: HoleFrame, peg: PegFootprint) -> float:
-    """`wall_penetration_m` with the hole's wall lines and the peg's corners precomputed."""
-    hole, section = frame.spec, peg.section
     if not hole.polygon:
         raise EnvError(f"hole {hole.shape!r} has no polygon to check the walls against")
-    up = -rot_peg[:, 2]  # along the peg from the tip toward the hand
-    level = -hole.chamfer_m
-    if up[2] <= 1e-9:  # the peg points up out of the hole: it cannot be inside
-        return float("inf")
-    if section.is_round:
-        crossing = tip + up * (level - tip[2]) / up[2]
-        cos_tilt = up[2]
-        radial = max(float(np.hypot(*tip[:2])), float(np.hypot(*crossing[:2])))
-        return radial + section.radius_m / cos_tilt - hole.inradius_m
-    corners = tip + matmul(peg.corners, rot_peg.T)
-    rise = np.maximum(level - corners[:, 2], 0.0) / up[2]
-    points = np.vstack([corners, corners + rise[:, None] * up])[:, :2]
-    return float(np.max(matmul(points, frame.wall_normals.T) - frame.wall_offsets))
-
-
-def criteria_hold(state: InsertionState, target_depth_m: float, config: SuccessConfig) -> bool:
-    """True when the peg is in the hole, seated (|depth - target| <= seat tolerance), inside the walls
-    (penetration <= tolerance) and at rest (speed <= max speed); NaN penetration or speed fail."""
-    return bool(
-        state.in_hole
-        and abs(state.depth_m - target_depth_m) <= config.seat_tolerance_m
-        and state.wall_penetration_m <= config.penetration_tolerance_m
-        and state.speed_m_s <= config.max_speed_m_s
-    )
+    frame, footprint = HoleFrame.of(hole), PegFootprint.of(peg)
+    return wall_penetration(np.asarray(tip, dtype=np.float64), np.asarray(rot_peg, dtype=np.float64), hole.chamfer_m,
+                            hole.inradius_m, frame.wall_normals, frame.wall_offsets, footprint.corners,
+                            peg.is_round, float(peg.radius_m))
 
 
 def assess_insertion(
@@ -269,32 +211,16 @@ def assess_insertion(
     peg: CrossSection,
     speed_m_s: float,
 ) -> Assessment:
-    """Which hole the peg_tip is in, its state in the target hole, and whether the criteria hold.
+    """Which hole the peg_tip is in, its state in the target hole, and whether the criteria hold (every hole
+    scored, no shortcut: `EpisodeHoles` with ``shortcut`` False).
 
     Raises:
         EnvError: if ``target`` is not among ``holes`` or the pose is malformed.
     """
-    if target not in holes:
-        raise EnvError(f"target hole {target!r} is not among the holes {sorted(holes)}")
+    scorer = EpisodeHoles(holes, target, target_depth_m, config, PegFootprint.of(peg), shortcut=False)
     pos = as_vector(peg_tip_pos, 3, "peg_tip_pos")
     rot = quat_to_mat(as_vector(peg_tip_quat, 4, "peg_tip_quat"))
-    frames = {shape: HoleFrame.of(hole) for shape, hole in holes.items()}
-    return frame_assessment(pos, rot, frames, target, target_depth_m, config, PegFootprint.of(peg), speed_m_s)
-
-
-def frame_assessment(pos: FloatArray, rot: FloatArray, frames: Mapping[str, HoleFrame], target: str,
-                     target_depth_m: float, config: SuccessConfig, peg: PegFootprint,
-                     speed_m_s: float) -> Assessment:
-    """`assess_insertion` of a checked peg_tip pose (``pos`` (3,), ``rot`` (3, 3), world) against precomputed
-    hole frames that contain ``target`` (no validation)."""
-    state = frame_state(pos, rot, frames[target], peg, speed_m_s)
-    if state.in_hole:  # the target first: the other holes only matter when the peg_tip is not in it
-        hole: str | None = target
-    else:
-        hole = next((shape for shape, frame in frames.items()
-                     if shape != target and _inside(_hole_offset(pos, frame), frame.spec)[2]), None)
-    inserted = hole == target and criteria_hold(state, target_depth_m, config)
-    return Assessment(hole, state, inserted)
+    return scorer.assess(pos, rot, speed_m_s)
 
 
 class EpisodeHoles:
@@ -303,14 +229,17 @@ class EpisodeHoles:
 
     Shortcut, exact: a peg_tip is in a hole only deeper than MIN_ENTRY_DEPTH_M below its opening, so while it is
     above every opening (depth_h = -(p - p_h) . z_h <= MIN_ENTRY_DEPTH_M for all holes h) only the target hole's
-    state is computed, and otherwise only the holes it is below the opening of.
+    state is computed (without the wall penetration), and otherwise only the holes it is below the opening of.
     """
 
     def __init__(self, holes: Mapping[str, HoleSpec], target: str, target_depth_m: float, config: SuccessConfig,
-                 peg: PegFootprint) -> None:
+                 peg: PegFootprint | None, shortcut: bool = True) -> None:
         """Args:
             holes: every hole of the fixture, by shape; ``target`` among them.
-            target, target_depth_m, config, peg: as in `frame_assessment`.
+            target, target_depth_m, config: the hole to score against, its seated depth and the criteria.
+            peg: the peg's footprint, for the wall penetration (None: not computed, and nothing counts as inserted).
+            shortcut: the class docstring's (False: every hole, the penetration whenever the tip is below the
+                chamfer, as `assess_insertion` scores a pose alone).
 
         Raises:
             EnvError: a target that is not among the holes.
@@ -325,7 +254,7 @@ class EpisodeHoles:
         self._shapes = list(holes)
         frames = list(self.frames.values())
         walls = np.cumsum([0] + [len(f.wall_offsets) for f in frames])
-        section = peg.section
+        corners = np.zeros((0, 3)) if peg is None else np.ascontiguousarray(peg.corners, dtype=np.float64)
         self._arguments = (  # assess_tip's arguments after the pose (envs.success_kernel)
             np.array([f.pos for f in frames]), np.array([f.rot for f in frames]),
             np.array([rotate(spec.quat, [0.0, 0.0, 1.0]) for spec in holes.values()]),  # out of the holes
@@ -335,14 +264,14 @@ class EpisodeHoles:
             np.array([spec.symmetry_order for spec in holes.values()], dtype=np.int64), walls.astype(np.int64),
             np.concatenate([f.wall_normals.reshape(-1, 2) for f in frames]),
             np.concatenate([f.wall_offsets.reshape(-1) for f in frames]), self._shapes.index(target),
-            np.ascontiguousarray(peg.corners, dtype=np.float64).reshape(-1, 3), bool(section.is_round),
-            float(section.radius_m), np.ascontiguousarray(R_FLIP_X, dtype=np.float64), MIN_ENTRY_DEPTH_M,
-            FLOOR_SLACK_M, float(target_depth_m), config.seat_tolerance_m, config.penetration_tolerance_m,
-            config.max_speed_m_s)
+            corners.reshape(-1, 3), peg is not None and peg.section.is_round,
+            0.0 if peg is None else float(peg.section.radius_m), np.ascontiguousarray(R_FLIP_X, dtype=np.float64),
+            MIN_ENTRY_DEPTH_M, FLOOR_SLACK_M, float(target_depth_m), config.seat_tolerance_m,
+            config.penetration_tolerance_m, config.max_speed_m_s, bool(shortcut), peg is not None)
 
     def assess(self, pos: FloatArray, rot: FloatArray, speed_m_s: float) -> Assessment:
-        """`assess_insertion` of a checked peg_tip position (3,) and rotation matrix (3, 3) (class docstring), in one
-        compiled call (`envs.success_kernel.assess_tip`: the arithmetic of `frame_assessment`, bit for bit).
+        """The hole a checked peg_tip position (3,) and rotation matrix (3, 3) is in, its state in the target hole
+        and whether the criteria hold, in one compiled call (`envs.success_kernel.assess_tip`).
 
         Raises:
             EnvError: the peg_tip is below the target's chamfer and the target hole has no polygon.

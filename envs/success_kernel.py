@@ -1,11 +1,12 @@
-"""The scoring of a peg_tip pose against an episode's holes (`envs.success.EpisodeHoles.assess`) as one compiled
-call, so a control period's success check costs ~3 us instead of ~30 us of small numpy calls.
+"""The scoring of a peg_tip pose against holes (`envs.success`: `EpisodeHoles.assess`, `assess_insertion`,
+`insertion_state`, `wall_penetration_m`) as one compiled call, so a control period's success check costs ~3 us
+instead of ~30 us of small numpy calls.
 
-It is the arithmetic of `envs.success` step for step -- the same products summed in the same order (rflow.small_linalg),
-libm's acos, atan2 and hypot as numpy calls them, Python's float modulo -- so the states and records are the same
-to the last bit (tests/test_success_kernel.py against `envs.success.frame_assessment`, and the episode records of
-tests/test_policy_records.py). With the peg_tip's position p and rotation R in the world, per hole h (p_h, R_h,
-its axis z_h out of the hole):
+It replaced numpy code with the same arithmetic step for step -- the same products summed in the same order
+(rflow.small_linalg), libm's acos, atan2 and hypot as a pinned numpy calls them, Python's float modulo -- so the
+states and records stayed the same to the last bit (tests/test_success_kernel.py keeps that numpy code as its
+reference). With the peg_tip's position p and rotation R in the world, per hole h (p_h, R_h, its axis z_h out of
+the hole):
 
     depth_h = -(p - p_h) . z_h                          only holes with depth_h > MIN_ENTRY_DEPTH_M can hold the tip
     r = R_T^T (p - p_T), R_peg = R_T^T R, R_rel = R_peg R_flip      the target hole T's frame
@@ -34,15 +35,18 @@ NO_POLYGON = -2
 """`assess_tip`'s hole index when the target hole has no polygon to check the walls against (an error)."""
 
 
-@_jit
-def _wrap_symmetric_deg(angle_deg: float, symmetry_order: int) -> float:
-    """`envs.success.wrap_symmetric_deg` (symmetry_order >= 0, checked when the hole is packed)."""
+def wrap_symmetric(angle_deg: float, symmetry_order: int) -> float:
+    """An angle wrapped into (-180/k, 180/k] deg, 0 for a round shape (k = 0); k >= 0 is the caller's to check
+    (`envs.success.wrap_symmetric_deg`). Plain Python, compiled below as it is: one source, one rounding."""
     if symmetry_order == 0:
         return 0.0
     period = 360.0 / symmetry_order
     half = period / 2.0
     wrapped = (angle_deg + half) % period - half
-    return half if abs(wrapped + half) <= 1e-8 + 1e-5 * half else wrapped
+    return half if abs(wrapped + half) <= 1e-8 + 1e-5 * half else wrapped  # np.isclose(wrapped, -half)
+
+
+_wrap_symmetric = _jit(wrap_symmetric)
 
 
 @_jit
@@ -55,10 +59,12 @@ def _inside(offset: FloatArray, depth_m: float, inradius_m: float, min_entry_m: 
 
 
 @_jit
-def _wall_penetration(tip: FloatArray, rot_peg: FloatArray, chamfer_m: float, inradius_m: float,
-                      normals: FloatArray, offsets: FloatArray, corners: FloatArray, round_peg: bool,
-                      radius_m: float) -> float:
-    """`envs.success._wall_penetration` of a tip in the hole frame with the peg's orientation there."""
+def wall_penetration(tip: FloatArray, rot_peg: FloatArray, chamfer_m: float, inradius_m: float,
+                     normals: FloatArray, offsets: FloatArray, corners: FloatArray, round_peg: bool,
+                     radius_m: float) -> float:
+    """pen of `envs.success` for a tip in the hole frame with the peg's orientation there: the hole's wall lines
+    {n_i . x <= d_i} (``normals`` (W, 2), ``offsets`` (W,), W > 0) and the peg's tip-face vertices ``corners``
+    (k, 3), or its radius for a round peg."""
     up = np.empty(3)
     for i in range(3):
         up[i] = -rot_peg[i, 2]
@@ -98,8 +104,8 @@ def assess_tip(pos: FloatArray, rot: FloatArray, hole_pos: FloatArray, hole_rot:
                hole_symmetry: npt.NDArray[np.int64], hole_walls: npt.NDArray[np.int64], wall_normals: FloatArray,
                wall_offsets: FloatArray, target: int, corners: FloatArray, round_peg: bool, radius_m: float,
                flip: FloatArray, min_entry_m: float, floor_slack_m: float, target_depth_m: float,
-               seat_tolerance_m: float, penetration_tolerance_m: float, max_speed_m_s: float,
-               speed_m_s: float) -> tuple[int, float, float, float, float, bool, float, bool]:
+               seat_tolerance_m: float, penetration_tolerance_m: float, max_speed_m_s: float, shortcut: bool,
+               with_penetration: bool, speed_m_s: float) -> tuple[int, float, float, float, float, bool, float, bool]:
     """`envs.success.EpisodeHoles.assess` of a peg_tip at ``pos`` (3,) with rotation ``rot`` (3, 3) in the world.
 
     Args:
@@ -111,7 +117,10 @@ def assess_tip(pos: FloatArray, rot: FloatArray, hole_pos: FloatArray, hole_rot:
         corners, round_peg, radius_m: the peg's tip-face vertices (k, 3) (prism) or its radius (round).
         flip: R_flip (envs.geometry.R_FLIP_X).
         min_entry_m, floor_slack_m: envs.success.MIN_ENTRY_DEPTH_M and FLOOR_SLACK_M.
-        target_depth_m .. max_speed_m_s: the success criteria (envs.success.criteria_hold).
+        target_depth_m .. max_speed_m_s: the success criteria (the module docstring of envs.success).
+        shortcut: only the target's state while the tip is above every opening, and only the holes the tip is
+            below the opening of (exact: `envs.success.EpisodeHoles`); False: every hole, as a pose scored alone.
+        with_penetration: compute the wall penetration (else NaN, and no insertion).
         speed_m_s: the peg's speed.
 
     Returns:
@@ -126,8 +135,8 @@ def assess_tip(pos: FloatArray, rot: FloatArray, hole_pos: FloatArray, hole_rot:
         s = 0.0
         for i in range(3):
             s += (pos[i] - hole_pos[h, i]) * hole_axis[h, i]
-        entered[h] = -s > min_entry_m
-        above_all = above_all and -s <= min_entry_m  # np.all(depths <= MIN_ENTRY_DEPTH_M)
+        entered[h] = -s > min_entry_m or not shortcut
+        above_all = above_all and -s <= min_entry_m and shortcut  # np.all(depths <= MIN_ENTRY_DEPTH_M)
     rot_t = hole_rot[target].T
     rot_peg = _matmul2(rot_t, rot)
     rot_rel = _matmul2(rot_peg, flip)
@@ -138,18 +147,18 @@ def assess_tip(pos: FloatArray, rot: FloatArray, hole_pos: FloatArray, hole_rot:
     depth, lateral, in_hole = _inside(offset, hole_depth_m[target], hole_inradius_m[target], min_entry_m,
                                       floor_slack_m)
     tilt = math.acos(min(max(rot_rel[2, 2], -1.0), 1.0)) * _RAD2DEG
-    yaw = _wrap_symmetric_deg(math.atan2(rot_rel[1, 0] - rot_rel[0, 1], rot_rel[0, 0] + rot_rel[1, 1]) * _RAD2DEG,
+    yaw = _wrap_symmetric(math.atan2(rot_rel[1, 0] - rot_rel[0, 1], rot_rel[0, 0] + rot_rel[1, 1]) * _RAD2DEG,
                               hole_symmetry[target])
     penetration = math.nan
     if above_all:
         return NO_HOLE, depth, lateral, tilt, yaw, in_hole, penetration, False
-    if depth > hole_chamfer_m[target]:
+    if with_penetration and depth > hole_chamfer_m[target]:
         first, last = hole_walls[target], hole_walls[target + 1]
         if first == last:
             return NO_POLYGON, depth, lateral, tilt, yaw, in_hole, penetration, False
-        penetration = _wall_penetration(offset, rot_peg, hole_chamfer_m[target], hole_inradius_m[target],
-                                        wall_normals[first:last], wall_offsets[first:last], corners, round_peg,
-                                        radius_m)
+        penetration = wall_penetration(offset, rot_peg, hole_chamfer_m[target], hole_inradius_m[target],
+                                       wall_normals[first:last], wall_offsets[first:last], corners, round_peg,
+                                       radius_m)
     hole = NO_HOLE
     if in_hole:
         hole = target

@@ -1,6 +1,5 @@
 """Tests of envs.success: insertion state in the hole frame, seated inside the walls at rest, wrong hole, hold."""
 
-from dataclasses import astuple
 
 import numpy as np
 import pytest
@@ -11,13 +10,11 @@ from rflow.quaternion import mat_to_quat, quat_to_mat
 from envs.shapes import hole_inradius_m, hole_polygon, peg_cross_section
 from envs.success import (
     EpisodeHoles,
-    HoleFrame,
     HoleSpec,
     PegFootprint,
     SuccessConfig,
     SuccessTracker,
     assess_insertion,
-    frame_assessment,
     insertion_state,
     wrap_symmetric_deg,
 )
@@ -212,21 +209,6 @@ def test_bad_success_config_is_rejected(field):
         SuccessConfig(**{field: -1.0})
     with pytest.raises(EnvError, match=field):
         SuccessConfig(**{field: float("nan")})
-
-
-def test_precomputed_frames_score_exactly_like_the_public_functions():
-    """frame_assessment with HoleFrame / PegFootprint built once gives bit-identical results to assess_insertion."""
-    rng = np.random.default_rng(3)
-    frames = {shape: HoleFrame.of(spec) for shape, spec in HOLES.items()}
-    footprint = PegFootprint.of(SQUARE)
-    for _ in range(50):
-        offset = rng.uniform([-0.002, -0.002, -0.045], [0.002, 0.002, 0.005])
-        pos, quat = peg_tip(HOLES["square"], offset, rng.uniform(0, 3), rng.uniform(-20, 20))
-        expected = assess((pos, quat), speed=0.001)
-        got = frame_assessment(pos, quat_to_mat(quat), frames, "square", TARGET_DEPTH_M, CONFIG, footprint, 0.001)
-        assert got.hole == expected.hole and got.inserted == expected.inserted
-        assert np.array_equal(np.array(astuple(got.state), dtype=float), np.array(astuple(expected.state), dtype=float),
-                              equal_nan=True)
 
 
 def test_the_episode_holes_score_like_assess_insertion_above_and_in_the_holes():
