@@ -137,65 +137,81 @@ CHART_SPHERE = 1
 @_jit
 def chart_flow_steps(points, out, chart, goal, right_conj_goal, right_goal, mean, std, phi_t, offset, hid, latent,
                      cond, n_cond, moved, n_moved, w_first, b_first, w_hidden, b_hidden, w_out, b_out, clamp, n_extra,
-                     relu):
-    """The closed-loop step of every row of points (B, P) into out (B, P), each with the arithmetic of the single
-    point path (rflow.generate.next_point on one point: TangentChart.log, (v - mean) / std, `flow_step`,
-    x std + mean, TangentChart.exp), operation for operation, so each row equals that path to the last bit.
+                     relu, hemisphere):
+    """S chained closed-loop steps of every row of points (B, P) into out (S, B, P): out[0] the step from the row,
+    out[s] the step from out[s-1], each with the arithmetic of the single point path (rflow.generate.next_point on
+    one point: TangentChart.log, (v - mean) / std, `flow_step`, x std + mean, TangentChart.exp), operation for
+    operation, so each row equals that path to the last bit. A quaternion step from out[s-1] first puts it on the
+    hemisphere of ``hemisphere`` (4,) and divides it by its norm, as a caller querying the next point would
+    (envs.execution.policy: ``_unit(on_goal_hemisphere(q, goal))``); out[s-1] itself is left as it came.
 
     Returns:
         -1, or the first row the chart rejects (not finite; a quaternion with |q|^2 off 1 by more than 2e-6), where
-        the caller raises as the single path does.
+        the caller raises as the single path does (out is then incomplete).
     """
     dim = mean.shape[0]
     x = np.empty(dim)
     q = np.empty(4)
-    for r in range(points.shape[0]):
-        p = points[r]
-        if chart == CHART_EUCLIDEAN:
-            total = 0.0
-            for i in range(dim):
-                x[i] = p[i] - goal[i]
-                total += x[i]
-            if not math.isfinite(total):
-                return r
-        else:
-            w0, x0, y0, z0 = p[0], p[1], p[2], p[3]
-            n2 = w0 * w0 + x0 * x0 + y0 * y0 + z0 * z0
-            if not abs(n2 - 1.0) <= 2e-6:
-                return r
-            for i in range(4):
-                acc = 0.0
-                for k in range(4):
-                    acc += right_conj_goal[i, k] * p[k]
-                q[i] = acc
-            w, qx, qy, qz = q[0], q[1], q[2], q[3]
-            s = math.sqrt(qx * qx + qy * qy + qz * qz)
-            if s < 1e-4 and w > 0:
-                f = 1.0 + s * s / 6.0
-                x[0], x[1], x[2] = f * qx, f * qy, f * qz
-            elif s == 0.0:
-                x[0], x[1], x[2] = math.pi, 0.0, 0.0
+    p = np.empty(points.shape[1])
+    for step in range(out.shape[0]):
+        for r in range(points.shape[0]):
+            if step == 0:
+                for i in range(p.shape[0]):
+                    p[i] = points[r, i]
+            elif chart == CHART_EUCLIDEAN:
+                for i in range(p.shape[0]):
+                    p[i] = out[step - 1, r, i]
+            else:  # on the hemisphere, then unit: -q exactly, then q / sqrt(w^2 + x^2 + y^2 + z^2)
+                w0, x0, y0, z0 = out[step - 1, r, 0], out[step - 1, r, 1], out[step - 1, r, 2], out[step - 1, r, 3]
+                if w0 * hemisphere[0] + x0 * hemisphere[1] + y0 * hemisphere[2] + z0 * hemisphere[3] < 0.0:
+                    w0, x0, y0, z0 = -w0, -x0, -y0, -z0
+                n = math.sqrt(w0 * w0 + x0 * x0 + y0 * y0 + z0 * z0)
+                p[0], p[1], p[2], p[3] = w0 / n, x0 / n, y0 / n, z0 / n
+            if chart == CHART_EUCLIDEAN:
+                total = 0.0
+                for i in range(dim):
+                    x[i] = p[i] - goal[i]
+                    total += x[i]
+                if not math.isfinite(total):
+                    return r
             else:
-                f = math.atan2(s, w) / s
-                x[0], x[1], x[2] = f * qx, f * qy, f * qz
-        for i in range(dim):
-            x[i] = (x[i] - mean[i]) / std[i]
-        flow_step(x, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_first, b_first, w_hidden, b_hidden,
-                  w_out, b_out, clamp, n_extra, relu)
-        for i in range(dim):
-            x[i] = x[i] * std[i] + mean[i]
-        if chart == CHART_EUCLIDEAN:
+                w0, x0, y0, z0 = p[0], p[1], p[2], p[3]
+                n2 = w0 * w0 + x0 * x0 + y0 * y0 + z0 * z0
+                if not abs(n2 - 1.0) <= 2e-6:
+                    return r
+                for i in range(4):
+                    acc = 0.0
+                    for k in range(4):
+                        acc += right_conj_goal[i, k] * p[k]
+                    q[i] = acc
+                w, qx, qy, qz = q[0], q[1], q[2], q[3]
+                sn = math.sqrt(qx * qx + qy * qy + qz * qz)
+                if sn < 1e-4 and w > 0:
+                    f = 1.0 + sn * sn / 6.0
+                    x[0], x[1], x[2] = f * qx, f * qy, f * qz
+                elif sn == 0.0:
+                    x[0], x[1], x[2] = math.pi, 0.0, 0.0
+                else:
+                    f = math.atan2(sn, w) / sn
+                    x[0], x[1], x[2] = f * qx, f * qy, f * qz
             for i in range(dim):
-                out[r, i] = goal[i] + x[i]
-        else:
-            t = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
-            f = 1.0 - t * t / 6.0 if t < 1e-4 else math.sin(t) / t
-            q[0], q[1], q[2], q[3] = math.cos(t), f * x[0], f * x[1], f * x[2]
-            for i in range(4):
-                acc = 0.0
-                for k in range(4):
-                    acc += right_goal[i, k] * q[k]
-                out[r, i] = acc
+                x[i] = (x[i] - mean[i]) / std[i]
+            flow_step(x, phi_t, offset, hid, latent, cond, n_cond, moved, n_moved, w_first, b_first, w_hidden,
+                      b_hidden, w_out, b_out, clamp, n_extra, relu)
+            for i in range(dim):
+                x[i] = x[i] * std[i] + mean[i]
+            if chart == CHART_EUCLIDEAN:
+                for i in range(dim):
+                    out[step, r, i] = goal[i] + x[i]
+            else:
+                t = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+                f = 1.0 - t * t / 6.0 if t < 1e-4 else math.sin(t) / t
+                q[0], q[1], q[2], q[3] = math.cos(t), f * x[0], f * x[1], f * x[2]
+                for i in range(4):
+                    acc = 0.0
+                    for k in range(4):
+                        acc += right_goal[i, k] * q[k]
+                    out[step, r, i] = acc
     return -1
 
 

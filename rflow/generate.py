@@ -158,29 +158,49 @@ def next_point(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = N
 
 
 def next_points_rowwise(model: RiemannianFlow, points: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
-    """`next_point` of each of the points (B, *point_shape), row by row with the arithmetic of a single point (the
-    control loop's: Log_g and Exp_g of `rflow.inference.TangentChart`, for the Euclidean and quaternion charts in one
-    compiled call for all rows), so
-    row i equals ``next_point(model, points[i], dt)`` to the last bit; for batches of episodes in lockstep.
+    """`next_point` of each of the points (B, *point_shape), row by row with the arithmetic of a single point, so
+    row i equals ``next_point(model, points[i], dt)`` to the last bit: `lookahead_points` with one step.
 
     Raises:
         RFlowError: bad shape, a point off the manifold, NaN, dt <= 0.
     """
+    return lookahead_points(model, points, dt, 1)[0]
+
+
+def lookahead_points(model: RiemannianFlow, points: npt.ArrayLike, dt: float | None, steps: int,
+                     hemisphere: npt.ArrayLike | None = None) -> np.ndarray:
+    """The points 1..``steps`` steps of dt later along the flow from each of the points (B, *point_shape), (steps,
+    B, *point_shape), row by row with the arithmetic of the control loop's single point (Log_g and Exp_g of
+    `rflow.inference.TangentChart`; for the Euclidean and quaternion charts all steps of all rows in one compiled
+    call, `rflow.flow_kernel.chart_flow_steps`): step 1 of row i equals ``next_point(model, points[i], dt)`` to the
+    last bit, and step s + 1 equals ``next_point`` of step s, a quaternion first put on the hemisphere of
+    ``hemisphere`` (default the goal's) and divided by its norm. For the closed loop's lookahead (two steps) and
+    batches of episodes in lockstep.
+
+    Raises:
+        RFlowError: bad shape, a point off the manifold, NaN, dt <= 0, steps < 1.
+    """
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise RFlowError(f"step dt={dt} must be > 0")
+    if not (isinstance(steps, int) and steps >= 1):
+        raise RFlowError(f"lookahead steps {steps!r} must be an integer >= 1")
     arr = np.asarray(points, dtype=np.float64)
     if arr.shape[1:] != model.point_shape or arr.ndim != len(model.point_shape) + 1:
         want = ", ".join(map(str, model.point_shape))
         raise RFlowError(f"points have shape {arr.shape}, expected a batch (B, {want})")
     norm, chart = model.normalisation, model.chart
     if chart.name in ("euclidean", "sphere"):  # the whole step compiled (rflow.flow_kernel.chart_flow_steps)
-        out = np.empty(arr.shape)
-        bad = model.inference.chart_steps(np.ascontiguousarray(arr), out, chart, norm.mean, norm.std, dt)
+        out = np.empty((steps,) + arr.shape)
+        side = None if hemisphere is None else np.asarray(hemisphere, dtype=np.float64)
+        bad = model.inference.chart_steps(np.ascontiguousarray(arr), out, chart, norm.mean, norm.std, dt, side)
         if bad >= 0:
             chart.log(arr[bad])  # raises what the single point's query raises
-            raise RFlowError(f"point {bad} of the batch is off the manifold")
+            raise RFlowError(f"point {bad} of the batch left the manifold along the flow")
         return out
-    return np.stack([next_point(model, point, dt) for point in arr])  # other charts: the single path, row by row
+    out = np.empty((steps,) + arr.shape)  # other charts: the single path, row by row
+    for s in range(steps):
+        out[s] = np.stack([next_point(model, point, dt) for point in (arr if s == 0 else out[s - 1])])
+    return out
 
 
 def velocity(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = None) -> np.ndarray:

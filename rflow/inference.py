@@ -184,17 +184,22 @@ class NumpyImitationFlow:
         return x.copy()
 
     def chart_steps(self, points: np.ndarray, out: np.ndarray, chart: TangentChart, mean: np.ndarray, std: np.ndarray,
-                    dt: float | None = None) -> int:
-        """The single-point closed-loop step of every row of points (B, P), Euclidean or quaternion, into out, in one
-        compiled call (`flow_kernel.chart_flow_steps`: the chart's maps, the normalisation and `step_single`
-        operation for operation); -1, or the first row the chart rejects."""
+                    dt: float | None = None, hemisphere: np.ndarray | None = None) -> int:
+        """S chained single-point closed-loop steps of every row of points (B, P), Euclidean or quaternion, into out
+        (S, B, P), in one compiled call (`flow_kernel.chart_flow_steps`: the chart's maps, the normalisation and
+        `step_single` operation for operation; a quaternion step from the previous step's point first puts it on
+        the hemisphere of ``hemisphere`` (4,; default the chart's goal) and normalises it); -1, or the first row the
+        chart rejects."""
         phi_t = self.step_matrix(self.dt if dt is None else dt)
         kind = flow_kernel.CHART_EUCLIDEAN if chart.name == "euclidean" else flow_kernel.CHART_SPHERE
         rot = chart.rotations()
+        side = _EYE4[0] if hemisphere is None and kind == flow_kernel.CHART_EUCLIDEAN else (
+            chart.goal if hemisphere is None else hemisphere)
         return int(flow_kernel.chart_flow_steps(points, out, kind, chart.goal, rot[0], rot[1],
                                                 np.ascontiguousarray(mean, dtype=np.float64),
                                                 np.ascontiguousarray(std, dtype=np.float64), phi_t, self.offset,
-                                                self._hid, self._latent, *self._weights))
+                                                self._hid, self._latent, *self._weights,
+                                                np.ascontiguousarray(side, dtype=np.float64)))
 
 
 _EYE4 = np.eye(4)

@@ -133,3 +133,36 @@ def test_next_points_rowwise_equals_the_single_point_step_bit_for_bit():
     nan[2, 1] = np.nan
     with pytest.raises(RFlowError, match="NaN"):
         next_points_rowwise(skill.models["position"], nan, 0.05)
+
+
+def test_lookahead_points_chain_the_single_point_step_bit_for_bit():
+    """Step s + 1 of the compiled chain is `next_point` of step s (a quaternion first put on the given hemisphere and
+    divided by its norm, as the closed loop's next query does), for points on either hemisphere; steps < 1 and a
+    bad dt are refused."""
+    from rflow.generate import lookahead_points
+    from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
+
+    skill = tiny_skill()
+    rng = np.random.default_rng(11)
+    pos = GOAL_POS + rng.normal(0.0, 0.03, (7, 3))
+    quat = GOAL_QUAT + rng.normal(0.0, 0.2, (7, 4))
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    quat[1] = GOAL_QUAT
+    hemisphere = -GOAL_QUAT  # the far hemisphere: every chained query flips its quaternion
+    for name, points in (("position", pos), ("orientation", quat)):
+        model = skill.models[name]
+        chain = lookahead_points(model, points, 0.05, 3, hemisphere=hemisphere)
+        assert chain.shape == (3,) + points.shape
+        for i, point in enumerate(points):
+            here = point
+            for s in range(3):
+                if name == "orientation" and s > 0:
+                    here = -here if np.dot(here, hemisphere) < 0.0 else here
+                    w, x, y, z = here.tolist()
+                    here = here / np.sqrt(w * w + x * x + y * y + z * z)
+                here = next_point(model, here, 0.05)
+                assert np.array_equal(chain[s, i], here)
+    with pytest.raises(RFlowError, match="steps"):
+        lookahead_points(skill.models["position"], pos, 0.05, 0)
+    with pytest.raises(RFlowError, match="dt"):
+        lookahead_points(skill.models["position"], pos, -0.05, 2)

@@ -15,6 +15,8 @@ from envs.execution.policy import (
     generate_plan,
     make_policy,
     on_goal_hemisphere,
+    skill_lookahead,
+    skill_state_step,
     skill_step,
 )
 from envs.execution.policy_protocol import Action
@@ -113,3 +115,22 @@ def test_feedforward_moves_the_arm_straight(env):
         env.step(feedforward_pose(env, Action(here, twist=v, anchor=Pose(here.pos, start.quat))))
     moved = env.observation.peg_tip.pos - start.pos
     assert moved[2] < -0.03 and np.linalg.norm(moved[:2]) < 1e-3
+
+
+@pytest.mark.parametrize("layout", ["separate", "joint"])
+def test_the_lookahead_is_two_single_queries_to_the_last_bit(layout) -> None:
+    """`skill_lookahead` (the closed loop's two flow poses, compiled for both pose models) equals one
+    `skill_state_step` and a `skill_step` from its pose, row by row, for the two-model and the joint layouts."""
+    skill = tiny_skill(layout)
+    rng = np.random.default_rng(3)
+    pos = GOAL_POS + rng.normal(0.0, 0.03, (4, 3))
+    quat = GOAL_QUAT + rng.normal(0.0, 0.1, (4, 4))
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    quat[2] *= -1.0  # the other hemisphere: put on the goal's first
+    p, q, _ = skill_lookahead(skill, pos, list(quat), None, 0.05)
+    assert p.shape == (2, 4, 3) and q.shape == (2, 4, 4)
+    for i in range(4):
+        p1, q1, k1 = skill_state_step(skill, pos[i], quat[i], None, 0.05)
+        p2, q2 = skill_step(skill, p1, q1, 0.05, k1)
+        for got, want in ((p[0, i], p1), (q[0, i], q1), (p[1, i], p2), (q[1, i], q2)):
+            assert np.array_equal(got, want)

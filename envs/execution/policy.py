@@ -59,7 +59,7 @@ from envs.poses import (Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec,
                          quat_to_rotvec_one, rotate)
 from envs.stiffness_schedule import expert_stiffness
 from rflow.errors import RFlowError
-from rflow.generate import next_point, next_points_rowwise, rollout
+from rflow.generate import lookahead_points, next_point, rollout
 from rflow.skill_io import PoseSkill
 from rflow.small_linalg import dot, norm
 
@@ -145,10 +145,13 @@ def skill_state_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, 
         raise EnvError(f"cannot query the skill at pos {p.tolist()}, quat {q.tolist()}: {err}") from None
 
 
-def skill_state_steps(skill: PoseSkill, pos: npt.ArrayLike, quat: Sequence[npt.ArrayLike], stiffness: Any,
-                      horizon_s: float) -> tuple[FloatArray, FloatArray, FloatArray | None]:
-    """`skill_state_step` of each row of a batch (B, 3), (B, 4), stiffness (B, 3, 3) or None, row i equal to the
-    single query of row i to the last bit (rflow.generate.next_points_rowwise; a joint skill row by row).
+def skill_lookahead(skill: PoseSkill, pos: npt.ArrayLike, quat: Sequence[npt.ArrayLike], stiffness: Any,
+                    horizon_s: float) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """The poses one and two ``horizon_s`` later along the flow from each row of a batch (B, 3), (B, 4) (with a joint
+    skill's stiffness states (B, 3, 3) or None): (pos (2, B, 3), quat (2, B, 4), the joint skill's stiffness after
+    the first step (B, 3, 3) or None). Row i of step 1 equals ``skill_state_step`` of row i and step 2
+    ``skill_step`` from there, to the last bit (rflow.generate.lookahead_points: both steps of both pose models in
+    one compiled call each; a joint skill row by row).
 
     Raises:
         EnvError: NaN or malformed poses or stiffness, horizon <= 0.
@@ -157,15 +160,17 @@ def skill_state_steps(skill: PoseSkill, pos: npt.ArrayLike, quat: Sequence[npt.A
         raise EnvError(f"flow horizon {horizon_s} s must be > 0")
     p = np.asarray(pos, dtype=np.float64)
     if skill.layout == "joint":
-        rows = [skill_state_step(skill, p[i], quat[i], None if stiffness is None else stiffness[i], horizon_s)
-                for i in range(p.shape[0])]
-        k = None if rows[0][2] is None else np.stack([r[2] for r in rows])
-        return np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows]), k
+        first = [skill_state_step(skill, p[i], quat[i], None if stiffness is None else stiffness[i], horizon_s)
+                 for i in range(p.shape[0])]
+        second = [skill_state_step(skill, r[0], r[1], r[2], horizon_s) for r in first]
+        k = None if first[0][2] is None else np.stack([r[2] for r in first])
+        return (np.stack([[r[0] for r in first], [r[0] for r in second]]),
+                np.stack([[r[1] for r in first], [r[1] for r in second]]), k)
     goal = skill.goal_quat
     q = np.stack([_unit(on_goal_hemisphere(np.asarray(row, dtype=np.float64), goal)) for row in quat])
     try:
-        return (next_points_rowwise(skill.models["position"], p, horizon_s),
-                next_points_rowwise(skill.models["orientation"], q, horizon_s), None)
+        return (lookahead_points(skill.models["position"], p, horizon_s, 2),
+                lookahead_points(skill.models["orientation"], q, horizon_s, 2, hemisphere=goal), None)
     except RFlowError as err:
         raise EnvError(f"cannot query the skill at a batch of {p.shape[0]} poses: {err}") from None
 
@@ -378,9 +383,9 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         both time-scaled by ``speed`` (xi * s, a * s^2). The flow is queried in the frame shifted and turned by
         the contact adaptation (p - delta and Exp(rho)^-1 q in; + delta, Exp(rho) q and R(rho) omega out)."""
         query = self._query(measured)
-        p1, q1, k1 = skill_state_step(self.skill, query.pos, query.quat, query.stiffness, self.lookahead_s)
-        p2, q2 = skill_step(self.skill, p1, q1, self.lookahead_s, k1)
-        return self._complete(measured, query, p1, q1, p2, q2)
+        k = None if query.stiffness is None else query.stiffness[None]
+        p, q, _ = skill_lookahead(self.skill, query.pos[None], [query.quat], k, self.lookahead_s)
+        return self._complete(measured, query, p[0, 0], q[0, 0], p[1, 0], q[1, 0])
 
     def batch_key(self) -> tuple:
         """Policies of one skill with one lookahead and speed answer together (`act_many`)."""
@@ -389,7 +394,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
     @staticmethod
     def act_many(policies: Sequence[ClosedLoopPolicy], observations: Sequence[Observation]) -> list[Any]:
         """`Policy.act` of several closed-loop policies of one skill (``batch_key``), each with its observation:
-        the flow queries of all of them as one batch (`skill_state_steps`, row by row the arithmetic of one query,
+        the flow queries of all of them as one batch (`skill_lookahead`, row by row the arithmetic of one query,
         so each action is the one its own ``act`` gives to the last bit). Changes no policy when it raises; a policy
         whose own part fails after the batched query gets the exception in its place (envs.execution.lockstep).
 
@@ -401,8 +406,8 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         pos = np.array([q.pos for q in queries])
         quat = [q.quat for q in queries]
         k = None if queries[0].stiffness is None else np.array([q.stiffness for q in queries])
-        p1, q1, k1 = skill_state_steps(skill, pos, quat, k, lookahead)
-        p2, q2, _ = skill_state_steps(skill, p1, q1, k1, lookahead)
+        p, q, _ = skill_lookahead(skill, pos, quat, k, lookahead)
+        p1, q1, p2, q2 = p[0], q[0], p[1], q[1]
         actions: list[Any] = []
         for i, (policy, observation, query) in enumerate(zip(policies, observations, queries)):
             try:
