@@ -9,11 +9,11 @@ the conjugate w - u is the inverse of a unit quaternion, and a rotation vector r
 q = (cos(|r|/2), sin(|r|/2) r/|r|). (The RiemannianFlow maps of S^3, without the factor 2, are
 `rflow.manifolds.sphere`'s, built on this product.)
 
-Each formula is written once, over scalar components, in `hamilton` and `matrix_to_quat_components`; the
-same Python function serves numpy arrays and torch tensors (`quat_mul`), one quaternion in Python floats
-(`quat_mul_one`, the closed loop's hot path) and, compiled with ``numba.njit``, the 1 kHz kernels
-(`controllers.impedance_kernel`). One source means one rounding: a kernel's quaternion equals the array
-version's to the bit (tests/test_numba_twins.py). scipy's `Rotation` is the reference these are tested
+Each formula is written once, over scalar components, in `hamilton`, `matrix_to_quat_components`,
+`rotvec_components` and `quat_of_rotvec_components`; the same Python function serves numpy arrays and torch tensors
+(`quat_mul`), one quaternion in Python floats (`quat_mul_one`) and, compiled with ``numba.njit``, the kernels
+(`controllers.impedance_kernel` at 1 kHz, `envs.execution.closed_loop_kernel` once per control period). One source
+means one rounding: a kernel's quaternion equals the array version's to the bit (tests/test_numba_twins.py). scipy's `Rotation` is the reference these are tested
 against (tests/test_quaternion.py); it is not used here because it rounds differently, and what feeds an
 episode record must not change with a library's internals.
 
@@ -211,21 +211,29 @@ def quat_mul_one(a: list[float], b: list[float]) -> list[float]:
     return list(hamilton(*a, *b))
 
 
-def quat_to_rotvec_one(q: list[float]) -> list[float]:
-    """`quat_to_rotvec` of one quaternion."""
-    w, x, y, z = q
+def rotvec_components(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """`quat_to_rotvec` of one quaternion over its components (Python floats, or numba scalars compiled)."""
     sign = -1.0 if w < 0.0 else 1.0
     ux, uy, uz = x * sign, y * sign, z * sign
     norm_u = math.sqrt(ux * ux + uy * uy + uz * uz)
     angle = 2.0 * float(np.arctan2(norm_u, abs(w)))
     scale = angle / norm_u if norm_u > 1e-12 else 2.0
-    return [scale * ux, scale * uy, scale * uz]
+    return scale * ux, scale * uy, scale * uz
 
 
-def quat_from_rotvec_one(r: list[float]) -> list[float]:
-    """`quat_from_rotvec` of one rotation vector."""
-    x, y, z = r
+def quat_of_rotvec_components(x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """`quat_from_rotvec` of one rotation vector over its components (Python floats, or numba scalars compiled)."""
     angle = math.sqrt(x * x + y * y + z * z)
     half = 0.5 * angle
     scale = float(np.sin(half)) / angle if angle > 1e-12 else 0.5
-    return [float(np.cos(half)), scale * x, scale * y, scale * z]
+    return float(np.cos(half)), scale * x, scale * y, scale * z
+
+
+def quat_to_rotvec_one(q: list[float]) -> list[float]:
+    """`quat_to_rotvec` of one quaternion (`rotvec_components`)."""
+    return list(rotvec_components(*q))
+
+
+def quat_from_rotvec_one(r: list[float]) -> list[float]:
+    """`quat_from_rotvec` of one rotation vector (`quat_of_rotvec_components`)."""
+    return list(quat_of_rotvec_components(*r))

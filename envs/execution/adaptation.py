@@ -53,6 +53,7 @@ What each part contributes is measured in the README (the protocol figure and th
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -60,7 +61,8 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.poses import quat_from_rotvec_one, quat_mul_one, quat_to_rotvec_one
+from envs.execution import closed_loop_kernel as kernel
+from envs.poses import quat_from_rotvec_one
 from rflow.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
@@ -173,7 +175,9 @@ class ContactAdaptation:
 
 class ContactAdapter:
     """The state of the contact adaptation along one episode: the integral e (its axial part, the push), the
-    frame shift delta, the frame rotation rho and the stall search s (module docstring).
+    frame shift delta, the frame rotation rho and the stall search s (module docstring). The state is one vector
+    updated by the compiled kernels of `envs.execution.closed_loop_kernel` (the STATE_* slots); the attributes
+    below read (and, for a test, set) it.
 
     Args:
         config: the settings.
@@ -183,34 +187,63 @@ class ContactAdapter:
 
     def __init__(self, config: ContactAdaptation, goal_pos: npt.ArrayLike, axis: npt.ArrayLike):
         self.config = config
-        self.goal_pos = np.asarray(goal_pos, dtype=np.float64).copy()
+        goal = np.asarray(goal_pos, dtype=np.float64)
         a = np.asarray(axis, dtype=np.float64)
-        self.axis = a / norm(a)
-        helper = np.array([1.0, 0.0, 0.0]) if abs(self.axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        e1 = helper - dot(helper, self.axis) * self.axis
-        self._search_plane = (e1 / norm(e1), np.cross(self.axis, e1 / norm(e1)))
-        self.mouth_depth_m: float | None = None
+        a = a / norm(a)
+        helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = helper - dot(helper, a) * a
+        e1 = e1 / norm(e1)
+        self.geometry = np.ascontiguousarray(np.stack([goal, a, e1, np.cross(a, e1)]))
+        k = config.rotational_stiffness
+        self.settings = np.array([
+            config.push_limit_m, config.push_leak_s, config.frame_limit_m, float(np.deg2rad(config.frame_limit_deg)),
+            config.radius_m, math.nan if k is None else k, config.search_amplitude_m, config.search_period_s,
+            config.search_push_m, config.search_band_m, config.search_push_scale, config.seat_speed_m_s,
+            config.seat_radius_m, config.seat_force_n], dtype=np.float64)
+        self.state = np.zeros(kernel.STATE_SIZE)
         self.reset()
 
     def reset(self, mouth_depth_m: float | None = None) -> None:
         """Start an episode: no push, no frame shift, rotation or search. ``mouth_depth_m``: how far the goal lies
         beyond the nominal hole's mouth along the axis, a^T (g_p - mouth), m (None: no stall search)."""
-        self.push = np.zeros(3)
-        self.resistance_n = 0.0
-        self.frame = np.zeros(3)
-        self.rotation = np.zeros(3)
-        self.search = np.zeros(3)
-        self.search_s = 0.0
-        self.mouth_depth_m = mouth_depth_m
-        self._previous: FloatArray | None = None
-        self._previous_quat: list[float] | None = None
+        self.state[:] = 0.0
+        self.state[kernel.STATE_MOUTH] = math.nan if mouth_depth_m is None else float(mouth_depth_m)
+
+    def _vector(self, at: int) -> FloatArray:
+        return self.state[at:at + 3].copy()
+
+    def _set(self, at: int, value: npt.ArrayLike) -> None:
+        self.state[at:at + 3] = np.asarray(value, dtype=np.float64)
+
+    goal_pos = property(lambda self: self.geometry[kernel.GEOMETRY_GOAL].copy(), doc="g_p (3,), m.")
+    axis = property(lambda self: self.geometry[kernel.GEOMETRY_AXIS].copy(), doc="The insertion axis a (3,).")
+    push = property(lambda self: self._vector(kernel.STATE_PUSH), doc="The axial push u (3,), m.")
+    frame = property(lambda self: self._vector(kernel.STATE_FRAME),
+                     lambda self, value: self._set(kernel.STATE_FRAME, value), doc="The frame shift delta (3,), m.")
+    rotation = property(lambda self: self._vector(kernel.STATE_ROTATION),
+                        lambda self, value: self._set(kernel.STATE_ROTATION, value),
+                        doc="The frame rotation rho (3,), rad.")
+    search = property(lambda self: self._vector(kernel.STATE_SEARCH), doc="The search's lateral offset s (3,), m.")
+    search_s = property(lambda self: float(self.state[kernel.STATE_SEARCH_S]), doc="Time stalled, s.")
+    resistance_n = property(lambda self: float(self.state[kernel.STATE_RESISTANCE]),
+                            doc="The sensed force against the axis, -a^T F, N.")
+
+    @property
+    def mouth_depth_m(self) -> float | None:
+        """a^T (g_p - mouth), m (None: no stall search)."""
+        value = float(self.state[kernel.STATE_MOUTH])
+        return None if math.isnan(value) else value
 
     @property
     def offset(self) -> FloatArray:
         """u + s: the axial push and the stall search's lateral offset, added to the led anchor (m, world)."""
-        if self.search_s == 0.0:
-            return self.push  # no search: s = 0 (no new array on the control path)
-        return self.config.search_push_scale * self.push + self.search
+        return self.push_action()[:3].copy()
+
+    def push_action(self) -> FloatArray:
+        """[u + s; 0] (6,): the `offset` as the action's push."""
+        out = np.empty(6)
+        kernel.offset_into(self.state, self.settings, out)
+        return out
 
     @property
     def rotation_quat(self) -> list[float]:
@@ -219,7 +252,7 @@ class ContactAdapter:
 
     def near_goal(self, pos: npt.ArrayLike) -> bool:
         """Whether ``pos`` is within ``radius_m`` of the goal."""
-        return norm(np.asarray(pos, dtype=np.float64) - self.goal_pos) < self.config.radius_m
+        return bool(kernel.near_goal(self.geometry, self.settings, np.asarray(pos, dtype=np.float64)))
 
     def rotational_stiffness(self, pos: npt.ArrayLike) -> float | None:
         """The rotational stiffness to command at measured position ``pos`` (None: the controller's)."""
@@ -228,70 +261,30 @@ class ContactAdapter:
     def sense(self, force_world: npt.ArrayLike) -> None:
         """The sensed force the environment exerts on the tool (3,, N, world) this step: its part against the axis,
         -a^T F, is what the seat push reads."""
-        self.resistance_n = -dot(self.axis, np.asarray(force_world, dtype=np.float64))
+        self.state[kernel.STATE_RESISTANCE] = -dot(self.geometry[kernel.GEOMETRY_AXIS],
+                                                    np.asarray(force_world, dtype=np.float64))
+
+    def sense_wrench(self, tcp_quat: npt.ArrayLike, wrench: npt.ArrayLike) -> None:
+        """`sense` of the wrist wrench, whose axes are the tcp's: F = R(q_tcp) f, f its force (compiled)."""
+        kernel.sense_into(self.state, self.geometry, np.asarray(tcp_quat, dtype=np.float64),
+                          np.asarray(wrench, dtype=np.float64))
 
     def update(self, pos: npt.ArrayLike, velocity_d: npt.ArrayLike, period_s: float) -> None:
         """One control step at measured position ``pos`` with the flow's linear velocity ``velocity_d`` (3,):
         e <- (1 - T/tau) e + (xi_d - v) T (+ a v_s T seating near the goal, `sense`), push = sat(a a^T e),
         delta <- sat(delta - (I - a a^T)(xi_d - v) T) near the goal. The first call only records ``pos`` (no
         velocity yet)."""
-        here = np.asarray(pos, dtype=np.float64)
-        previous, self._previous = self._previous, here.copy()
-        cfg = self.config
-        if previous is None or (cfg.push_limit_m == 0.0 and cfg.frame_limit_m == 0.0):
-            return
-        error = (np.asarray(velocity_d, dtype=np.float64) - (here - previous) / period_s) * period_s
-        a = self.axis
-        axial = dot(a, error)
-        lateral = error - axial * a
-        if (cfg.seat_speed_m_s > 0.0 and self.resistance_n < cfg.seat_force_n
-                and norm(here - self.goal_pos) < cfg.seat_radius_m):
-            axial += cfg.seat_speed_m_s * period_s
-        self.push = _saturate(max(0.0, 1.0 - period_s / cfg.push_leak_s) * self.push + axial * a, cfg.push_limit_m)
-        if self._update_search(here, period_s):
-            return  # the frame holds still while the search moves the peg
-        if cfg.frame_limit_m > 0.0 and self.near_goal(here):
-            self.frame = _saturate(self.frame - lateral, cfg.frame_limit_m)
-
-    def _update_search(self, here: FloatArray, period_s: float) -> bool:
-        """Advance (or end) the stall search at measured position ``here``; whether it runs."""
-        cfg = self.config
-        stalled = (cfg.search_amplitude_m > 0.0 and self.mouth_depth_m is not None
-                   and norm(self.push) > cfg.search_push_m
-                   and dot(self.axis, here - self.goal_pos) + self.mouth_depth_m < cfg.search_band_m)
-        if not stalled:
-            if self.search_s > 0.0:  # the search ends
-                self.search, self.search_s = np.zeros(3), 0.0
-            return False
-        self.search_s += period_s
-        phase = 2.0 * np.pi * self.search_s / cfg.search_period_s
-        radius = cfg.search_amplitude_m * min(1.0, self.search_s / cfg.search_period_s)
-        e1, e2 = self._search_plane
-        self.search = radius * (np.cos(phase) * e1 + np.sin(phase) * e2)
-        return True
-
+        kernel.update_translation(self.state, self.settings, self.geometry, np.asarray(pos, dtype=np.float64),
+                                  np.asarray(velocity_d, dtype=np.float64), float(period_s))
 
     def update_rotation(self, pos: npt.ArrayLike, quat: npt.ArrayLike, omega_d: npt.ArrayLike, period_s: float) -> None:
         """One control step at the measured pose (``pos``, ``quat``) with the flow's angular velocity ``omega_d``
         (3,, world frame, already turned by the frame rotation): rho <- sat(Log(Exp(-(omega_d T - r)) Exp(rho)))
         near the goal, r the measured rotation since the last call (module docstring). The first call only
         records ``quat``."""
-        q = [float(v) for v in np.asarray(quat, dtype=np.float64)]
-        previous, self._previous_quat = self._previous_quat, q
-        limit = np.deg2rad(self.config.frame_limit_deg)
-        if previous is None or limit == 0.0 or not self.near_goal(pos):
-            return
-        w, x, y, z = previous
-        turned = quat_to_rotvec_one(quat_mul_one(q, [w, -x, -y, -z]))
-        error = [float(o) * period_s - r for o, r in zip(np.asarray(omega_d, dtype=np.float64), turned)]
-        rho = np.array(quat_to_rotvec_one(quat_mul_one(quat_from_rotvec_one([-e for e in error]), self.rotation_quat)))
-        self.rotation = _saturate(rho, limit)
-
-
-def _saturate(vector: FloatArray, limit: float) -> FloatArray:
-    """``vector`` scaled down to norm ``limit`` if longer."""
-    length = norm(vector)
-    return vector * (limit / length) if length > limit else vector
+        kernel.update_rotation(self.state, self.settings, self.geometry, np.asarray(pos, dtype=np.float64),
+                               np.asarray(quat, dtype=np.float64), np.asarray(omega_d, dtype=np.float64),
+                               float(period_s))
 
 
 __all__ = ["ContactAdaptation", "ContactAdapter"]

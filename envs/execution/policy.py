@@ -52,6 +52,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from envs.execution import closed_loop_kernel as kernel
 from envs.execution.adaptation import ContactAdaptation, ContactAdapter
 from envs.execution.config import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.execution.policy_protocol import Action, Observation
@@ -64,6 +65,9 @@ from rflow.skill_io import PoseSkill
 from rflow.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
+
+_NO_TURN = np.array([1.0, 0.0, 0.0, 0.0])
+_NO_TURN.setflags(write=False)
 
 def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.ArrayLike, dt: float) -> FloatArray:
     """Finite-difference twist [(p1 - p0)/dt; rotvec(q1 conj(q0))/dt] (6,) or (..., 6), world frame."""
@@ -354,7 +358,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
     def sense(self, observation: Observation) -> None:
         """Hand the contact adaptation the sensed force on the tool in the world frame: the wrist wrench is in the
         sensor frame, whose axes are the hand's and the tcp's (envs.scene), so R(q_tcp) F."""
-        self.adapter.sense(rotate(observation.tcp.quat, np.asarray(observation.wrist_wrench, dtype=np.float64)[:3]))
+        self.adapter.sense_wrench(observation.tcp.quat, observation.wrist_wrench)
 
     def reset(self, observation: Observation, period_s: float) -> None:
         """`Policy.reset`: `reset_at` the measured tcp pose, with the nominal hole's mouth for the stall search."""
@@ -420,47 +424,43 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
 
     def _query(self, measured: Pose) -> _Query:
         """Where the flow is queried for the measured pose: in the frame shifted by delta and turned by Exp(rho)
-        (only near the hole, after the walls refused a rotation); changes nothing."""
-        delta = self.adapter.frame
-        turned = bool(self.adapter.rotation.any())
-        query_quat = measured.quat
-        rho = None
-        if turned:  # into the turned frame: Exp(rho)^-1 q
-            rho = np.array(self.adapter.rotation_quat)
-            query_quat = quat_mul(quat_conj(rho), measured.quat)
-        return _Query(np.asarray(measured.pos, dtype=np.float64) - delta, query_quat, delta, rho, self.stiffness_state)
+        (only near the hole, after the walls refused a rotation); changes nothing (compiled,
+        `closed_loop_kernel.query_into`)."""
+        pos, quat, delta, rho = np.empty(3), np.empty(4), np.empty(3), np.empty(4)
+        turned = kernel.query_into(self.adapter.state, np.asarray(measured.pos, dtype=np.float64),
+                                   np.asarray(measured.quat, dtype=np.float64), pos, quat, delta, rho)
+        return _Query(pos, quat, delta, rho if turned else None, self.stiffness_state)
 
     def _complete(self, measured: Pose, query: _Query, p1: FloatArray, q1: FloatArray, p2: FloatArray,
                   q2: FloatArray) -> Action:
         """The action from the flow's poses x_1 = Phi(L) x and x_2 = Phi(L) x_1 at the query (`command`), and the
-        policy's state advanced (adaptation, stiffness state)."""
-        step_s = self.lookahead_s
-        delta, rho = query.delta, query.rho
-        q1 = q1 / norm(q1)
-        here = Pose(pos=query.pos, quat=on_goal_hemisphere(query.quat, q1))
-        xi1 = pose_twist(here.pos, here.quat, p1, q1, step_s)
-        xi2 = pose_twist(p1, q1, p2, on_goal_hemisphere(q2, q1), step_s)
-        accel = (xi2 - xi1) / step_s
-        twist = xi1 - 0.5 * step_s * accel
-        if rho is not None:  # back from the turned frame: q1 <- Exp(rho) q1, angular rates rotated by R(rho)
-            q1 = quat_mul(rho, q1)
-            twist[3:], accel[3:] = rotate(rho, twist[3:]), rotate(rho, accel[3:])
+        policy's state advanced (adaptation, stiffness state): the pose, twist, acceleration and anchor compiled
+        (`closed_loop_kernel.action_into`)."""
+        out = np.empty(kernel.ACTION_SIZE)
+        mpos = np.asarray(measured.pos, dtype=np.float64)
+        mquat = np.asarray(measured.quat, dtype=np.float64)
+        rho = query.rho
+        kernel.action_into(mpos, mquat, query.pos, np.asarray(query.quat, dtype=np.float64), query.delta,
+                           _NO_TURN if rho is None else rho, rho is not None, p1, q1, p2, q2, self.lookahead_s,
+                           self.speed, self.speed**2, out)
+        twist = out[kernel.ACTION_TWIST:kernel.ACTION_TWIST + 6]
         learned = None
         k = query.stiffness
         if k is not None:
             learned, clipped = self.skill.bound_stiffness(k)
             self.stiffness_clipped_steps += int(clipped)
-            self.stiffness_state = self._next_stiffness(measured.pos, query, k, self.speed * twist[:3])
-        self.adapter.update(measured.pos, self.speed * twist[:3], self._period_s)
-        self.adapter.update_rotation(measured.pos, measured.quat, self.speed * twist[3:], self._period_s)
-        push = np.concatenate([self.adapter.offset, np.zeros(3)])
-        anchor = Pose(pos=here.pos + delta, quat=on_goal_hemisphere(measured.quat, q1) if rho is not None
-                      else here.quat)
+            self.stiffness_state = self._next_stiffness(measured.pos, query, k, twist[:3])
+        self.adapter.update(mpos, twist[:3], self._period_s)
+        self.adapter.update_rotation(mpos, mquat, twist[3:], self._period_s)
         scheduled = self.stiffness is not None and self.stiffness.kind == "schedule"
         own = self.scheduled_stiffness(measured.pos) if scheduled else learned
-        return Action(Pose(pos=p1 + delta, quat=q1), _commanded_stiffness(self.stiffness, own),
-                      self.adapter.rotational_stiffness(measured.pos), self.speed * twist, self.speed**2 * accel,
-                      anchor, push)
+        return Action(Pose(pos=out[kernel.ACTION_POS:kernel.ACTION_POS + 3],
+                           quat=out[kernel.ACTION_QUAT:kernel.ACTION_QUAT + 4]),
+                      _commanded_stiffness(self.stiffness, own), self.adapter.rotational_stiffness(mpos), twist,
+                      out[kernel.ACTION_ACCEL:kernel.ACTION_ACCEL + 6],
+                      Pose(pos=out[kernel.ACTION_ANCHOR_POS:kernel.ACTION_ANCHOR_POS + 3],
+                           quat=out[kernel.ACTION_ANCHOR_QUAT:kernel.ACTION_ANCHOR_QUAT + 4]),
+                      self.adapter.push_action())
 
     def _next_stiffness(self, pos: npt.ArrayLike, query: _Query, k: FloatArray, velocity: FloatArray) -> FloatArray:
         """The stiffness state after this period: one flow step of rho T from [query pose, K] (module docstring;
