@@ -66,9 +66,6 @@ from rflow.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
 
-_NO_TURN = np.array([1.0, 0.0, 0.0, 0.0])
-_NO_TURN.setflags(write=False)
-
 def pose_twist(p0: npt.ArrayLike, q0: npt.ArrayLike, p1: npt.ArrayLike, q1: npt.ArrayLike, dt: float) -> FloatArray:
     """Finite-difference twist [(p1 - p0)/dt; rotvec(q1 conj(q0))/dt] (6,) or (..., 6), world frame."""
     p0, q0, p1, q1 = (np.asarray(a, dtype=np.float64) for a in (p0, q0, p1, q1))
@@ -441,8 +438,8 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         mquat = np.asarray(measured.quat, dtype=np.float64)
         rho = query.rho
         kernel.action_into(mpos, mquat, query.pos, np.asarray(query.quat, dtype=np.float64), query.delta,
-                           _NO_TURN if rho is None else rho, rho is not None, p1, q1, p2, q2, self.lookahead_s,
-                           self.speed, self.speed**2, out)
+                           np.array([1.0, 0.0, 0.0, 0.0]) if rho is None else rho, rho is not None, p1, q1, p2,
+                           q2, self.lookahead_s, self.speed, self.speed**2, out)
         twist = out[kernel.ACTION_TWIST:kernel.ACTION_TWIST + 6]
         learned = None
         k = query.stiffness
