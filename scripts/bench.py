@@ -73,7 +73,9 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
     With a skill: closed-loop episodes from the evaluation's perturbed starts (flow query, feed-forward, nullspace
     IK, 10 controlled physics steps, observation and success check per step), timed from reset to the end; then
     the same episodes again split per control period into their parts (envs.execution.profile, "period_us", with
-    "physics" the bare mj_steps of a period over the episodes' own states).
+    "physics" the bare mj_steps of a period over the episodes' own states). "ratio_ceiling_without_python" is that
+    bare physics over the compiled period alone (physics, control law and sensing): the ratio the loop would reach
+    if nothing else ran per period.
     Without: 100 steps toward a fixed target 2 cm below the start (no flow), per repeat.
     """
     if model is None:
@@ -118,6 +120,7 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
                  "episode_physics_steps_per_s": bare,
                  "physics_realtime_factor": bare * float(env.model.opt.timestep),
                  "ratio_to_episode_physics": median * substeps / bare,
+                 "ratio_ceiling_without_python": profile["physics"] / profile["control_and_sensing"],
                  "period_us": {key: round(value, 1) for key, value in profile.items()}}
     return {"env_steps_per_s": median, "physics_steps_per_s": median * substeps,
             "realtime_factor": median * period, **extra}
