@@ -195,11 +195,19 @@ class ContactAdapter:
         e1 = e1 / norm(e1)
         self.geometry = np.ascontiguousarray(np.stack([goal, a, e1, np.cross(a, e1)]))
         k = config.rotational_stiffness
-        self.settings = np.array([
-            config.push_limit_m, config.push_leak_s, config.frame_limit_m, float(np.deg2rad(config.frame_limit_deg)),
-            config.radius_m, math.nan if k is None else k, config.search_amplitude_m, config.search_period_s,
-            config.search_push_m, config.search_band_m, config.search_push_scale, config.seat_speed_m_s,
-            config.seat_radius_m, config.seat_force_n], dtype=np.float64)
+        slots = {kernel.CONFIG_PUSH_LIMIT: config.push_limit_m, kernel.CONFIG_PUSH_LEAK: config.push_leak_s,
+                 kernel.CONFIG_FRAME_LIMIT: config.frame_limit_m,
+                 kernel.CONFIG_FRAME_LIMIT_RAD: float(np.deg2rad(config.frame_limit_deg)),
+                 kernel.CONFIG_RADIUS: config.radius_m, kernel.CONFIG_ROTATIONAL_STIFFNESS: math.nan if k is None else k,
+                 kernel.CONFIG_SEARCH_AMPLITUDE: config.search_amplitude_m,
+                 kernel.CONFIG_SEARCH_PERIOD: config.search_period_s, kernel.CONFIG_SEARCH_PUSH: config.search_push_m,
+                 kernel.CONFIG_SEARCH_BAND: config.search_band_m,
+                 kernel.CONFIG_SEARCH_PUSH_SCALE: config.search_push_scale,
+                 kernel.CONFIG_SEAT_SPEED: config.seat_speed_m_s, kernel.CONFIG_SEAT_RADIUS: config.seat_radius_m,
+                 kernel.CONFIG_SEAT_FORCE: config.seat_force_n}
+        self.settings = np.full(kernel.CONFIG_SIZE, math.nan)
+        for slot, value in slots.items():
+            self.settings[slot] = value
         self.state = np.zeros(kernel.STATE_SIZE)
         self.reset()
 

@@ -10,7 +10,7 @@ formulas compiled from their source), so the records are the same to the last bi
 runs the former Python as the reference).
 
 The adaptation's state is one float64 vector (the STATE_* slots; None is NaN or a 0 flag), its settings another
-(the CONFIG_* slots, `ContactAdaptation.config_vector`), its geometry a (4, 3) array: the goal position, the
+(the CONFIG_* slots, `ContactAdapter.settings`), its geometry a (4, 3) array: the goal position, the
 insertion axis a and the search plane's e_1, e_2.
 """
 
@@ -46,10 +46,15 @@ in radians)."""
 GEOMETRY_GOAL, GEOMETRY_AXIS, GEOMETRY_E1, GEOMETRY_E2 = range(4)
 """Rows of the geometry."""
 
+ACTION_POS, ACTION_QUAT, ACTION_TWIST, ACTION_ACCEL, ACTION_ANCHOR_POS, ACTION_ANCHOR_QUAT, ACTION_SIZE = (
+    0, 3, 7, 13, 19, 22, 26)
+"""Slots of `action_into`'s output: the target pose p_1 + delta, q_1 (3 + 4), the twist s xi and acceleration s^2 a
+(6 + 6), the anchor (3 + 4)."""
+
 
 @_jit
 def _saturate_into(state: np.ndarray, at: int, v0: float, v1: float, v2: float, limit: float) -> None:
-    """state[at:at+3] = v scaled down to norm ``limit`` if longer (`adaptation._saturate`)."""
+    """state[at:at+3] = v scaled down to norm ``limit`` if longer: v (limit / |v|)."""
     vec = np.empty(3)
     vec[0], vec[1], vec[2] = v0, v1, v2
     length = norm(vec)
@@ -71,7 +76,7 @@ def near_goal(geometry: np.ndarray, config: np.ndarray, pos: np.ndarray) -> bool
 @_jit
 def _update_search(state: np.ndarray, config: np.ndarray, geometry: np.ndarray, here: np.ndarray,
                    period_s: float) -> bool:
-    """`ContactAdapter._update_search`: advance (or end) the stall search; whether it runs."""
+    """Advance (or end) the stall search (envs.execution.adaptation, "stall search"); whether it runs."""
     mouth = state[STATE_MOUTH]
     stalled = False
     if config[CONFIG_SEARCH_AMPLITUDE] > 0.0 and not math.isnan(mouth):
@@ -243,11 +248,6 @@ def action_into(measured_pos: np.ndarray, measured_quat: np.ndarray, query_pos: 
         out[ACTION_TWIST + i] = speed * twist[i]
         out[ACTION_ACCEL + i] = speed_squared * accel[i]
 
-
-ACTION_POS, ACTION_QUAT, ACTION_TWIST, ACTION_ACCEL, ACTION_ANCHOR_POS, ACTION_ANCHOR_QUAT, ACTION_SIZE = (
-    0, 3, 7, 13, 19, 22, 26)
-"""Slots of `action_into`'s output: the target pose p_1 + delta, q_1 (3 + 4), the twist s xi and acceleration s^2 a
-(6 + 6), the anchor (3 + 4)."""
 
 
 @_jit
