@@ -74,8 +74,8 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
     IK, 10 controlled physics steps, observation and success check per step), timed from reset to the end; then
     the same episodes again split per control period into their parts (envs.execution.profile, "period_us", with
     "physics" the bare mj_steps of a period over the episodes' own states). "ratio_ceiling_without_python" is that
-    bare physics over the compiled period alone (physics, control law and sensing): the ratio the loop would reach
-    if nothing else ran per period.
+    bare physics over the compiled period alone (`env.run_period`: physics, control law and sensing in one compiled
+    call, with the few us of the call itself): the ratio the loop would reach if nothing else ran per period.
     Without: 100 steps toward a fixed target 2 cm below the start (no flow), per repeat.
     """
     if model is None:
