@@ -194,12 +194,10 @@ class ContactAdapter:
         e1 = helper - dot(helper, a) * a
         e1 = e1 / norm(e1)
         self.geometry = np.ascontiguousarray(np.stack([goal, a, e1, np.cross(a, e1)]))
-        k = config.rotational_stiffness
         slots = {kernel.CONFIG_PUSH_LIMIT: config.push_limit_m, kernel.CONFIG_PUSH_LEAK: config.push_leak_s,
                  kernel.CONFIG_FRAME_LIMIT: config.frame_limit_m,
                  kernel.CONFIG_FRAME_LIMIT_RAD: float(np.deg2rad(config.frame_limit_deg)),
-                 kernel.CONFIG_RADIUS: config.radius_m, kernel.CONFIG_ROTATIONAL_STIFFNESS: math.nan if k is None else k,
-                 kernel.CONFIG_SEARCH_AMPLITUDE: config.search_amplitude_m,
+                 kernel.CONFIG_RADIUS: config.radius_m, kernel.CONFIG_SEARCH_AMPLITUDE: config.search_amplitude_m,
                  kernel.CONFIG_SEARCH_PERIOD: config.search_period_s, kernel.CONFIG_SEARCH_PUSH: config.search_push_m,
                  kernel.CONFIG_SEARCH_BAND: config.search_band_m,
                  kernel.CONFIG_SEARCH_PUSH_SCALE: config.search_push_scale,

@@ -38,10 +38,9 @@ STATE_PREVIOUS_QUAT, STATE_HAS_PREVIOUS_QUAT, STATE_SIZE = 19, 23, 24
 whether there is one (1), the last measured quaternion (4) and whether there is one (1)."""
 
 (CONFIG_PUSH_LIMIT, CONFIG_PUSH_LEAK, CONFIG_FRAME_LIMIT, CONFIG_FRAME_LIMIT_RAD, CONFIG_RADIUS,
- CONFIG_ROTATIONAL_STIFFNESS, CONFIG_SEARCH_AMPLITUDE, CONFIG_SEARCH_PERIOD, CONFIG_SEARCH_PUSH, CONFIG_SEARCH_BAND,
- CONFIG_SEARCH_PUSH_SCALE, CONFIG_SEAT_SPEED, CONFIG_SEAT_RADIUS, CONFIG_SEAT_FORCE, CONFIG_SIZE) = range(15)
-"""Slots of the settings (`ContactAdaptation`'s fields; the rotational stiffness NaN for None, the frame limit also
-in radians)."""
+ CONFIG_SEARCH_AMPLITUDE, CONFIG_SEARCH_PERIOD, CONFIG_SEARCH_PUSH, CONFIG_SEARCH_BAND, CONFIG_SEARCH_PUSH_SCALE,
+ CONFIG_SEAT_SPEED, CONFIG_SEAT_RADIUS, CONFIG_SEAT_FORCE, CONFIG_SIZE) = range(14)
+"""Slots of the settings the kernels read (`ContactAdaptation`'s fields, the frame limit in radians too)."""
 
 GEOMETRY_GOAL, GEOMETRY_AXIS, GEOMETRY_E1, GEOMETRY_E2 = range(4)
 """Rows of the geometry."""
@@ -263,7 +262,7 @@ def sense_into(state: np.ndarray, geometry: np.ndarray, tcp_quat: np.ndarray, wr
 def query_into(state: np.ndarray, measured_pos: np.ndarray, measured_quat: np.ndarray, pos: np.ndarray,
                quat: np.ndarray, delta: np.ndarray, rho: np.ndarray) -> bool:
     """Where the flow is queried (`ClosedLoopPolicy._query`): pos = p - delta, quat = Exp(rho)^-1 q (q when rho =
-    0), with delta and Exp(rho) copied out; whether the frame is turned."""
+    0), with delta and Exp(rho) (the identity when rho = 0) copied out; whether the frame is turned."""
     turned = False
     for i in range(3):
         delta[i] = state[STATE_FRAME + i]
@@ -272,6 +271,7 @@ def query_into(state: np.ndarray, measured_pos: np.ndarray, measured_quat: np.nd
     if not turned:
         for i in range(4):
             quat[i] = measured_quat[i]
+        rho[0], rho[1], rho[2], rho[3] = 1.0, 0.0, 0.0, 0.0
         return False
     r = STATE_ROTATION
     rho[0], rho[1], rho[2], rho[3] = quat_of_rotvec_components(state[r], state[r + 1], state[r + 2])

@@ -426,7 +426,7 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         pos, quat, delta, rho = np.empty(3), np.empty(4), np.empty(3), np.empty(4)
         turned = kernel.query_into(self.adapter.state, np.asarray(measured.pos, dtype=np.float64),
                                    np.asarray(measured.quat, dtype=np.float64), pos, quat, delta, rho)
-        return _Query(pos, quat, delta, rho if turned else None, self.stiffness_state)
+        return _Query(pos, quat, delta, rho, turned, self.stiffness_state)
 
     def _complete(self, measured: Pose, query: _Query, p1: FloatArray, q1: FloatArray, p2: FloatArray,
                   q2: FloatArray) -> Action:
@@ -436,10 +436,8 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         out = np.empty(kernel.ACTION_SIZE)
         mpos = np.asarray(measured.pos, dtype=np.float64)
         mquat = np.asarray(measured.quat, dtype=np.float64)
-        rho = query.rho
-        kernel.action_into(mpos, mquat, query.pos, np.asarray(query.quat, dtype=np.float64), query.delta,
-                           np.array([1.0, 0.0, 0.0, 0.0]) if rho is None else rho, rho is not None, p1, q1, p2,
-                           q2, self.lookahead_s, self.speed, self.speed**2, out)
+        kernel.action_into(mpos, mquat, query.pos, query.quat, query.delta, query.rho, query.turned, p1, q1, p2, q2,
+                           self.lookahead_s, self.speed, self.speed**2, out)
         twist = out[kernel.ACTION_TWIST:kernel.ACTION_TWIST + 6]
         learned = None
         k = query.stiffness
@@ -484,13 +482,14 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
 @dataclass(frozen=True)
 class _Query:
     """Where a closed-loop policy queries its flow this period (`ClosedLoopPolicy._query`): the position p - delta
-    and quaternion Exp(rho)^-1 q in the adaptation's frame, the frame shift delta, Exp(rho) (None: not turned) and
-    the stiffness state (None: a skill without stiffness)."""
+    and quaternion Exp(rho)^-1 q in the adaptation's frame, the frame shift delta, Exp(rho) (the identity when not
+    turned), whether the frame is turned, and the stiffness state (None: a skill without stiffness)."""
 
     pos: FloatArray
-    quat: Any
+    quat: FloatArray
     delta: FloatArray
-    rho: FloatArray | None
+    rho: FloatArray
+    turned: bool
     stiffness: FloatArray | None
 
 
