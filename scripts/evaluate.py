@@ -112,10 +112,11 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
                             "'constant:K' (K I, K > 0 in N/m) or 'schedule[:FREE/LATERAL/AXIAL]' (closed loop: the "
                             "expert's schedule, N/m, at the measured height above the nominal hole) (default: the "
                             "controller's)")
-    skill.add_argument("--no-contact-adaptation", action="store_true",
+    ablation = skill.add_mutually_exclusive_group()  # all parts off, or some: not both
+    ablation.add_argument("--no-contact-adaptation", action="store_true",
                        help="closed loop: run the bare learned flow, without the axial push, frame shift and "
                             "rotational compliance near the hole (envs/execution/adaptation.py; the ablation)")
-    skill.add_argument("--adaptation-off", metavar="PARTS",
+    ablation.add_argument("--adaptation-off", metavar="PARTS",
                        help="closed loop: turn these parts of the contact adaptation off, comma-separated, of push, "
                             "frame, compliance, search, seat (the ablation of each; default: none)")
     run.add_argument("--seed", type=seed, default=d.seed, help="seed of the start poses, 0..2**32-1")

@@ -289,6 +289,10 @@ def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(
     assert pih([*common, "--adaptation-off", "push,wiggle", "--json", str(out / "e.json")]) == 2
     err = capsys.readouterr().err
     assert "--adaptation-off" in err and len(err.strip().splitlines()) == 1 and list(out.iterdir()) == []
+    # all parts off and some parts off at once is an ambiguous ablation: refused before anything runs
+    assert pih([*common, "--adaptation-off", "push", "--no-contact-adaptation", "--json", str(out / "e.json")]) == 2
+    err = capsys.readouterr().err
+    assert "not allowed with" in err and len(err.strip().splitlines()) == 1 and list(out.iterdir()) == []
 
 
 def test_forked_workers_run_on_the_context_built_before_the_fork(model, monkeypatch):
