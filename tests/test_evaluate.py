@@ -72,6 +72,14 @@ def test_config_rejects_an_unknown_mode():
         EvaluationConfig(mode="teleport")
 
 
+@pytest.mark.parametrize("kwargs", [{"adaptation_off": ("push",)}, {"contact_adaptation": False}])
+def test_config_rejects_an_adaptation_ablation_of_the_open_loop(kwargs):
+    """The contact adaptation is part of the closed loop: turning it off in open loop would run and mean nothing."""
+    with pytest.raises(EnvError, match="part of the closed loop"):
+        EvaluationConfig(mode="open-loop", **kwargs)
+    EvaluationConfig(mode="closed-loop", **kwargs)  # where it exists it may be turned off
+
+
 def test_scene_of_another_shape_is_an_error():
     with pytest.raises(EnvError, match="trained on 'triangle'"):
         scene_config_for({"shape": "triangle"}, EvaluationConfig(task=Task(shape="square")), Pose(GOAL_POS, GOAL_QUAT))

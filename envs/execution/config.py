@@ -174,6 +174,9 @@ class EvaluationConfig:
                 adaptation_parts(self.adaptation_off)
             except EnvError as err:
                 raise EnvError(f"adaptation_off: {err}") from None
+        if self.mode != "closed-loop" and (self.adaptation_off or not self.contact_adaptation):
+            raise EnvError(f"adaptation_off / contact_adaptation: the contact adaptation is part of the closed loop; "
+                           f"mode {self.mode!r} has none to turn off")
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
         lockstep = self.lockstep
