@@ -270,10 +270,15 @@ def plot_protocol(summary: dict[str, Any], path: str | os.PathLike[str], title: 
     return _save(fig, path)
 
 
+_LINE_STYLES: tuple[str, ...] = ("-", "--", "-.")
+"""Line styles of the traces of one outcome, in turn."""
+
+
 def plot_force_traces(traces: Sequence[tuple[str, bool, npt.ArrayLike, npt.ArrayLike]], force_limit_n: float,
                       path: str | os.PathLike[str], title: str = "") -> Path:
-    """The wrist force |F| (N) of chosen episodes against time, failures in red and successes in green, with the
-    force limit (on the force held for its 5 ms window, so single 1 ms peaks may pass it).
+    """The wrist force |F| (N) of chosen episodes against time, failures in shades of red and successes in shades of
+    green, each episode its own shade and line style (so that overlapping traces stay apart), with the force limit
+    (on the force held for its 5 ms window, so single 1 ms peaks may pass it).
 
     Args:
         traces: (label, success, times (K,) s, wrist force |F| (K,) N) per episode.
@@ -281,9 +286,16 @@ def plot_force_traces(traces: Sequence[tuple[str, bool, npt.ArrayLike, npt.Array
         path: PNG to write.
     """
     fig, ax = plt.subplots(figsize=(8, 4))
+    counts = {True: sum(1 for t in traces if t[1]), False: sum(1 for t in traces if not t[1])}
+    seen = {True: 0, False: 0}
     for label, success, times, force in traces:
-        ax.plot(np.asarray(times, dtype=float), np.asarray(force, dtype=float), lw=1.0, alpha=0.85,
-                color="tab:green" if success else "tab:red", label=label)
+        ok = bool(success)
+        i, n = seen[ok], counts[ok]
+        seen[ok] += 1
+        shade = 0.9 - 0.35 * i / max(1, n - 1)  # dark to lighter within one outcome
+        color = plt.get_cmap("Greens" if ok else "Reds")(shade)
+        ax.plot(np.asarray(times, dtype=float), np.asarray(force, dtype=float), lw=1.2, alpha=0.9,
+                color=color, ls=_LINE_STYLES[i % len(_LINE_STYLES)], label=label)
     if np.isfinite(force_limit_n):
         ax.axhline(force_limit_n, color="k", ls="--", lw=1.0, label=f"limit {force_limit_n:g} N (held 5 ms)")
     ax.set_xlabel("time (s)")
