@@ -173,6 +173,18 @@ def modal_factors(
     return p, w
 
 
+def check_lead_status(status: int) -> None:
+    """Raise for a failed `impedance_kernel.pose_lead_into` (its LEAD_* status).
+
+    Raises:
+        ControllerError: J M^-1 J^T not positive definite, or a singular stiffness.
+    """
+    if status == kernel.LEAD_NOT_POSITIVE_DEFINITE:
+        raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed)")
+    if status == kernel.LEAD_SINGULAR_STIFFNESS:
+        raise ControllerError("the stiffness is singular (a zero pivot)")
+
+
 def _is_descendant(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
     """True when ``body`` is ``ancestor`` or lies below it in the kinematic tree."""
     while body > 0:
@@ -373,17 +385,25 @@ class CartesianImpedanceController:
             ControllerError: bad twist, accel or stiffness.
         """
         xi = as_vector(twist, 6, "twist")
-        k = self.checked_stiffness(stiffness)
         rate = _NO_ACCEL if accel is None else as_vector(accel, 6, "accel")
         lead = np.empty(6)
-        status = kernel.pose_lead_into(self._fns, self.model._address, data._address, self.site_id, self._jac,
-                                       self._jac_minv, k, _INERTIA_REGULARISATION, 2.0 * self.config.damping_ratio,
-                                       xi, rate, accel is not None, *self._lead_scratch, lead)
-        if status == kernel.LEAD_NOT_POSITIVE_DEFINITE:
-            raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed)")
-        if status == kernel.LEAD_SINGULAR_STIFFNESS:
-            raise ControllerError("the stiffness is singular (a zero pivot)")
+        fns, m, d, site, jac, jac_minv, k, regularisation, two_zeta, scratch = self.lead_arguments(data, stiffness)
+        check_lead_status(kernel.pose_lead_into(fns, m, d, site, jac, jac_minv, k, regularisation, two_zeta, xi, rate,
+                                                accel is not None, *scratch, lead))
         return lead
+
+    def lead_arguments(self, data: mujoco.MjData, stiffness: npt.ArrayLike | None = None) -> tuple:
+        """What `impedance_kernel.pose_lead_into` needs of this controller for ``data`` and a stiffness (validated
+        here, the config's when None): (fns, m, d, site, J and J M^-1 buffers, K, regularisation, 2 zeta, its
+        scratch buffers), for `pose_lead` and for a compiled caller that adds the lead to a pose
+        (envs.execution.feedforward_kernel).
+
+        Raises:
+            ControllerError: a bad stiffness.
+        """
+        return (self._fns, self.model._address, data._address, self.site_id, self._jac, self._jac_minv,
+                self.checked_stiffness(stiffness), _INERTIA_REGULARISATION, 2.0 * self.config.damping_ratio,
+                self._lead_scratch)
 
     def compute_torque(
         self,

@@ -18,11 +18,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from controllers.impedance import full_stiffness
+from controllers.impedance import check_lead_status, full_stiffness
+from controllers.validation import as_vector
 from envs.errors import EnvError
+from envs.execution import feedforward_kernel as kernel
 from envs.execution.policy_protocol import Action
-from envs.poses import Pose, quat_from_rotvec_one, quat_mul_one
-from rflow.small_linalg import norm
+from envs.poses import Pose
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -34,19 +35,22 @@ MAX_ACCEL_M_S2: float = 2.0
 """The feed-forward acceleration is scaled down to at most this linear acceleration ..."""
 MAX_ANGULAR_ACCEL_RAD_S2: float = 10.0
 """... and at most this angular acceleration."""
-
-_ZERO6 = np.zeros(6)
-_ZERO6.setflags(write=False)
+_LIMITS = np.array([MAX_SPEED_M_S, MAX_ANGULAR_SPEED_RAD_S, MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2])
+_LIMITS.setflags(write=False)
 
 
 def limit_twist(twist: npt.ArrayLike, max_speed_m_s: float = MAX_SPEED_M_S,
                 max_angular_speed_rad_s: float = MAX_ANGULAR_SPEED_RAD_S) -> FloatArray:
-    """The twist scaled by one factor <= 1 so that |v| <= max_speed and |omega| <= max_angular_speed."""
+    """The twist (6,) scaled by one factor <= 1 so that |v| <= max_speed and |omega| <= max_angular_speed
+    (`feedforward_kernel.limit_factor`).
+
+    Raises:
+        EnvError: not 6 numbers.
+    """
     xi = np.asarray(twist, dtype=np.float64)
-    v, w = xi[:3], xi[3:]
-    speed, spin = norm(v), norm(w)
-    factor = min(1.0, max_speed_m_s / speed if speed > 0 else 1.0, max_angular_speed_rad_s / spin if spin > 0 else 1.0)
-    return xi * factor
+    if xi.shape != (6,):
+        raise EnvError(f"a twist must be 6 numbers, got shape {xi.shape}")
+    return xi * kernel.limit_factor(xi, float(max_speed_m_s), float(max_angular_speed_rad_s))
 
 
 def limit_accel(accel: npt.ArrayLike) -> FloatArray:
@@ -108,16 +112,29 @@ def feedforward_pose(env: Any, action: Action, gain: float = 1.0) -> Pose:
 
 def led_pose(env: Any, action: Action, gain: float, stiffness: FloatArray | None) -> Pose:
     """`feedforward_pose` given the action's 6x6 stiffness as made by `command_stiffness(env, action)` (the
-    episode loop makes it once and passes the same matrix to ``env.step``)."""
+    episode loop makes it once and passes the same matrix to ``env.step``): the limits, the lead, the push and the
+    composition onto the anchor in one compiled call (`feedforward_kernel.led_pose_into`).
+
+    Raises:
+        ControllerError: a twist or acceleration that is not 6 finite numbers, a bad stiffness, a singular arm.
+        EnvError: a push that is not 6 numbers, an anchor that is not a pose.
+    """
     if gain == 0.0 or action.twist is None:
         return action.pose
-    raw = np.asarray(action.twist, dtype=np.float64)
-    twist = limit_twist(raw)
-    scale = norm(twist) / norm(raw) if raw.any() else 1.0  # ratio of the norms
-    accel = limit_accel(scale * (_ZERO6 if action.accel is None else action.accel))
-    push = _ZERO6 if action.push is None else action.push
-    lead = (gain * impedance_damping_lead(env, twist, accel, stiffness) + push).tolist()
+    raw = as_vector(action.twist, 6, "twist")
+    accel = np.zeros(6) if action.accel is None else as_vector(action.accel, 6, "accel")  # writable: one signature
+    push = np.zeros(6) if action.push is None else np.array(action.push, dtype=np.float64)
+    if push.shape != (6,):
+        raise EnvError(f"an action's push must be 6 numbers, got shape {push.shape}")
     anchor = action.pose if action.anchor is None else action.anchor
-    quat = np.array(quat_mul_one(quat_from_rotvec_one(lead[3:]),
-                                 np.asarray(anchor.quat, dtype=np.float64).tolist()))
-    return Pose(pos=anchor.pos + np.array(lead[:3]), quat=quat / norm(quat))
+    anchor_pos = np.asarray(anchor.pos, dtype=np.float64)
+    anchor_quat = np.asarray(anchor.quat, dtype=np.float64)
+    if anchor_pos.shape != (3,) or anchor_quat.shape != (4,):
+        raise EnvError(f"an action's anchor must be a pose, got shapes {anchor_pos.shape}, {anchor_quat.shape}")
+    fns, m, d, site, jac, jac_minv, k, regularisation, two_zeta, scratch = env.controller.lead_arguments(env.data,
+                                                                                                          stiffness)
+    out = np.empty(7)
+    check_lead_status(kernel.led_pose_into(fns, m, d, site, jac, jac_minv, k, regularisation, two_zeta, *scratch, raw,
+                                           accel, push, float(gain), anchor_pos, anchor_quat, _LIMITS,
+                                           np.empty((3, 6)), out))
+    return Pose(pos=out[:3], quat=out[3:])
