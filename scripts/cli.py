@@ -20,6 +20,11 @@ from envs.errors import EnvError
 from envs.rendering import use_headless_rendering
 from rflow.errors import RFlowError
 
+DESCRIPTION = ("pih-rflow: a simulated Franka Panda learns peg-in-hole from demonstrations with RiemannianFlow and "
+               "executes it under Cartesian impedance control. `pih run` records demos, trains and evaluates on the "
+               "defaults; `pih COMMAND --help` for each command.")
+"""What `pih --help` says before the commands."""
+
 # subcommand -> (module under scripts/, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "demos": ("scripts.demos", "record scripted peg-in-hole demonstrations in physics"),
@@ -33,7 +38,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "export": ("scripts.export", "demos or evaluation episodes as a LeRobot v3 or robomimic dataset"),
     "lasa": ("scripts.lasa", "Riemannian LASA benchmark (SPD and unit quaternions)"),
     "search": ("scripts.search", "Optuna hyperparameter search of RiemannianFlow on one LASA shape"),
-    "bench": ("scripts.bench", "speed benchmark: control loop, rendering, IK, flow"),
+    "bench": ("scripts.bench", "speed benchmark: each figure against its physical floor (control loop, episodes, lockstep, "
+                                "evaluation, training, IK, flow, rendering)"),
     "benchmark": ("scripts.benchmark", "the success-rate protocol: demos, training, evaluation per demo seed, rate "
                                        "over seeds"),
     "run": ("scripts.run", "the main job: demos -> train -> evaluate -> figures and video"),
@@ -83,7 +89,7 @@ def build_parser(command: str = "") -> argparse.ArgumentParser:
     """Build the `pih` parser: every subcommand is listed with its one-line help, and only ``command``'s module
     (none for "") is imported to add its options: importing all of them would load torch, MuJoCo, Optuna, ... on
     every call, seconds before the first line of help (README: the figures)."""
-    parser = Parser(prog="pih", description=__doc__.splitlines()[0])
+    parser = Parser(prog="pih", description=DESCRIPTION)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         if name != command:
