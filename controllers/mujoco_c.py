@@ -1,6 +1,7 @@
 """MuJoCo's C API for numba kernels: a compiled loop calls mj_step1, mj_step2, mj_jac, mj_jacSite, mj_solveM,
-mj_kinematics, mj_comPos and mj_integratePos itself instead of returning to Python for each (a call through the Python bindings costs ~0.6 us more, and the
-Python around it several us per physics step).
+mj_kinematics, mj_comPos, mj_integratePos, mju_mat2Quat and mj_objectVelocity itself instead of returning to Python
+for each (a call through the Python bindings costs ~0.6 us more, and the Python around it several us per physics
+step).
 
 The functions are those of the libmujoco that the ``mujoco`` package loaded (same library, same model and data).
 Kernels receive plain integers, so they stay cacheable (numba refuses to cache a function that holds a ctypes
@@ -18,6 +19,8 @@ and call them through the intrinsics below, which jump to an address with the C 
     void mj_solveM(const mjModel* m, mjData* d, mjtNum* x, const mjtNum* y, int n);
     void mj_kinematics(const mjModel* m, mjData* d);      void mj_comPos(const mjModel* m, mjData* d);
     void mj_integratePos(const mjModel* m, mjtNum* qpos, const mjtNum* qvel, mjtNum dt);
+    void mju_mat2Quat(mjtNum quat[4], const mjtNum mat[9]);
+    void mj_objectVelocity(const mjModel* m, const mjData* d, int objtype, int objid, mjtNum res[6], int flg_local);
 
 The signatures are written here, not read from the library: tests/test_mujoco_c.py runs each call against the
 Python bindings on random Panda states (bit for bit), so a MuJoCo whose signatures change fails the tests instead of
@@ -37,8 +40,10 @@ from numba.extending import intrinsic
 
 from controllers.errors import ControllerError
 
-FN_STEP1, FN_STEP2, FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_KINEMATICS, FN_COM_POS, FN_INTEGRATE_POS = range(8)
-_NAMES = ("mj_step1", "mj_step2", "mj_jac", "mj_jacSite", "mj_solveM", "mj_kinematics", "mj_comPos", "mj_integratePos")
+(FN_STEP1, FN_STEP2, FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_KINEMATICS, FN_COM_POS, FN_INTEGRATE_POS, FN_MAT2QUAT,
+ FN_OBJECT_VELOCITY) = range(10)
+_NAMES = ("mj_step1", "mj_step2", "mj_jac", "mj_jacSite", "mj_solveM", "mj_kinematics", "mj_comPos", "mj_integratePos",
+          "mju_mat2Quat", "mj_objectVelocity")
 
 
 def library_path() -> Path:
@@ -82,7 +87,8 @@ def _jump(builder: ir.IRBuilder, address: ir.Value, args: list[ir.Value], kinds:
 
 @intrinsic
 def call_md(typingctx, fn, m, d):  # type: ignore[no-untyped-def]
-    """fn(m, d): mj_step1, mj_step2, mj_kinematics, mj_comPos."""
+    """fn(m, d): mj_step1, mj_step2, mj_kinematics, mj_comPos; and any function of two pointers, e.g.
+    mju_mat2Quat(quat, mat)."""
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         _jump(builder, args[0], list(args[1:]), "pp")
         return context.get_dummy_value()
@@ -105,6 +111,15 @@ def call_mdppi(typingctx, fn, m, d, a, b, n):  # type: ignore[no-untyped-def]
         _jump(builder, args[0], list(args[1:]), "ppppi")
         return context.get_dummy_value()
     return types.none(*([types.int64] * 6)), codegen
+
+
+@intrinsic
+def call_object_velocity(typingctx, fn, m, d, objtype, objid, res, flg_local):  # type: ignore[no-untyped-def]
+    """fn(m, d, objtype, objid, res, flg_local): mj_objectVelocity."""
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        _jump(builder, args[0], list(args[1:]), "ppiipi")
+        return context.get_dummy_value()
+    return types.none(*([types.int64] * 7)), codegen
 
 
 @intrinsic

@@ -7,6 +7,7 @@ inside the walls, at rest, held for hold_s); the commanded pose is never consult
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -14,12 +15,12 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from envs.geometry import all_finite
+from controllers.mujoco_c import FUNCTIONS
+from envs import observation_kernel as kernel
 from envs.poses import Pose
 from envs.scene import SceneIds
 from envs.sensing import ContactStats, PegContacts, WristSensor
 from envs.success import Assessment, EpisodeHoles, InsertionState, SuccessTracker
-from rflow.quaternion import quat_to_mat
 from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
@@ -110,6 +111,8 @@ class Observer:
         self.arm_qpos, self.arm_dof = np.asarray(ids.arm_qpos_adr), arm_dof
         self.finger_qpos = np.asarray(ids.finger_qpos_adr, dtype=int)
         self._velocity = np.zeros(6)
+        self._sites = np.array([self.flange_site, self.tcp_site, self.peg_tip_site], dtype=np.int64)
+        self._fns = FUNCTIONS  # MuJoCo's C functions for the compiled read
 
     def peg_speed_m_s(self) -> float:
         """Linear speed of the peg's peg_tip (m/s), from the simulated state."""
@@ -128,11 +131,12 @@ class Observer:
         ``track``) and the (true) wrist force and torque are appended to the samples of ``stats`` (None: not
         sampled); ``sensed`` maps the true wrench to the sensor's reading (None: the true one)."""
         data = self.data
-        flange = site_pose(data, self.flange_site)
-        tcp = site_pose(data, self.tcp_site)
-        peg_tip = site_pose(data, self.peg_tip_site)
-        if all_finite(peg_tip.pos) and all_finite(peg_tip.quat) and norm(peg_tip.quat) > 0.5:
-            assessment = self.assess(holes, peg_tip.pos, quat_to_mat(peg_tip.quat), None)
+        poses, rotation = np.empty((3, 7)), np.empty((3, 3))  # flange, tcp, peg_tip (one compiled read)
+        speed = kernel.read_sites_into(self._fns, self.model._address, data._address, self._sites, data.site_xpos,
+                                       data.site_xmat, poses, rotation, self._velocity)
+        flange, tcp, peg_tip = (Pose(pos=row[:3], quat=row[3:]) for row in poses)
+        if not math.isnan(speed):  # the peg tip's pose is finite
+            assessment = holes.assess(peg_tip.pos, rotation, speed)
         else:
             nan_state = InsertionState(np.nan, np.nan, np.nan, np.nan, False)
             assessment = Assessment(None, nan_state, False)

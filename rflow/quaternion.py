@@ -119,17 +119,20 @@ def quat_to_mat(quat: npt.ArrayLike) -> FloatArray:
     if q.shape != (4,) or not np.all(np.isfinite(q)):
         raise RFlowError(f"quaternion {quat!r} must be 4 finite numbers (w, x, y, z)")
     w, x, y, z = q.tolist()  # Python floats: the same arithmetic, without numpy scalars
-    length = math.sqrt(w * w + x * x + y * y + z * z)
-    if length < 1e-9:
+    if math.sqrt(w * w + x * x + y * y + z * z) < 1e-9:
         raise RFlowError(f"quaternion {quat!r} has zero norm and is no rotation")
+    return np.array(matrix_components(w, x, y, z)).reshape(3, 3)
+
+
+def matrix_components(w: float, x: float, y: float, z: float) -> tuple[float, float, float, float, float, float,
+                                                                        float, float, float]:
+    """`quat_to_mat` of one quaternion of non-zero norm over its components, the matrix row by row (Python floats, or
+    numba scalars compiled: envs.observation_kernel)."""
+    length = math.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / length, x / length, y / length, z / length
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
 
 def mat_to_quat(rot: npt.ArrayLike) -> FloatArray:

@@ -10,9 +10,9 @@ import numba
 import numpy as np
 
 from panda_fixtures import arm_model
-from controllers.mujoco_c import (FN_COM_POS, FN_INTEGRATE_POS, FN_JAC, FN_JAC_SITE, FN_KINEMATICS, FN_SOLVE_M,
-                                  FN_STEP1, FN_STEP2, call_integrate_pos, call_jac, call_md, call_mdppi, FUNCTIONS,
-                                  library_path)
+from controllers.mujoco_c import (FN_COM_POS, FN_INTEGRATE_POS, FN_JAC, FN_JAC_SITE, FN_KINEMATICS, FN_MAT2QUAT,
+                                  FN_OBJECT_VELOCITY, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_integrate_pos, call_jac,
+                                  call_md, call_mdppi, call_object_velocity, FUNCTIONS, library_path)
 
 
 @numba.njit(cache=False)
@@ -76,3 +76,34 @@ def test_compiled_integration_and_kinematics_equal_the_bindings():
                       (ours.cdof, theirs.cdof), (ours.subtree_com, theirs.subtree_com)):
         np.testing.assert_array_equal(got, want)
     assert not np.array_equal(ours.qpos, q) and np.abs(ours.cdof).max() > 0.0
+
+
+@numba.njit(cache=False)
+def _compiled_site_reads(fns, m, d, xmat, sites, quats, velocities, local):
+    for i in range(sites.shape[0]):
+        call_md(fns[FN_MAT2QUAT], quats[i].ctypes.data, xmat.ctypes.data + sites[i] * 9 * 8)
+        call_object_velocity(fns[FN_OBJECT_VELOCITY], m, d, 6, sites[i], velocities[i].ctypes.data, local)
+
+
+def test_compiled_rotations_and_velocities_equal_the_bindings():
+    """mju_mat2Quat of every site's rotation and mj_objectVelocity of every site (world and local frame) at random
+    moving states, against the bindings (6 is mjOBJ_SITE)."""
+    model = arm_model()
+    assert int(mujoco.mjtObj.mjOBJ_SITE) == 6
+    rng = np.random.default_rng(2)
+    sites = np.arange(model.nsite, dtype=np.int64)
+    for trial in range(4):
+        data = mujoco.MjData(model)
+        data.qpos[:] = model.qpos0 + rng.uniform(-1.0, 1.0, model.nq)
+        data.qvel[:] = rng.uniform(-2.0, 2.0, model.nv)
+        mujoco.mj_forward(model, data)
+        local = trial % 2
+        quats, velocities = np.zeros((model.nsite, 4)), np.zeros((model.nsite, 6))
+        _compiled_site_reads(FUNCTIONS, model._address, data._address, data.site_xmat, sites, quats, velocities, local)
+        for i in range(model.nsite):
+            want_q, want_v = np.zeros(4), np.zeros(6)
+            mujoco.mju_mat2Quat(want_q, data.site_xmat[i])
+            mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_SITE, i, want_v, local)
+            np.testing.assert_array_equal(quats[i], want_q)
+            np.testing.assert_array_equal(velocities[i], want_v)
+        assert np.abs(velocities).max() > 0.1
