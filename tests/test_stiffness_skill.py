@@ -170,6 +170,10 @@ def test_pih_train_stiffness_bad_input_exits_2(tmp_path, capsys, args, words):
     assert not (tmp_path / "ck").exists()
 
 
+class _Recorded(Exception):
+    """Raised by the stand-in controller once it has recorded the stiffness (no arm to compute a lead on)."""
+
+
 class _RecordingController:
     """Stands in for the impedance controller: records the stiffness the pose lead is computed with."""
 
@@ -179,9 +183,9 @@ class _RecordingController:
     def __init__(self):
         self.stiffness = "not called"
 
-    def pose_lead(self, data, twist, accel=None, stiffness=None):
+    def lead_arguments(self, data, stiffness=None):
         self.stiffness = stiffness
-        return np.zeros(6)
+        raise _Recorded
 
 
 class _FakeEnv:
@@ -198,10 +202,12 @@ def test_feedforward_lead_uses_the_commanded_stiffness():
     env = _FakeEnv()
     k = np.diag([300.0, 300.0, 1000.0])
     command = Action(pose, stiffness=k, twist=np.full(6, 0.01), anchor=pose)
-    feedforward_pose(env, command)
+    with pytest.raises(_Recorded):
+        feedforward_pose(env, command)
     assert np.allclose(env.controller.stiffness, np.diag([300.0, 300.0, 1000.0, 80.0, 80.0, 80.0]))
     assert np.allclose(command_stiffness(env, command), env.controller.stiffness)
-    feedforward_pose(env, Action(pose, twist=np.full(6, 0.01), anchor=pose))
+    with pytest.raises(_Recorded):
+        feedforward_pose(env, Action(pose, twist=np.full(6, 0.01), anchor=pose))
     assert env.controller.stiffness is None  # no stiffness: the controller's default
 
 

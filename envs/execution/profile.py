@@ -1,10 +1,11 @@
 """Where a closed-loop control period goes: wall time per period of each part of the episode step, for `pih bench`.
 
 The parts are timed by wrapping, for the duration of the profile only, the instance methods that do them (the
-environment's and the policy's own objects, nothing global): the controlled physics steps with the per-step sensing
+environment's and the policy's own objects): the controlled physics steps with the per-step sensing
 (``env.run_period``), the observation and success check (``env._observe``), the policy with its flow queries
-(``policy.act``), the feed-forward lead (``controller.pose_lead``), the nullspace IK (``nullspace.update``) and
-the instability check (``env._instability``). "other" is the rest of the loop (validation, the action's stiffness,
+(``policy.act``), the nullspace IK (``nullspace.update``) and the instability check (``env._instability``); and the
+feed-forward lead, a function of the episode loop (``envs.execution.episode.led_pose``, wrapped in that module and
+put back after the profile, so profile one episode loop at a time). "other" is the rest of the loop (validation, the action's stiffness,
 the policy's observation, bookkeeping). The episode's reset (start pose, grasp settling) is timed apart and left out
 of the periods. A wrapper adds ~0.3 us per call, a few us per period.
 """
@@ -14,17 +15,19 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Sequence
 
+from envs.execution import episode
 from envs.execution.episode import run_episode
 
 PARTS: tuple[tuple[str, str, str], ...] = (
     ("control_and_sensing", "env", "run_period"),
     ("observation_and_success", "env", "_observe"),
     ("policy", "policy", "act"),
-    ("feedforward_lead", "controller", "pose_lead"),
+    ("feedforward_lead", "episode", "led_pose"),
     ("nullspace_ik", "nullspace", "update"),
     ("instability_check", "env", "_instability"),
 )
-"""(part, owner, method): the owner is the environment, the policy, or the environment's controller or nullspace."""
+"""(part, owner, method): the owner is the environment, the policy, the environment's nullspace, or the episode
+loop's module (envs.execution.episode)."""
 
 
 class _Timers:
@@ -64,10 +67,11 @@ def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_ga
         {part: us per period} for every part, "other" and "total" (per period, resets excluded), "reset_ms" (per
         episode) and "periods" (the number timed).
     """
-    owners = {"env": env, "policy": policy, "controller": env.controller, "nullspace": env.nullspace}
+    owners = {"env": env, "policy": policy, "nullspace": env.nullspace, "episode": episode}
     timers = _Timers()
+    originals = {(owner, name): getattr(owners[owner], name) for _, owner, name in PARTS}
     for part, owner, name in PARTS:
-        setattr(owners[owner], name, timers.part(getattr(owners[owner], name), part))
+        setattr(owners[owner], name, timers.part(originals[(owner, name)], part))
     env.reset = timers.reset(env.reset)
     periods, wall = 0, 0
     try:
@@ -78,7 +82,10 @@ def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_ga
             periods += record.steps
     finally:
         for _, owner, name in PARTS:
-            delattr(owners[owner], name)  # the class's method again
+            if owner == "episode":
+                setattr(episode, name, originals[(owner, name)])  # the module's function again
+            else:
+                delattr(owners[owner], name)  # the class's method again
         del env.reset
     scale = 1e-3 / max(periods, 1)
     out = {part: timers.totals[part] * scale for part, _, _ in PARTS}
