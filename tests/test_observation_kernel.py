@@ -14,7 +14,7 @@ from controllers.mujoco_c import FUNCTIONS
 from envs import observation_kernel as kernel
 from envs.env import PegInHoleEnv
 from envs.observation import site_pose
-from envs.poses import Pose
+from env_states import wandering_states
 from rflow.quaternion import quat_to_mat
 
 
@@ -33,22 +33,15 @@ def _read(env):
 
 
 def test_the_compiled_read_equals_the_bindings_bit_for_bit(env) -> None:
-    rng = np.random.default_rng(3)
     checked = 0
-    for episode in range(4):
-        env.reset(seed=episode)
-        for _ in range(30):
-            sites, poses, rotation, speed = _read(env)
-            for row, site in zip(poses, sites):
-                want = site_pose(env.data, int(site))
-                assert np.array_equal(row[:3], want.pos) and np.array_equal(row[3:], want.quat)
-            assert np.array_equal(rotation, quat_to_mat(poses[2, 3:]))
-            assert speed == env.observer.peg_speed_m_s()
-            checked += 1
-            tcp = env.observation.tcp
-            env.step(Pose(tcp.pos + rng.normal(0.0, 0.004, 3), tcp.quat))
-            if env.done:
-                break
+    for _ in wandering_states(env, np.random.default_rng(3), episodes=4, periods=30, step_m=0.004):
+        sites, poses, rotation, speed = _read(env)
+        for row, site in zip(poses, sites):
+            want = site_pose(env.data, int(site))
+            assert np.array_equal(row[:3], want.pos) and np.array_equal(row[3:], want.quat)
+        assert np.array_equal(rotation, quat_to_mat(poses[2, 3:]))
+        assert speed == env.observer.peg_speed_m_s()
+        checked += 1
     assert checked >= 60
 
 
