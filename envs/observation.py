@@ -7,7 +7,6 @@ inside the walls, at rest, held for hold_s); the commanded pose is never consult
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -135,7 +134,7 @@ class Observer:
         speed = kernel.read_sites_into(self._fns, self.model._address, data._address, self._sites, data.site_xpos,
                                        data.site_xmat, poses, rotation, self._velocity)
         flange, tcp, peg_tip = (Pose(pos=row[:3], quat=row[3:]) for row in poses)
-        if not math.isnan(speed):  # the peg tip's pose is finite
+        if speed != kernel.NOT_FINITE:  # the peg tip's pose is finite
             assessment = holes.assess(peg_tip.pos, rotation, speed)
         else:
             nan_state = InsertionState(np.nan, np.nan, np.nan, np.nan, False)

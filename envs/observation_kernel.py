@@ -24,6 +24,8 @@ matrix_components = _jit(quaternion.matrix_components)
 
 OBJ_SITE = 6
 """mjtObj.mjOBJ_SITE (tests/test_mujoco_c.py checks it)."""
+NOT_FINITE = -1.0
+"""What `read_sites_into` returns for a peg tip whose pose is not finite (a speed is >= 0 or NaN)."""
 
 
 @_jit
@@ -34,7 +36,8 @@ def read_sites_into(fns: np.ndarray, m: int, d: int, sites: np.ndarray, site_xpo
     ``rotation`` (3, 3) and its linear speed (mj_objectVelocity in the world frame into ``velocity`` (6,)).
 
     Returns:
-        The last site's linear speed |v| (m/s), or NaN when its pose is not finite (``rotation`` then unset).
+        The last site's linear speed |v| (m/s; NaN where the velocities are), or NOT_FINITE when its pose is not finite
+        (``rotation`` and ``velocity`` then unset).
     """
     count = sites.shape[0]
     base = poses.ctypes.data
@@ -48,7 +51,7 @@ def read_sites_into(fns: np.ndarray, m: int, d: int, sites: np.ndarray, site_xpo
     for k in range(7):
         finite = finite and math.isfinite(tip[k])
     if not (finite and norm(tip[3:7]) > 0.5):
-        return math.nan
+        return NOT_FINITE
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = matrix_components(tip[3], tip[4], tip[5], tip[6])
     rotation[0, 0], rotation[0, 1], rotation[0, 2] = r00, r01, r02
     rotation[1, 0], rotation[1, 1], rotation[1, 2] = r10, r11, r12

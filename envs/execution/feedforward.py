@@ -35,7 +35,9 @@ MAX_ACCEL_M_S2: float = 2.0
 """The feed-forward acceleration is scaled down to at most this linear acceleration ..."""
 MAX_ANGULAR_ACCEL_RAD_S2: float = 10.0
 """... and at most this angular acceleration."""
+
 _LIMITS = np.array([MAX_SPEED_M_S, MAX_ANGULAR_SPEED_RAD_S, MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2])
+"""The four limits as `feedforward_kernel.led_pose_into` reads them."""
 _LIMITS.setflags(write=False)
 
 
