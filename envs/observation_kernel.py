@@ -14,13 +14,11 @@ import math
 import numba
 import numpy as np
 
+from controllers.impedance_kernel import matrix_components
 from controllers.mujoco_c import FN_MAT2QUAT, FN_OBJECT_VELOCITY, call_md, call_object_velocity
-from rflow import quaternion
 from rflow.small_linalg import norm
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-
-matrix_components = _jit(quaternion.matrix_components)
 
 OBJ_SITE = 6
 """mjtObj.mjOBJ_SITE (tests/test_mujoco_c.py checks it)."""

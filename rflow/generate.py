@@ -157,16 +157,6 @@ def next_point(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = N
     return model.from_tangent(nxt)
 
 
-def next_points_rowwise(model: RiemannianFlow, points: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
-    """`next_point` of each of the points (B, *point_shape), row by row with the arithmetic of a single point, so
-    row i equals ``next_point(model, points[i], dt)`` to the last bit: `lookahead_points` with one step.
-
-    Raises:
-        RFlowError: bad shape, a point off the manifold, NaN, dt <= 0.
-    """
-    return lookahead_points(model, points, dt, 1)[0]
-
-
 def lookahead_points(model: RiemannianFlow, points: npt.ArrayLike, dt: float | None, steps: int,
                      hemisphere: npt.ArrayLike | None = None) -> np.ndarray:
     """The points 1..``steps`` steps of dt later along the flow from each of the points (B, *point_shape), (steps,

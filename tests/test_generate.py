@@ -107,10 +107,10 @@ def test_bad_inputs_raise(model_and_demos):
         next_point(model, GOAL, dt=-1.0)
 
 
-def test_next_points_rowwise_equals_the_single_point_step_bit_for_bit():
+def test_one_lookahead_step_of_a_batch_equals_the_single_point_step_bit_for_bit():
     """The compiled batch of closed-loop steps (Euclidean and quaternion charts) is each point's own `next_point`,
     and a point off the manifold raises what the single point raises."""
-    from rflow.generate import next_points_rowwise
+    from rflow.generate import lookahead_points
     from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 
     skill = tiny_skill()
@@ -121,18 +121,18 @@ def test_next_points_rowwise_equals_the_single_point_step_bit_for_bit():
     quat[0] = GOAL_QUAT  # the goal itself: the chart's small-angle branch
     for name, points in (("position", pos), ("orientation", quat)):
         model = skill.models[name]
-        batch = next_points_rowwise(model, points, 0.05)
+        batch = lookahead_points(model, points, 0.05, 1)[0]
         assert batch.shape == points.shape
         for row, point in zip(batch, points):
             assert np.array_equal(row, next_point(model, point, 0.05))
     bad = quat.copy()
     bad[4] *= 1.01
     with pytest.raises(RFlowError, match="not a unit quaternion"):
-        next_points_rowwise(skill.models["orientation"], bad, 0.05)
+        lookahead_points(skill.models["orientation"], bad, 0.05, 1)
     nan = pos.copy()
     nan[2, 1] = np.nan
     with pytest.raises(RFlowError, match="NaN"):
-        next_points_rowwise(skill.models["position"], nan, 0.05)
+        lookahead_points(skill.models["position"], nan, 0.05, 1)
 
 
 def test_lookahead_points_chain_the_single_point_step_bit_for_bit():

@@ -15,8 +15,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from controllers import impedance_kernel
-from envs import observation_kernel
-from envs.execution import feedforward_kernel
 from rflow import quaternion
 
 
@@ -88,11 +86,13 @@ TWINS = [
          lambda rng: (rng.normal(size=3), quaternion.mat_to_quat(_rotation(rng)), rng.normal(size=3),
                       _rotation(rng).reshape(9).copy()), exact=False, atol=1e-12),
     Twin("cholesky_lower", _cholesky_compiled, np.linalg.cholesky, _cholesky_draw, exact=False, atol=1e-12),
-    Twin("matrix_components", observation_kernel.matrix_components,
+    Twin("matrix_components", impedance_kernel.matrix_components,
          lambda *q: quaternion.quat_to_mat(np.array(q)).reshape(9),
          lambda rng: tuple(rng.normal(size=4) * rng.uniform(0.1, 3.0))),
-    Twin("quat_of_rotvec_components", feedforward_kernel.quat_of_rotvec_components,
+    Twin("quat_of_rotvec_components", impedance_kernel.quat_of_rotvec_components,
          quaternion.quat_of_rotvec_components, lambda rng: tuple(rng.normal(size=3) * rng.uniform(1e-6, 3.0))),
+    Twin("rotvec_components", impedance_kernel.rotvec_components, quaternion.rotvec_components,
+         lambda rng: tuple(rng.normal(size=4) * rng.uniform(0.1, 3.0))),
 ]
 
 

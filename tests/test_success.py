@@ -1,6 +1,5 @@
 """Tests of envs.success: insertion state in the hole frame, seated inside the walls at rest, wrong hole, hold."""
 
-
 import numpy as np
 import pytest
 

@@ -21,14 +21,10 @@ import math
 import numba
 import numpy as np
 
-from rflow import quaternion
+from controllers.impedance_kernel import hamilton, quat_of_rotvec_components, rotvec_components
 from rflow.small_linalg import dot, norm
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-
-hamilton = _jit(quaternion.hamilton)
-rotvec_components = _jit(quaternion.rotvec_components)
-quat_of_rotvec_components = _jit(quaternion.quat_of_rotvec_components)
 
 STATE_PUSH, STATE_RESISTANCE, STATE_FRAME, STATE_ROTATION, STATE_SEARCH = 0, 3, 4, 7, 10
 STATE_SEARCH_S, STATE_MOUTH, STATE_PREVIOUS, STATE_HAS_PREVIOUS = 13, 14, 15, 18
@@ -246,7 +242,6 @@ def action_into(measured_pos: np.ndarray, measured_quat: np.ndarray, query_pos: 
     for i in range(6):
         out[ACTION_TWIST + i] = speed * twist[i]
         out[ACTION_ACCEL + i] = speed_squared * accel[i]
-
 
 
 @_jit

@@ -7,8 +7,9 @@ Cartesian inertia), it also drifts sideways (~6 % of the distance travelled here
 clearance. For an action with a twist the episode loop therefore sends
     x_cmd = anchor (+) (gain K^-1 (D(q) xi_d + Lambda(q) a_d) + push),   D = P diag(2 zeta sqrt(w)) P^T
 (controllers.impedance.pose_lead, modal_factors; position + world rotation vector, q' = exp(delta_r) q), with
-the twist and acceleration scaled down by `limit_twist` / `limit_accel`. The lead is computed by the controller
-from the simulator's state, which a policy never sees: a policy only says how it wants to move.
+the twist and the acceleration each scaled down by one factor to the MAX_* limits below
+(`feedforward_kernel.limit_factor`). The lead is computed by the controller from the simulator's state, which a
+policy never sees: a policy only says how it wants to move.
 """
 
 from __future__ import annotations
@@ -39,35 +40,6 @@ MAX_ANGULAR_ACCEL_RAD_S2: float = 10.0
 _LIMITS = np.array([MAX_SPEED_M_S, MAX_ANGULAR_SPEED_RAD_S, MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2])
 """The four limits as `feedforward_kernel.led_pose_into` reads them."""
 _LIMITS.setflags(write=False)
-
-
-def limit_twist(twist: npt.ArrayLike, max_speed_m_s: float = MAX_SPEED_M_S,
-                max_angular_speed_rad_s: float = MAX_ANGULAR_SPEED_RAD_S) -> FloatArray:
-    """The twist (6,) scaled by one factor <= 1 so that |v| <= max_speed and |omega| <= max_angular_speed
-    (`feedforward_kernel.limit_factor`).
-
-    Raises:
-        EnvError: not 6 numbers.
-    """
-    xi = np.asarray(twist, dtype=np.float64)
-    if xi.shape != (6,):
-        raise EnvError(f"a twist must be 6 numbers, got shape {xi.shape}")
-    return xi * kernel.limit_factor(xi, float(max_speed_m_s), float(max_angular_speed_rad_s))
-
-
-def limit_accel(accel: npt.ArrayLike) -> FloatArray:
-    """The acceleration scaled by one factor <= 1 to |a| <= MAX_ACCEL_M_S2, |alpha| <= MAX_ANGULAR_ACCEL_RAD_S2."""
-    return limit_twist(accel, MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2)
-
-
-def impedance_damping_lead(env: Any, twist: npt.ArrayLike, accel: npt.ArrayLike | None = None,
-                           stiffness: npt.ArrayLike | None = None) -> FloatArray:
-    """delta = K^-1 (D(q) twist + Lambda(q) accel) (6,): the pose lead that makes the impedance controller
-    of ``env`` (Lambda x'' + D x' + K (x - x_cmd) = 0 in free space) follow ``twist`` and ``accel``
-    (module docstring), computed by the controller itself from the current state of ``env`` (not changed),
-    with the 6x6 ``stiffness`` to be commanded (None: the controller's default; D follows K).
-    """
-    return env.controller.pose_lead(env.data, twist, accel, stiffness)
 
 
 def command_stiffness(env: Any, action: Action) -> FloatArray | None:

@@ -19,13 +19,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from controllers.impedance_kernel import LEAD_OK, hamilton, pose_lead_into
-from rflow import quaternion
+from controllers.impedance_kernel import LEAD_OK, hamilton, pose_lead_into, quat_of_rotvec_components
 from rflow.small_linalg import norm
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-
-quat_of_rotvec_components = _jit(quaternion.quat_of_rotvec_components)
 
 
 @_jit

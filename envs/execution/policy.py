@@ -62,7 +62,7 @@ from envs.stiffness_schedule import expert_stiffness
 from rflow.errors import RFlowError
 from rflow.generate import lookahead_points, next_point, rollout
 from rflow.skill_io import PoseSkill
-from rflow.small_linalg import dot, norm
+from rflow.small_linalg import dot
 
 FloatArray = npt.NDArray[np.float64]
 
