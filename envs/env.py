@@ -299,12 +299,14 @@ class PegInHoleEnv:
 
     def _set_believed_hole(self, perturbation: Perturbation) -> None:
         """Where the cell believes the hole and the goal are (what a policy sees as ``nominal_hole`` and
-        ``nominal_goal``): the nominal ones moved by the episode's hole observation error (envs.perturbation)."""
+        ``nominal_goal``): the nominal ones, or with ``hole_observation = "measured"`` the true ones (a sensor that
+        sees the part), moved by the episode's hole observation error (envs.perturbation). `_set_hole_error` first."""
         error = perturbation.observation_error()
+        measured = self.config.perturbations.hole_observation == "measured"
+        hole, goal = (self.hole, self.goal) if measured else (self.nominal_hole, self.nominal_goal)
         if error == Perturbation():
-            self.believed_hole, self.believed_goal = self.nominal_hole, self.nominal_goal
+            self.believed_hole, self.believed_goal = hole, goal
             return
-        hole, goal = self.nominal_hole, self.nominal_goal
         self.believed_hole = Pose(*perturbed_frame(hole.pos, hole.quat, hole.pos, hole.quat, error))
         self.believed_goal = Pose(*perturbed_frame(goal.pos, goal.quat, hole.pos, hole.quat, error))
 

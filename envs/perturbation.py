@@ -27,9 +27,12 @@ The cell's imperfections (issue #25), each off at 0:
 - torque noise: each arm joint delivers its commanded torque plus white noise of sigma N m per physics step
   (drawn per control period from the episode's own generator, envs.model_error.ActuatorNoise), which the
   controller does not know;
-- hole observation: where the cell believes the hole is (the policy's ``nominal_hole`` and ``nominal_goal``) is the
-  nominal hole moved by its own error, (dx, dy) uniform in the disk of radius R_o and a yaw uniform in [-A_o, A_o]
-  about its axis, independent of the true hole-pose error above (a camera's error, not the part's).
+- hole observation: where the cell believes the hole is (the policy's ``nominal_hole`` and ``nominal_goal``) is a
+  hole moved by its own error, (dx, dy) uniform in the disk of radius R_o, a yaw uniform in [-A_o, A_o] about its
+  axis and a tilt uniform in [0, T_o] about a horizontal axis of uniform direction (as the hole-pose error above).
+  The hole so moved is the nominal one (``hole_observation = "nominal"``: the cell does not see the part, and
+  the error is that of its calibration, independent of the true hole-pose error) or the true, perturbed one
+  (``"measured"``: a sensor, e.g. a camera, measures the part's hole, and the error is the sensor's).
 
 Their draws come from a generator seeded by the episode's six draws above, so a task with imperfections keeps the
 hole errors, grasp offsets and starts of the same task without them, episode for episode (paired comparisons of one
@@ -38,7 +41,7 @@ imperfection).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, astuple, dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -61,10 +64,12 @@ MAX_JOINT_DAMPING_NM_S: float = 10.0
 MAX_ACTUATOR_NOISE_NM: float = 5.0
 MAX_OBSERVATION_ERROR_M: float = 0.01
 MAX_OBSERVATION_ERROR_DEG: float = 10.0
-IMPERFECTION_DRAWS: int = 13
+IMPERFECTION_DRAWS: int = 15
 """Uniform draws of the imperfections' generator per episode (their order: mu_hole, mu_pad, l, t, y, e, f, then the
-observation's radius, polar angle and yaw, then the centre of mass's radius and polar angle and b; new imperfections
-are appended, so earlier ones keep their draws)."""
+observation's radius, polar angle and yaw, then the centre of mass's radius and polar angle and b, then the
+observation's tilt and its direction; new imperfections are appended, so earlier ones keep their draws)."""
+HOLE_OBSERVATIONS: tuple[str, ...] = ("nominal", "measured")
+"""What the observed hole is the error of (module docstring): the nominal hole, or the true one measured."""
 
 
 def _check_range(name: str, value: float, maximum: float) -> float:
@@ -92,6 +97,9 @@ class PerturbationRanges:
             0 < min <= max <= 5 N m.
         hole_observation_error_m, hole_observation_error_deg: R_o and A_o of the observed hole's error, in
             [0, 10 mm] and [0, 10 deg].
+        hole_observation: "nominal" (the observed hole is the nominal one with that error) or "measured" (the true,
+            perturbed hole with that error: a sensor that sees the part).
+        hole_observation_tilt_deg: T_o, the bound of the observed hole's tilt error, in [0, 10 deg].
         payload_com_error_m: bound C of the simulated peg's centre-of-mass shift across its axis, in [0, 10 mm].
         joint_damping_nm_s: bound B of each arm joint's extra viscous friction, in [0, 10] N m s/rad.
         actuator_noise_nm: sigma of the white noise on each arm joint's delivered torque per physics step, in
@@ -120,8 +128,12 @@ class PerturbationRanges:
     payload_com_error_m: float = 0.0
     joint_damping_nm_s: float = 0.0
     actuator_noise_nm: float = 0.0
+    hole_observation: str = "nominal"
+    hole_observation_tilt_deg: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.hole_observation not in HOLE_OBSERVATIONS:
+            raise EnvError(f"hole_observation={self.hole_observation!r} must be one of {', '.join(HOLE_OBSERVATIONS)}")
         _check_range("hole_error_m", self.hole_error_m, MAX_HOLE_ERROR_M)
         _check_range("hole_error_deg", self.hole_error_deg, MAX_HOLE_ERROR_DEG)
         _check_range("grasp_offset_m", self.grasp_offset_m, MAX_GRASP_OFFSET_M)
@@ -134,6 +146,7 @@ class PerturbationRanges:
         _check_range("actuator_noise_nm", self.actuator_noise_nm, MAX_ACTUATOR_NOISE_NM)
         _check_range("hole_observation_error_m", self.hole_observation_error_m, MAX_OBSERVATION_ERROR_M)
         _check_range("hole_observation_error_deg", self.hole_observation_error_deg, MAX_OBSERVATION_ERROR_DEG)
+        _check_range("hole_observation_tilt_deg", self.hole_observation_tilt_deg, MAX_OBSERVATION_ERROR_DEG)
         for low_name, high_name, top in (("hole_friction_min", "hole_friction_max", MAX_FRICTION),
                                          ("pad_friction_min", "pad_friction_max", MAX_FRICTION),
                                          ("joint_friction_min_nm", "joint_friction_max_nm", MAX_JOINT_FRICTION_NM)):
@@ -149,7 +162,7 @@ class PerturbationRanges:
         return any(getattr(self, name) > 0.0 for name in (
             "hole_friction_max", "pad_friction_max", "grasp_lateral_m", "grasp_tilt_deg", "grasp_yaw_deg",
             "payload_mass_error", "joint_friction_max_nm", "hole_observation_error_m", "hole_observation_error_deg",
-            "payload_com_error_m", "joint_damping_nm_s", "actuator_noise_nm"))
+            "payload_com_error_m", "joint_damping_nm_s", "actuator_noise_nm", "hole_observation_tilt_deg"))
 
 
 @dataclass(frozen=True)
@@ -167,8 +180,9 @@ class Perturbation:
         grasp_lateral_m, grasp_tilt_deg, grasp_yaw_deg: the peg's in-hand pose error (module docstring).
         payload_mass_error: relative error e of the simulated peg's mass.
         joint_friction_nm: Coulomb friction of each arm joint (N m).
-        observed_hole_dx_m, observed_hole_dy_m, observed_hole_yaw_deg: the observed hole's error in the nominal
-            hole's frame.
+        observed_hole_dx_m, observed_hole_dy_m, observed_hole_yaw_deg, observed_hole_tilt_deg,
+            observed_hole_tilt_dir_deg: the observed hole's error in the frame of the hole it is the error of
+            (`PerturbationRanges.hole_observation`), as the hole-pose error's fields.
         payload_com_x_m, payload_com_y_m: the simulated peg's centre-of-mass shift in its own frame (m).
         joint_damping_nm_s: extra viscous friction of each arm joint (N m s/rad).
         actuator_noise_nm: sigma of the noise on each arm joint's delivered torque (N m).
@@ -194,6 +208,8 @@ class Perturbation:
     payload_com_y_m: float = 0.0
     joint_damping_nm_s: float = 0.0
     actuator_noise_nm: float = 0.0
+    observed_hole_tilt_deg: float = 0.0
+    observed_hole_tilt_dir_deg: float = 0.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -206,10 +222,19 @@ class Perturbation:
         if self.payload_mass_error <= -1.0:
             raise EnvError(f"Perturbation.payload_mass_error={self.payload_mass_error} must be > -1 (a mass > 0)")
 
+    def seed_values(self) -> tuple[float, ...]:
+        """The values that seed the episode's own generators (envs.wrist_sensor.episode_generator): the fields up to
+        ``actuator_noise_nm``, in order. They are drawn from the episode's draws and tell episodes apart; the fields
+        added after them (the observation's tilt) are left out, so the sensors of an episode read the noise they
+        read before those fields existed."""
+        values = astuple(self)
+        return values[:_SEED_FIELDS]
+
     def observation_error(self) -> Perturbation:
-        """The observed hole's error as a hole-pose error (for `perturbed_frame` of the nominal hole)."""
+        """The observed hole's error as a hole-pose error (for `perturbed_frame` of the hole it is the error of)."""
         return Perturbation(hole_dx_m=self.observed_hole_dx_m, hole_dy_m=self.observed_hole_dy_m,
-                            hole_yaw_deg=self.observed_hole_yaw_deg)
+                            hole_yaw_deg=self.observed_hole_yaw_deg, hole_tilt_deg=self.observed_hole_tilt_deg,
+                            hole_tilt_dir_deg=self.observed_hole_tilt_dir_deg)
 
     @property
     def hole_offset_m(self) -> float:
@@ -235,6 +260,8 @@ class Perturbation:
             ("joint_friction_nm", self.joint_friction_nm), ("observed_hole_dx_mm", self.observed_hole_dx_m * 1e3),
             ("observed_hole_dy_mm", self.observed_hole_dy_m * 1e3),
             ("observed_hole_yaw_deg", self.observed_hole_yaw_deg),
+            ("observed_hole_tilt_deg", self.observed_hole_tilt_deg),
+            ("observed_hole_tilt_dir_deg", self.observed_hole_tilt_dir_deg),
             ("payload_com_x_mm", self.payload_com_x_m * 1e3), ("payload_com_y_mm", self.payload_com_y_m * 1e3),
             ("joint_damping_nm_s", self.joint_damping_nm_s), ("actuator_noise_nm", self.actuator_noise_nm))
             if v != 0.0}
@@ -248,6 +275,10 @@ class Perturbation:
             "grasp_offset_mm": self.grasp_offset_m * 1e3,
             **imperfections,
         }
+
+
+_SEED_FIELDS: int = [f.name for f in fields(Perturbation)].index("actuator_noise_nm") + 1
+"""How many of Perturbation's fields, from the first, seed an episode's generators (`Perturbation.seed_values`)."""
 
 
 def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) -> Perturbation:
@@ -289,6 +320,8 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
         payload_com_y_m=float(com_radius * np.sin(2.0 * np.pi * v[11])),
         joint_damping_nm_s=float(ranges.joint_damping_nm_s * v[12]),
         actuator_noise_nm=float(ranges.actuator_noise_nm),
+        observed_hole_tilt_deg=float(ranges.hole_observation_tilt_deg * v[13]),
+        observed_hole_tilt_dir_deg=float(360.0 * v[14]) if ranges.hole_observation_tilt_deg > 0.0 else 0.0,
     )
 
 

@@ -30,7 +30,8 @@ one device: no datasheet or paper was checked for them.
 from __future__ import annotations
 
 import math
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -112,10 +113,10 @@ class WristSensorConfig:
         return {"ideal": 0.0, "wrist": SENSOR_WRIST, "joint_torque": SENSOR_JOINT_TORQUE}[self.sensor_mode]
 
 
-def episode_generator(perturbation: object, salt: int | None = None) -> np.random.Generator:
-    """The sensor's generator of an episode: seeded by the bits of its perturbation's values (a dataclass of
-    floats), so the same episode reads the same noise in any process; with ``salt`` appended to the seed words,
-    another stream of the same episode (envs.model_error.ActuatorNoise)."""
-    values = np.array(astuple(perturbation), dtype=np.float64)  # type: ignore[arg-type]
+def episode_generator(perturbation: Any, salt: int | None = None) -> np.random.Generator:
+    """The sensor's generator of an episode: seeded by the bits of its perturbation's seed values
+    (`envs.perturbation.Perturbation.seed_values`), so the same episode reads the same noise in any process; with
+    ``salt`` appended to the seed words, another stream of the same episode (envs.model_error.ActuatorNoise)."""
+    values = np.array(perturbation.seed_values(), dtype=np.float64)
     words = np.frombuffer(values.tobytes(), dtype=np.uint64)
     return np.random.default_rng(words if salt is None else [*words.tolist(), salt])

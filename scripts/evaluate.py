@@ -119,6 +119,9 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     ablation.add_argument("--adaptation-off", metavar="PARTS",
                        help="closed loop: turn these parts of the contact adaptation off, comma-separated, of push, "
                             "frame, compliance, search, seat (the ablation of each; default: none)")
+    skill.add_argument("--follow-observed-hole", action="store_true",
+                       help="run the skill in the frame of the hole the cell observes (the task's hole observation, "
+                            "e.g. --hole-observation measured) instead of where the demonstrations' hole was")
     run.add_argument("--seed", type=seed, default=d.seed, help="seed of the start poses, 0..2**32-1")
     add_start_arguments(run)  # the task's start range and time limit
     run.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel processes")
@@ -165,7 +168,7 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
         ray_address=args.ray_address, stiffness=args.stiffness,
         contact_adaptation=not args.no_contact_adaptation,
         adaptation_off=adaptation_parts(getattr(args, "adaptation_off", None)),
-        lockstep=args.lockstep)
+        lockstep=args.lockstep, follow_observed_hole=getattr(args, "follow_observed_hole", False))
 
 
 def checked_config(args: argparse.Namespace) -> EvaluationConfig:

@@ -16,6 +16,7 @@ import argparse
 from typing import Any
 
 from envs.errors import EnvError
+from envs.perturbation import HOLE_OBSERVATIONS
 from envs.task import AROUND, DEFAULT_PRESET, PRESET_NAMES, Task, load_task
 from scripts.options import number
 
@@ -28,6 +29,10 @@ OPTION_FIELDS: dict[str, tuple[str, float | None]] = {
     "hole_error_mm": ("hole_error_m", 1e-3),
     "hole_error_deg": ("hole_error_deg", 1.0),
     "grasp_offset_mm": ("grasp_offset_m", 1e-3),
+    "hole_observation": ("hole_observation", None),
+    "hole_observation_error_mm": ("hole_observation_error_m", 1e-3),
+    "hole_observation_error_deg": ("hole_observation_error_deg", 1.0),
+    "hole_observation_tilt_deg": ("hole_observation_tilt_deg", 1.0),
     "force_limit_n": ("force_limit_n", 1.0),
     "time_limit_s": ("time_limit_s", 1.0),
     "pos_range_mm": ("pos_range_m", 1e-3),
@@ -73,6 +78,19 @@ def add_task_arguments(parser: argparse.ArgumentParser, episode: bool = True) ->
         group.add_argument("--grasp-offset-mm", type=number(),
                            help="the peg sits in the grasp shifted along its axis by up to this much, mm (per "
                                 f"episode; default {ranges.grasp_offset_m * 1e3:g})")
+        group.add_argument("--hole-observation", choices=HOLE_OBSERVATIONS,
+                           help="where the cell believes the hole is (the policy's nominal hole): the nominal hole "
+                                "(nominal) or the true one measured by a sensor that sees the part (measured), each "
+                                f"moved by the observation error below (default {ranges.hole_observation})")
+        group.add_argument("--hole-observation-error-mm", type=number(),
+                           help="that belief is off by up to this much horizontally, mm (seeded, per episode; "
+                                f"default {ranges.hole_observation_error_m * 1e3:g})")
+        group.add_argument("--hole-observation-error-deg", type=number(),
+                           help="and turned about the hole's axis by up to this much, deg (seeded, per episode; "
+                                f"default {ranges.hole_observation_error_deg:g})")
+        group.add_argument("--hole-observation-tilt-deg", type=number(),
+                           help="and tilted by up to this much, deg (seeded, per episode; default "
+                                f"{ranges.hole_observation_tilt_deg:g})")
         group.add_argument("--force-limit-n", type=number(infinite=True),
                            help="an episode whose wrist force stays above this many N for 5 ms fails, inf = none "
                                 f"(default {default.force_limit_n:g})")

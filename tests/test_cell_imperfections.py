@@ -194,6 +194,66 @@ def test_the_policy_sees_the_hole_where_the_cell_believes_it(env) -> None:
     assert np.linalg.norm(seen.nominal_goal.pos - env.nominal_goal.pos) == pytest.approx(0.001, abs=1e-6)
 
 
+def test_a_measured_hole_observation_is_the_true_hole_moved_by_the_sensor_error() -> None:
+    """hole_observation = "measured": the policy is told the true (perturbed) hole, off by the observation error only;
+    "nominal" tells it the nominal hole, whatever the true one."""
+    from dataclasses import replace
+
+    from envs.execution.policy_protocol import observe
+    from envs.perturbation import PerturbationRanges
+
+    measured = PegInHoleEnv(scene=build_scene(SceneConfig()), episode_config=EpisodeConfig(
+        time_limit_s=5.0, perturbations=PerturbationRanges(hole_observation="measured")))
+    start = _above(measured)
+    error = Perturbation(hole_dx_m=0.0008, hole_dy_m=-0.0003, hole_yaw_deg=0.7, hole_tilt_deg=0.5, hole_tilt_dir_deg=40.0)
+    measured.reset(start_pose=start, perturbation=error)
+    seen = observe(measured)
+    assert np.linalg.norm(measured.goal.pos - measured.nominal_goal.pos) > 5e-4  # the true hole moved
+    for told, true in ((seen.nominal_hole, measured.hole), (seen.nominal_goal, measured.goal)):
+        assert np.array_equal(told.pos, true.pos) and np.array_equal(told.quat, true.quat)
+    sensed = replace(error, observed_hole_dx_m=0.0001, observed_hole_tilt_deg=0.2, observed_hole_tilt_dir_deg=90.0)
+    measured.reset(start_pose=start, perturbation=sensed)
+    seen = observe(measured)
+    assert np.linalg.norm(seen.nominal_hole.pos - measured.hole.pos) == pytest.approx(1e-4, abs=1e-9)
+    tilted = math.degrees(2.0 * math.acos(min(1.0, abs(float(np.dot(seen.nominal_hole.quat, measured.hole.quat))))))
+    assert tilted == pytest.approx(0.2, abs=1e-6)
+    nominal = PegInHoleEnv(scene=build_scene(SceneConfig()), episode_config=EpisodeConfig(time_limit_s=5.0))
+    nominal.reset(start_pose=start, perturbation=error)
+    seen = observe(nominal)
+    assert np.array_equal(seen.nominal_goal.pos, nominal.nominal_goal.pos)
+
+
+def test_the_observation_tilt_is_drawn_within_its_bound_and_only_with_an_observation_error() -> None:
+    from envs.perturbation import PerturbationRanges, sample_perturbation
+
+    rng = np.random.default_rng(3)
+    draws = [sample_perturbation(PerturbationRanges(hole_observation_error_m=0.001, hole_observation_error_deg=0.3,
+                                                    hole_observation_tilt_deg=0.5), rng) for _ in range(200)]
+    tilts = np.array([d.observed_hole_tilt_deg for d in draws])
+    directions = np.array([d.observed_hole_tilt_dir_deg for d in draws])
+    assert tilts.min() >= 0.0 and tilts.max() <= 0.5 and tilts.max() > 0.4
+    assert directions.min() >= 0.0 and directions.max() < 360.0 and np.ptp(directions) > 300.0
+    plain = sample_perturbation(PerturbationRanges(hole_error_m=0.001, hole_error_deg=1.0,
+                                                   hole_observation_error_deg=1.0), rng)
+    assert (plain.observed_hole_tilt_deg, plain.observed_hole_tilt_dir_deg) == (0.0, 0.0)
+    with pytest.raises(Exception, match="hole_observation"):
+        PerturbationRanges(hole_observation="camera")
+
+
+def test_the_observation_tilt_leaves_the_episode_noise_as_it_was() -> None:
+    """The sensors' generator is seeded by the fields before the observation tilt (added later), so an episode reads
+    the noise it read before; the other fields still tell episodes apart."""
+    from dataclasses import replace
+
+    from envs.wrist_sensor import episode_generator
+
+    episode = Perturbation(hole_dx_m=0.0004, observed_hole_yaw_deg=0.3, actuator_noise_nm=0.05)
+    first = episode_generator(episode).random(4)
+    assert np.array_equal(episode_generator(replace(episode, observed_hole_tilt_deg=0.4,
+                                                    observed_hole_tilt_dir_deg=20.0)).random(4), first)
+    assert not np.array_equal(episode_generator(replace(episode, actuator_noise_nm=0.06)).random(4), first)
+
+
 def test_a_payload_error_updates_the_constants_mujoco_derives_from_the_masses(env) -> None:
     """The contact solver's inverse weights follow the changed peg mass (mj_setConst on the changed model; without it
     10 of 300 realistic episodes blew up on the peg's free joint), and the nominal mass restores the compiled ones."""
@@ -215,3 +275,18 @@ def test_a_payload_error_updates_the_constants_mujoco_derives_from_the_masses(en
     env.model_error.apply(Perturbation())
     for name, values in compiled.items():
         assert np.array_equal(getattr(model, name), values), name
+
+
+def test_every_imperfection_a_record_writes_is_one_a_paired_comparison_may_add() -> None:
+    """A record writes an imperfection's key only where it is set (Perturbation.to_dict), so pairing one side with
+    an imperfection against one without must allow exactly those keys (envs.execution.pairing.IMPERFECTION_KEYS)."""
+    from dataclasses import fields
+
+    from envs.execution.pairing import IMPERFECTION_KEYS
+
+    plain = Perturbation(hole_dx_m=0.001, hole_yaw_deg=0.5, hole_tilt_deg=0.2, hole_tilt_dir_deg=10.0,
+                         grasp_offset_m=0.001)
+    shared = {f.name for f in fields(Perturbation) if getattr(plain, f.name) != 0.0} | {"hole_dy_m"}
+    every = Perturbation(**{f.name: 0.1 if f.name not in shared else getattr(plain, f.name)
+                            for f in fields(Perturbation)})
+    assert set(every.to_dict()) - set(plain.to_dict()) == IMPERFECTION_KEYS

@@ -61,6 +61,18 @@ def test_a_policy_that_commands_the_nominal_goal_is_scored_by_the_true_hole(goal
     assert max(map(offset, seated)) < min(map(offset, failed))
 
 
+def test_the_same_policy_in_the_frame_of_the_measured_hole_seats_every_episode(demos, goal_run, tmp_path) -> None:
+    """Run in the frame of the hole a sensor measures (no sensor error), the policy that commands the nominal goal
+    commands the true one: it seats where it jammed before, on the same starts and hole errors."""
+    data = _evaluate(tmp_path, "follow", "--policy", "policies_for_tests:goal", "--demos", str(demos),
+                     "--time-limit-s", "6", "--policy-option", "duration_s=2.5", "--hole-observation", "measured",
+                     "--follow-observed-hole")
+    assert data["config"]["follow_observed_hole"] is True and data["task"]["perturbations"]["hole_observation"] == \
+        "measured"
+    assert [r["perturbation"] for r in data["per_episode"]] == [r["perturbation"] for r in goal_run["per_episode"]]
+    assert goal_run["successes"] < 4 and data["successes"] == 4, [r["reason"] for r in data["per_episode"]]
+
+
 def test_a_policy_meets_the_starts_and_perturbations_of_the_skill_trained_on_the_same_demos(goal_run, tmp_path) -> None:
     model = save_skill(tmp_path / "model", tiny_skill())
     skill_run = _evaluate(tmp_path, "skill", "--model", str(model), "--time-limit-s", "0.05")

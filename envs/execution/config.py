@@ -129,6 +129,9 @@ class EvaluationConfig:
             "frame", "compliance", "search", "seat"), the ablation of each.
         lockstep: episodes a worker runs side by side, one control period at a time for all
             (envs.execution.lockstep); the records do not depend on it, only the wall time does.
+        follow_observed_hole: run the skill in the frame of the hole the cell observes (the policy's nominal goal;
+            with the task's ``hole_observation = "measured"`` a sensor's measurement of the true hole) instead of
+            where the demonstrations' hole was (envs.execution.goal_frame).
     """
 
     episodes: int = 100
@@ -148,6 +151,7 @@ class EvaluationConfig:
     contact_adaptation: bool = True
     adaptation_off: tuple[str, ...] = ()
     lockstep: int = DEFAULT_LOCKSTEP
+    follow_observed_hole: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.episodes, int) or self.episodes < 1:
@@ -179,6 +183,8 @@ class EvaluationConfig:
                            f"mode {self.mode!r} has none to turn off")
         if not isinstance(self.workers, int) or self.workers < 1:
             raise EnvError(f"workers={self.workers!r} must be an integer >= 1")
+        if not isinstance(self.follow_observed_hole, bool):
+            raise EnvError(f"follow_observed_hole={self.follow_observed_hole!r} must be True or False")
         lockstep = self.lockstep
         if isinstance(lockstep, bool) or not isinstance(lockstep, int) or not 1 <= lockstep <= MAX_LOCKSTEP:
             raise EnvError(f"lockstep={self.lockstep!r} must be an integer from 1 to {MAX_LOCKSTEP}")

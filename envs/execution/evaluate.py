@@ -156,12 +156,18 @@ def build_slots(model_dir: str | os.PathLike[str], config: EvaluationConfig, slo
 
 
 def _policy_for(skill: Any, config: EvaluationConfig) -> Any:
-    """The evaluation's policy on ``skill`` (mode, lookahead, stiffness, contact adaptation of ``config``)."""
+    """The evaluation's policy on ``skill`` (mode, lookahead, stiffness, contact adaptation of ``config``; with
+    ``follow_observed_hole`` run in the observed hole's frame, envs.execution.goal_frame)."""
     stiffness = None if config.stiffness is None else StiffnessSetting.parse(config.stiffness)
     adaptation = (ContactAdaptation() if config.contact_adaptation else ContactAdaptation.off()).without(
         config.adaptation_off)
-    return make_policy(skill, config.mode, config.lookahead_s, config.task.time_limit_s, config.speed, stiffness,
-                       adaptation)
+    policy = make_policy(skill, config.mode, config.lookahead_s, config.task.time_limit_s, config.speed, stiffness,
+                         adaptation)
+    if config.follow_observed_hole:
+        from envs.execution.goal_frame import GoalFramePolicy
+
+        return GoalFramePolicy(policy, Pose(pos=skill.goal_pos, quat=skill.goal_quat))
+    return policy
 
 
 def _init_worker(setup: _Setup) -> dict[str, Any]:

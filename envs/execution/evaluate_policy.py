@@ -179,14 +179,21 @@ def demo_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 
 def build_policy_setup(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig) -> tuple[Any, Policy]:
-    """The evaluation's environment (`build_env` of the demos' metadata) and the user's policy for it.
+    """The evaluation's environment (`build_env` of the demos' metadata) and the user's policy for it (with
+    ``follow_observed_hole``, run in the observed hole's frame from the task's nominal goal, envs.execution.goal_frame).
 
     Raises:
         EnvError: an invalid scene, or see `make_user_policy`.
     """
     goal = Pose(pos=metadata["goal_pos"], quat=metadata["goal_quat"])
     env = build_env(metadata, goal, config)
-    return env, make_user_policy(spec, policy_task(env))
+    task = policy_task(env)
+    policy = make_user_policy(spec, task)
+    if config.follow_observed_hole:
+        from envs.execution.goal_frame import GoalFramePolicy
+
+        return env, GoalFramePolicy(policy, task.nominal_goal)
+    return env, policy
 
 
 @dataclass(frozen=True)
@@ -233,7 +240,8 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
     Args:
         spec: the policy.
         metadata: the demos' (`demo_metadata`): scene, goal and the start poses the starts are drawn around.
-        config: the evaluation (its skill fields -- mode, lookahead, speed, stiffness, adaptation -- are unused).
+        config: the evaluation (its skill fields -- mode, lookahead, speed, stiffness, adaptation -- are unused;
+            ``follow_observed_hole`` runs the policy in the observed hole's frame).
         progress: tqdm bar.
         starts: explicit starts (default: `evaluation_starts` around the demos' starts).
         journal: as for envs.execution.evaluate.evaluate (open it with `policy_journal_run`).

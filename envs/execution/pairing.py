@@ -23,7 +23,8 @@ IMPERFECTION_KEYS: frozenset[str] = frozenset({"hole_friction", "pad_friction", 
                                                "grasp_yaw_deg", "payload_mass_error", "joint_friction_nm",
                                                "observed_hole_dx_mm", "observed_hole_dy_mm", "observed_hole_yaw_deg",
                                                "payload_com_x_mm", "payload_com_y_mm", "joint_damping_nm_s",
-                                               "actuator_noise_nm"})
+                                               "actuator_noise_nm", "observed_hole_tilt_deg",
+                                               "observed_hole_tilt_dir_deg"})
 """Perturbation keys of the cell's imperfections (envs.perturbation), written only where set: what one side of a
 paired comparison of an imperfection adds, not what the pairs must share."""
 
