@@ -43,6 +43,10 @@ def test_the_parts_add_up_to_the_period_and_the_episodes_are_unchanged(setup):
     assert all(p > 0.0 for p in parts)  # every part was called every period
     assert profile["other"] >= 0.0 and profile["total"] == pytest.approx(sum(parts) + profile["other"])
     assert profile["reset_ms"] > 0.0
+    compiled = profile["compiled"]
+    assert all(v > 0.0 for v in compiled.values()), compiled  # every kernel found where its caller looks it up
+    assert compiled["physics_law_and_sensing"] < profile["control_and_sensing"]
+    assert compiled["nullspace_ik"] < profile["nullspace_ik"] and compiled["feedforward_lead"] < profile["feedforward_lead"]
     assert _records(env, policy, starts, config) == plain  # profiling changed nothing, and nothing stayed wrapped
     for _, owner, name in PARTS:
         if owner == "episode":
@@ -51,3 +55,8 @@ def test_the_parts_add_up_to_the_period_and_the_episodes_are_unchanged(setup):
         obj = {"env": env, "policy": policy, "nullspace": env.nullspace}[owner]
         assert name not in vars(obj)
     assert "reset" not in vars(env)
+    import importlib
+
+    from envs.execution.profile import COMPILED
+    for _, module, names in COMPILED:  # the kernels themselves again, not their timers
+        assert all(hasattr(getattr(importlib.import_module(module), name), "py_func") for name in names)

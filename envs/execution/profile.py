@@ -8,10 +8,14 @@ feed-forward lead, a function of the episode loop (``envs.execution.episode.led_
 put back after the profile, so profile one episode loop at a time). "other" is the rest of the loop (validation, the action's stiffness,
 the policy's observation, bookkeeping). The episode's reset (start pose, grasp settling) is timed apart and left out
 of the periods. A wrapper adds ~0.3 us per call, a few us per period.
+
+Apart from the parts, the compiled kernels are timed on their own (COMPILED, wrapped where their callers look them
+up): the work a period cannot shed by moving Python into compiled code, its floor.
 """
 
 from __future__ import annotations
 
+import importlib
 import time
 from typing import Any, Callable, Sequence
 
@@ -28,6 +32,19 @@ PARTS: tuple[tuple[str, str, str], ...] = (
 )
 """(part, owner, method): the owner is the environment, the policy, the environment's nullspace, or the episode
 loop's module (envs.execution.episode)."""
+
+COMPILED: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("physics_law_and_sensing", "envs.env", ("controlled_period",)),
+    ("flow", "rflow.flow_kernel", ("chart_flow_steps", "flow_step")),
+    ("nullspace_ik", "controllers.ik_kernel", ("ik_iterations",)),
+    ("feedforward_lead", "envs.execution.feedforward_kernel", ("led_pose_into",)),
+    ("contact_adaptation", "envs.execution.closed_loop_kernel",
+     ("query_into", "action_into", "sense_into", "offset_into", "near_goal", "update_translation", "update_rotation")),
+    ("observation", "envs.observation_kernel", ("read_sites_into",)),
+    ("success", "envs.success", ("assess_tip",)),
+)
+"""(part, module, functions): the compiled kernels of a control period, each timed where its caller looks it up (the
+module attribute its caller reads)."""
 
 
 class _Timers:
@@ -60,18 +77,24 @@ class _Timers:
         return wrapper
 
 
-def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_gain: float = 1.0) -> dict[str, float]:
+def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_gain: float = 1.0) -> dict[str, Any]:
     """Run the episodes of ``starts`` and split their control periods' wall time into PARTS.
 
     Returns:
-        {part: us per period} for every part, "other" and "total" (per period, resets excluded), "reset_ms" (per
-        episode) and "periods" (the number timed).
+        {part: us per period} for every part, "other" and "total" (per period, resets excluded), "compiled" ({part
+        of COMPILED: us per period}, inside the parts), "reset_ms" (per episode) and "periods" (the number timed).
     """
     owners = {"env": env, "policy": policy, "nullspace": env.nullspace, "episode": episode}
     timers = _Timers()
     originals = {(owner, name): getattr(owners[owner], name) for _, owner, name in PARTS}
     for part, owner, name in PARTS:
         setattr(owners[owner], name, timers.part(originals[(owner, name)], part))
+    kernels = {(module, name): getattr(importlib.import_module(module), name)
+               for _, module, names in COMPILED for name in names}
+    for part, module, names in COMPILED:
+        timers.totals["compiled." + part] = 0
+        for name in names:
+            setattr(importlib.import_module(module), name, timers.part(kernels[(module, name)], "compiled." + part))
     env.reset = timers.reset(env.reset)
     periods, wall = 0, 0
     try:
@@ -81,6 +104,8 @@ def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_ga
             wall += time.perf_counter_ns() - begin
             periods += record.steps
     finally:
+        for (module, name), kernel in kernels.items():
+            setattr(importlib.import_module(module), name, kernel)
         for _, owner, name in PARTS:
             if owner == "episode":
                 setattr(episode, name, originals[(owner, name)])  # the module's function again
@@ -91,6 +116,7 @@ def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_ga
     out = {part: timers.totals[part] * scale for part, _, _ in PARTS}
     out["total"] = (wall - timers.reset_ns) * scale
     out["other"] = out["total"] - sum(out[part] for part, _, _ in PARTS)
+    out["compiled"] = {part: timers.totals["compiled." + part] * scale for part, _, _ in COMPILED}
     out["reset_ms"] = timers.reset_ns * 1e-6 / max(len(starts), 1)
     out["periods"] = float(periods)
     return out
