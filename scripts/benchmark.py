@@ -2,7 +2,7 @@
 distribution over demo seeds (envs/execution/protocol.py says what is randomised and which intervals it reports).
 
     pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/ [--shape square] [--task NAME|FILE.toml]
-        [task options] [--workers 2]
+        [task options] [--workers 2] [--no-contact-adaptation | --adaptation-off PARTS] [--follow-observed-hole]
 
 Writes bench/protocol.json (what runs, the task among it), bench/seed-<s>/ (demos.npz, model/, eval.json and its
 journal), bench/benchmark.json (per-seed and pooled rates, between-seed interval, beta-binomial fit) and bench/benchmark.png.
@@ -53,6 +53,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="record each replicate's demos as a real cell would (`pih demos --noise`, e.g. 'realistic'); "
                           "the hole is then placed at the demos' mean goal")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
+    skill = parser.add_argument_group("skill (as `pih evaluate`'s)")
+    ablation = skill.add_mutually_exclusive_group()
+    ablation.add_argument("--no-contact-adaptation", action="store_true",
+                          help="evaluate the bare learned flow, without the contact adaptation (the ablation)")
+    ablation.add_argument("--adaptation-off", metavar="PARTS",
+                          help="turn these parts of the contact adaptation off, comma-separated, of push, frame, "
+                               "compliance, search, seat")
+    skill.add_argument("--follow-observed-hole", action="store_true",
+                       help="run the skill in the frame of the hole the cell observes (e.g. with --hole-observation "
+                            "measured)")
     out = parser.add_argument_group("output")
     out.add_argument("--out", type=Path, required=True, help="protocol folder (new, or one to continue)")
     add_start_arguments(run)
@@ -75,8 +85,13 @@ def protocol_from_args(args: argparse.Namespace) -> ProtocolConfig:
         raise EnvError(f"--episodes {args.episodes}: must be 1..{MAX_EPISODES}")
     if args.workers < 1:
         raise EnvError(f"--workers {args.workers}: must be >= 1")
+    from scripts.evaluate import adaptation_parts
+
     evaluation = EvaluationConfig(episodes=args.episodes, task=task.override(shape=task.shape or "square"),
-                                  hole_at_goal=args.demo_noise is not None)
+                                  hole_at_goal=args.demo_noise is not None,
+                                  contact_adaptation=not args.no_contact_adaptation,
+                                  adaptation_off=adaptation_parts(args.adaptation_off),
+                                  follow_observed_hole=args.follow_observed_hole)
     return ProtocolConfig(demo_seeds=seeds, start_seed_offset=args.start_seed_offset, num_demos=args.demos,
                           epochs=args.epochs, evaluation=evaluation, demo_noise=args.demo_noise)
 
@@ -92,6 +107,18 @@ def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
     return to_jsonable({"command": "pih benchmark", **noise, "demo_seeds": list(config.demo_seeds),
                         "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "epochs": config.epochs,
                         "task": config.task.to_dict(), "evaluation": evaluation})
+
+
+def _add_later_defaults(earlier: dict[str, Any], record: dict[str, Any]) -> None:
+    """Fill in the evaluation settings that a protocol.json of an earlier pih lacks with their defaults (an option
+    added since, e.g. follow_observed_hole, changes nothing at its default), so its folder can be continued."""
+    from envs.execution.evaluate import EvaluationConfig
+
+    evaluation, defaults = earlier.get("evaluation"), json.loads(json.dumps(EvaluationConfig().settings()))
+    if isinstance(evaluation, dict):
+        for key in record["evaluation"]:
+            if key not in evaluation and key in defaults:
+                evaluation[key] = defaults[key]
 
 
 def prepare_folder(out: Path, record: dict[str, Any]) -> None:
@@ -112,6 +139,7 @@ def prepare_folder(out: Path, record: dict[str, Any]) -> None:
                 raise EnvError(f"--out {out}: unreadable {PROTOCOL_FILE} ({err})") from None
             if isinstance(earlier, dict):
                 earlier.pop(MARKER_KEY, None)  # which pih version wrote it does not decide the results
+                _add_later_defaults(earlier, record)
             if earlier != json.loads(json.dumps(record)):
                 raise EnvError(f"--out {out} holds a protocol with other settings: choose another --out")
             return

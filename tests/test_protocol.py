@@ -79,6 +79,7 @@ def test_a_replicate_that_could_not_run_makes_the_protocol_incomplete():
     (["--episodes", "0"], "--episodes 0"),
     (["--shape", "star"], "shape='star' is unknown"),
     (["--demo-seeds", "0,1000"], "equal demo seeds"),
+    (["--adaptation-off", "push,blob"], "--adaptation-off 'push,blob'"),
 ])
 def test_benchmark_refuses_bad_options_before_any_work(tmp_path, capsys, argv, message):
     out = tmp_path / "bench"
@@ -97,3 +98,23 @@ def test_benchmark_refuses_to_continue_a_protocol_with_other_settings(tmp_path, 
     (tmp_path / "protocol.json").write_text(json.dumps({"command": "pih benchmark", "demo_seeds": [7]}))
     assert main(["benchmark", "--out", str(tmp_path), "--episodes", "1"]) == 2
     assert "other settings" in capsys.readouterr().err
+
+
+def test_a_protocol_of_an_earlier_pih_continues_while_an_option_added_since_is_at_its_default(tmp_path):
+    """protocol.json of before --follow-observed-hole lacks the setting: at its default (off) the folder continues,
+    on it is another protocol."""
+    from envs.errors import EnvError
+    from scripts.benchmark import prepare_folder, protocol_from_args, protocol_record
+    from scripts.cli import build_parser
+
+    def record(*argv: str) -> dict:
+        args = build_parser("benchmark").parse_args(["benchmark", "--out", str(tmp_path), *argv])
+        return protocol_record(protocol_from_args(args))
+
+    earlier = record("--no-contact-adaptation")
+    assert earlier["evaluation"]["contact_adaptation"] is False
+    del earlier["evaluation"]["follow_observed_hole"]
+    (tmp_path / "protocol.json").write_text(json.dumps(earlier))
+    prepare_folder(tmp_path, record("--no-contact-adaptation"))
+    with pytest.raises(EnvError, match="other settings"):
+        prepare_folder(tmp_path, record("--no-contact-adaptation", "--follow-observed-hole"))
