@@ -30,6 +30,7 @@ from envs.execution.protocol import (
     summarise,
     summary_lines,
 )
+from scripts.evaluate import add_adaptation_options
 from scripts.options import MAX_EPISODES
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
@@ -53,16 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="record each replicate's demos as a real cell would (`pih demos --noise`, e.g. 'realistic'); "
                           "the hole is then placed at the demos' mean goal")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
-    skill = parser.add_argument_group("skill (as `pih evaluate`'s)")
-    ablation = skill.add_mutually_exclusive_group()
-    ablation.add_argument("--no-contact-adaptation", action="store_true",
-                          help="evaluate the bare learned flow, without the contact adaptation (the ablation)")
-    ablation.add_argument("--adaptation-off", metavar="PARTS",
-                          help="turn these parts of the contact adaptation off, comma-separated, of push, frame, "
-                               "compliance, search, seat")
-    skill.add_argument("--follow-observed-hole", action="store_true",
-                       help="run the skill in the frame of the hole the cell observes (e.g. with --hole-observation "
-                            "measured)")
+    add_adaptation_options(parser.add_argument_group("skill (as `pih evaluate`'s)"))
     out = parser.add_argument_group("output")
     out.add_argument("--out", type=Path, required=True, help="protocol folder (new, or one to continue)")
     add_start_arguments(run)

@@ -112,16 +112,7 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
                             "'constant:K' (K I, K > 0 in N/m) or 'schedule[:FREE/LATERAL/AXIAL]' (closed loop: the "
                             "expert's schedule, N/m, at the measured height above the nominal hole) (default: the "
                             "controller's)")
-    ablation = skill.add_mutually_exclusive_group()  # all parts off, or some: not both
-    ablation.add_argument("--no-contact-adaptation", action="store_true",
-                       help="closed loop: run the bare learned flow, without the axial push, frame shift and "
-                            "rotational compliance near the hole (envs/execution/adaptation.py; the ablation)")
-    ablation.add_argument("--adaptation-off", metavar="PARTS",
-                       help="closed loop: turn these parts of the contact adaptation off, comma-separated, of push, "
-                            "frame, compliance, search, seat (the ablation of each; default: none)")
-    skill.add_argument("--follow-observed-hole", action="store_true",
-                       help="run the skill in the frame of the hole the cell observes (the task's hole observation, "
-                            "e.g. --hole-observation measured) instead of where the demonstrations' hole was")
+    add_adaptation_options(skill)
     run.add_argument("--seed", type=seed, default=d.seed, help="seed of the start poses, 0..2**32-1")
     add_start_arguments(run)  # the task's start range and time limit
     run.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel processes")
@@ -139,6 +130,21 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
                                       "them)")
     task.add_argument("--hole-at-goal", action="store_true",
                       help="place the target hole at the demos' goal pose (demos recorded elsewhere)")
+
+
+def add_adaptation_options(skill: Any) -> None:
+    """--no-contact-adaptation or --adaptation-off (not both) and --follow-observed-hole, into ``skill`` (a group of
+    `pih evaluate`, `pih compare --sequential` and `pih benchmark`)."""
+    ablation = skill.add_mutually_exclusive_group()  # all parts off, or some: not both
+    ablation.add_argument("--no-contact-adaptation", action="store_true",
+                          help="closed loop: run the bare learned flow, without the axial push, frame shift and "
+                               "rotational compliance near the hole (envs/execution/adaptation.py; the ablation)")
+    ablation.add_argument("--adaptation-off", metavar="PARTS",
+                          help="closed loop: turn these parts of the contact adaptation off, comma-separated, of push, "
+                               "frame, compliance, search, seat (the ablation of each; default: none)")
+    skill.add_argument("--follow-observed-hole", action="store_true",
+                       help="run the skill in the frame of the hole the cell observes (the task's hole observation, "
+                            "e.g. --hole-observation measured) instead of where the demonstrations' hole was")
 
 
 def adaptation_parts(text: str | None) -> tuple[str, ...]:
