@@ -101,18 +101,6 @@ def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
                         "task": config.task.to_dict(), "evaluation": evaluation})
 
 
-def _add_later_defaults(earlier: dict[str, Any], record: dict[str, Any]) -> None:
-    """Fill in the evaluation settings that a protocol.json of an earlier pih lacks with their defaults (an option
-    added since, e.g. follow_observed_hole, changes nothing at its default), so its folder can be continued."""
-    from envs.execution.evaluate import EvaluationConfig
-
-    evaluation, defaults = earlier.get("evaluation"), json.loads(json.dumps(EvaluationConfig().settings()))
-    if isinstance(evaluation, dict):
-        for key in record["evaluation"]:
-            if key not in evaluation and key in defaults:
-                evaluation[key] = defaults[key]
-
-
 def prepare_folder(out: Path, record: dict[str, Any]) -> None:
     """A new protocol folder, or the folder of the same protocol to continue.
 
@@ -131,7 +119,6 @@ def prepare_folder(out: Path, record: dict[str, Any]) -> None:
                 raise EnvError(f"--out {out}: unreadable {PROTOCOL_FILE} ({err})") from None
             if isinstance(earlier, dict):
                 earlier.pop(MARKER_KEY, None)  # which pih version wrote it does not decide the results
-                _add_later_defaults(earlier, record)
             if earlier != json.loads(json.dumps(record)):
                 raise EnvError(f"--out {out} holds a protocol with other settings: choose another --out")
             return

@@ -99,22 +99,3 @@ def test_benchmark_refuses_to_continue_a_protocol_with_other_settings(tmp_path, 
     assert main(["benchmark", "--out", str(tmp_path), "--episodes", "1"]) == 2
     assert "other settings" in capsys.readouterr().err
 
-
-def test_a_protocol_of_an_earlier_pih_continues_while_an_option_added_since_is_at_its_default(tmp_path):
-    """protocol.json of before --follow-observed-hole lacks the setting: at its default (off) the folder continues,
-    on it is another protocol."""
-    from envs.errors import EnvError
-    from scripts.benchmark import prepare_folder, protocol_from_args, protocol_record
-    from scripts.cli import build_parser
-
-    def record(*argv: str) -> dict:
-        args = build_parser("benchmark").parse_args(["benchmark", "--out", str(tmp_path), *argv])
-        return protocol_record(protocol_from_args(args))
-
-    earlier = record("--no-contact-adaptation")
-    assert earlier["evaluation"]["contact_adaptation"] is False
-    del earlier["evaluation"]["follow_observed_hole"]
-    (tmp_path / "protocol.json").write_text(json.dumps(earlier))
-    prepare_folder(tmp_path, record("--no-contact-adaptation"))
-    with pytest.raises(EnvError, match="other settings"):
-        prepare_folder(tmp_path, record("--no-contact-adaptation", "--follow-observed-hole"))

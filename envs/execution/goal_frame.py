@@ -118,10 +118,10 @@ class GoalFramePolicy:
         """`act` of several policies of one ``batch_key``: the inner policies' ``act_many`` on their moved
         observations (each inner action moved back; an exception in a policy's place passes as it is)."""
         inner_class = type(policies[0].inner)
-        moved = [p.to_inner(o) for p, o in zip(policies, observations)]
         if not callable(getattr(inner_class, "act_many", None)):
             return [p.act(o) for p, o in zip(policies, observations)]
-        actions = inner_class.act_many([p.inner for p in policies], moved)
+        actions = inner_class.act_many([p.inner for p in policies],
+                                       [p.to_inner(o) for p, o in zip(policies, observations)])
         return [a if isinstance(a, Exception) else p.to_world(a) for p, a in zip(policies, actions)]
 
     def to_inner(self, observation: Observation) -> Observation:
