@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import torch
 from torch import nn
+from torch.nn import functional
 
 from rflow.errors import RFlowError
 
 ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
+_FUNCTIONS = {"relu": torch.relu, "tanh": torch.tanh}  # what each ACTIVATIONS module computes
 
 
 def coupling_masks(dim: int, layers: int) -> torch.Tensor:
@@ -53,7 +55,10 @@ class AffineCoupling(nn.Module):
         if not log_scale_clamp > 0:
             raise RFlowError(f"log_scale_clamp {log_scale_clamp} must be > 0")
         self.register_buffer("mask", mask.clone())
+        self.register_buffer("free", 1.0 - mask, persistent=False)  # the coordinates the layer moves
         self.log_scale_clamp = float(log_scale_clamp)
+        self._clamp_free: dict[tuple[torch.dtype, torch.device], torch.Tensor] = {}  # c free, `scale_shift`
+        self.activation = activation
         act = ACTIVATIONS[activation]
         mods: list[nn.Module] = [nn.Linear(dim, width), act()]
         for _ in range(hidden_layers - 1):
@@ -65,12 +70,23 @@ class AffineCoupling(nn.Module):
         self.net = nn.Sequential(*mods)
 
     def scale_shift(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Log-scale s and shift t (both zero on the conditioner coordinates) from x_a."""
-        out = self.net(x * self.mask)
+        """Log-scale s and shift t (both zero on the conditioner coordinates) from x_a.
+
+        The MLP's layers are applied as functions of their parameters: the operations of calling the modules,
+        without a module call's Python per layer, which at these sizes is a large part of a training step."""
+        modules = self.net
+        activation = _FUNCTIONS[self.activation]
+        h = x * self.mask
+        for i in range(0, len(modules) - 1, 2):
+            h = activation(functional.linear(h, modules[i].weight, modules[i].bias))
+        out = functional.linear(h, modules[-1].weight, modules[-1].bias)
         raw, shift = out.chunk(2, dim=-1)
-        free = 1.0 - self.mask
         c = self.log_scale_clamp
-        return c * torch.tanh(raw / c) * free, shift * free
+        clamp_free = self._clamp_free.get((x.dtype, x.device))
+        if clamp_free is None:  # c rounded to x's dtype, as a Python float times a tensor is
+            clamp_free = self._clamp_free[(x.dtype, x.device)] = self.free.to(x.dtype) * c
+        # tanh(raw / c) * (c free) = c tanh(raw / c) free bit for bit: free is 0 or 1
+        return torch.tanh(raw / c) * clamp_free, shift * self.free
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """y = x * exp(s) + t; returns (y, log|det dy/dx|)."""
@@ -80,7 +96,8 @@ class AffineCoupling(nn.Module):
     def inverse(self, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """x = (y - t) * exp(-s); returns (x, log|det dx/dy|)."""
         s, t = self.scale_shift(y)
-        return (y - t) * torch.exp(-s), -s.sum(-1)
+        minus_s = -s  # sum(-s) = -sum(s) exactly (rounding is symmetric), one negation for both
+        return (y - t) * torch.exp(minus_s), minus_s.sum(-1)
 
 
 class CouplingFlow(nn.Module):
@@ -121,17 +138,17 @@ class CouplingFlow(nn.Module):
     def forward(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """p = b(q) for latent points (..., D); returns (p, log|det dp/dq|)."""
         self._check(q, "latent state")
-        logdet = q.new_zeros(q.shape[:-1])
+        logdet = None
         for layer in self.layers:
             q, ld = layer(q)
-            logdet = logdet + ld
+            logdet = ld if logdet is None else logdet + ld  # 0 + ld = ld: no zeros to start from
         return q, logdet
 
     def inverse(self, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """q = b^-1(p) for observations (..., D); returns (q, log|det dq/dp|)."""
         self._check(p, "observation")
-        logdet = p.new_zeros(p.shape[:-1])
+        logdet = None
         for layer in reversed(self.layers):
             p, ld = layer.inverse(p)
-            logdet = logdet + ld
+            logdet = ld if logdet is None else logdet + ld
         return p, logdet

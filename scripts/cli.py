@@ -9,8 +9,12 @@ input (a bad option value, a bad file, an output that may not be written: the pr
 from __future__ import annotations
 
 import argparse
+import atexit
+import ctypes
 import importlib
+import os
 import sys
+import threading
 from typing import NoReturn, Sequence
 
 import rflow  # noqa: F401  first: pins the CPU dispatch of torch, MKL and numpy (rflow.cpu_dispatch) before they load
@@ -140,5 +144,38 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
 
 
+def run() -> NoReturn:
+    """The `pih` console script: `main`, then the process ends without the interpreter's teardown.
+
+    Tearing down a process that has loaded torch (freeing its modules, libtorch's static destructors) takes about
+    half a second, and no result depends on it: every output is written, closed and renamed before `main`
+    returns. So when no other non-daemon thread runs (one that the normal exit would wait for), the standard
+    streams are flushed, the atexit handlers run (multiprocessing reaps its children, logging flushes), C's stdio
+    is flushed (a native library's output) and the process ends with ``os._exit``. An exception out of `main`
+    and a live non-daemon thread take the interpreter's normal exit.
+    """
+    status = main()
+    others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
+    if others:
+        sys.exit(status)
+    _flush_streams()
+    atexit._run_exitfuncs()  # what the normal exit would run; the handlers' errors are printed, not raised
+    _flush_streams()
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):  # no C library to flush
+        pass
+    os._exit(status)
+
+
+def _flush_streams() -> None:
+    """Flush stdout and stderr; a reader that went away (a closed pipe) loses what it did not read."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

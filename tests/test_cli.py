@@ -1,5 +1,6 @@
 """scripts.cli: `pih` lists every subcommand but imports only the one it runs, so a command starts without
-loading the others' dependencies (torch, Optuna, Ray, ...)."""
+loading the others' dependencies (torch, Optuna, Ray, ...); the console script ends without the interpreter's
+teardown, losing nothing."""
 
 from __future__ import annotations
 
@@ -68,3 +69,37 @@ def test_the_chosen_command_is_the_first_word_that_is_not_an_option(argv, comman
 def test_a_command_still_gets_its_own_options():
     args = build_parser("evaluate").parse_args(["evaluate", "--model", "m", "--episodes", "3"])
     assert args.command == "evaluate" and args.episodes == 3 and callable(args._main)
+
+
+def run_console_script(main_body: str) -> subprocess.CompletedProcess:
+    """`scripts.cli.run` in a fresh interpreter, its `main` replaced by ``main_body`` (a function body returning the
+    status), with an atexit handler of the caller's; stdout and stderr are pipes (block-buffered)."""
+    body = "\n".join("    " + line for line in main_body.splitlines())
+    code = ("import atexit, sys, threading, time\nimport scripts.cli as cli\n"
+            "atexit.register(lambda: print('atexit handler ran'))\n"
+            f"def fake_main():\n{body}\n"
+            "cli.main = fake_main\ncli.run()\n")
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("status", [0, 2])
+def test_the_console_script_flushes_runs_atexit_and_keeps_the_status(status):
+    """What `main` printed reaches the pipes, the atexit handlers run after it, the status is `main`'s (os._exit
+    without atexit._run_exitfuncs loses the handler's line)."""
+    done = run_console_script(f"print('result ' * 2000)\nprint('one line', file=sys.stderr)\nreturn {status}")
+    assert done.returncode == status
+    assert done.stdout == "result " * 2000 + "\n" + "atexit handler ran\n"
+    assert done.stderr == "one line\n"
+
+
+def test_the_console_script_waits_for_a_running_thread():
+    """A non-daemon thread still working when `main` returns finishes, as the interpreter's exit would let it."""
+    done = run_console_script("threading.Thread(target=lambda: (time.sleep(0.3), print('thread done'))).start()\n"
+                              "return 0")
+    assert done.returncode == 0
+    assert done.stdout.splitlines() == ["thread done", "atexit handler ran"]
+
+
+def test_the_console_script_is_run():
+    """pyproject's `pih` is `run` (the prompt exit), not `main`."""
+    assert 'pih = "scripts.cli:run"' in (ROOT / "pyproject.toml").read_text()

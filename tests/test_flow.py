@@ -62,3 +62,39 @@ def test_one_dimension_is_rejected():
 def test_wrong_input_width_is_rejected():
     with pytest.raises(RFlowError, match="expected"):
         CouplingFlow(3)(torch.zeros(4, 2))
+
+
+def _module_scale_shift(layer, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The layer's log-scale and shift as its modules compute them (calling ``net``), the definition
+    `AffineCoupling.scale_shift` must equal."""
+    raw, shift = layer.net(x * layer.mask).chunk(2, dim=-1)
+    free = 1.0 - layer.mask
+    c = layer.log_scale_clamp
+    return c * torch.tanh(raw / c) * free, shift * free
+
+
+@pytest.mark.parametrize("activation", ["relu", "tanh"])
+@pytest.mark.parametrize("hidden_layers", [1, 2])
+@pytest.mark.parametrize("clamp", [0.5, 0.7])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_scale_shift_equals_the_modules_bit_for_bit(activation, hidden_layers, clamp, dtype):
+    """The functional pass (no module calls, c free cached per dtype) is the modules' arithmetic, bit for bit, in
+    both dtypes and for a clamp that float32 cannot hold (0.7), after the module changed dtype; and so are the
+    layer's inverse and its log-determinant. A wrong layer index, a missed hidden layer or a clamp cached in
+    the first dtype only would differ."""
+    torch.manual_seed(3)
+    flow = CouplingFlow(3, layers=2, width=16, hidden_layers=hidden_layers, activation=activation,
+                        log_scale_clamp=clamp)
+    with torch.no_grad():
+        for p in flow.parameters():
+            p.normal_(0.0, 0.8)  # not the identity
+    x = torch.randn(50, 3, dtype=torch.float32)
+    flow.layers[0].scale_shift(x)  # cache the float32 clamp first
+    flow.to(dtype)
+    x = x.to(dtype)
+    for layer in flow.layers:
+        s, t = layer.scale_shift(x)
+        s_ref, t_ref = _module_scale_shift(layer, x)
+        assert torch.equal(s, s_ref) and torch.equal(t, t_ref)
+        y, ld = layer.inverse(x)
+        assert torch.equal(y, (x - t_ref) * torch.exp(-s_ref)) and torch.equal(ld, -s_ref.sum(-1))
