@@ -151,12 +151,13 @@ def run() -> NoReturn:
     half a second, and no result depends on it: every output is written, closed and renamed before `main`
     returns. So when no other non-daemon thread runs (one that the normal exit would wait for), the standard
     streams are flushed, the atexit handlers run (multiprocessing reaps its children, logging flushes), C's stdio
-    is flushed (a native library's output) and the process ends with ``os._exit``. An exception out of `main`
-    and a live non-daemon thread take the interpreter's normal exit.
+    is flushed (a native library's output) and the process ends with ``os._exit``. An exception out of `main`, a
+    live non-daemon thread and a profiler or tracer watching the process (cProfile, coverage, a debugger: they
+    write their results after the program returns) take the interpreter's normal exit.
     """
     status = main()
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
-    if others:
+    if others or sys.getprofile() is not None or sys.gettrace() is not None:
         sys.exit(status)
     _flush_streams()
     atexit._run_exitfuncs()  # what the normal exit would run; the handlers' errors are printed, not raised

@@ -71,11 +71,12 @@ def test_a_command_still_gets_its_own_options():
     assert args.command == "evaluate" and args.episodes == 3 and callable(args._main)
 
 
-def run_console_script(main_body: str) -> subprocess.CompletedProcess:
+def run_console_script(main_body: str, before: str = "") -> subprocess.CompletedProcess:
     """`scripts.cli.run` in a fresh interpreter, its `main` replaced by ``main_body`` (a function body returning the
-    status), with an atexit handler of the caller's; stdout and stderr are pipes (block-buffered)."""
+    status), with an atexit handler of the caller's and ``before`` run first; stdout and stderr are pipes
+    (block-buffered)."""
     body = "\n".join("    " + line for line in main_body.splitlines())
-    code = ("import atexit, sys, threading, time\nimport scripts.cli as cli\n"
+    code = (f"import atexit, sys, threading, time\n{before}\nimport scripts.cli as cli\n"
             "atexit.register(lambda: print('atexit handler ran'))\n"
             f"def fake_main():\n{body}\n"
             "cli.main = fake_main\ncli.run()\n")
@@ -103,3 +104,29 @@ def test_the_console_script_waits_for_a_running_thread():
 def test_the_console_script_is_run():
     """pyproject's `pih` is `run` (the prompt exit), not `main`."""
     assert 'pih = "scripts.cli:run"' in (ROOT / "pyproject.toml").read_text()
+
+
+FINALIZED = ("import os\n"
+             "class Finalized:\n"
+             "    def __del__(self, write=os.write):\n"
+             "        write(1, b'finalized\\n')\n"
+             "KEEP = Finalized()")
+"""A module global whose destructor writes to stdout's file descriptor (sys.stdout and the module's globals may be
+gone by then, so the write is bound as a default): it runs in the interpreter's teardown only."""
+
+
+def test_the_console_script_skips_the_teardown():
+    """The fast exit is taken: a module global's destructor, which only the interpreter's teardown would run, does
+    not print."""
+    done = run_console_script("return 0", before=FINALIZED)
+    assert done.returncode == 0
+    assert done.stdout.splitlines() == ["atexit handler ran"]
+
+
+@pytest.mark.parametrize("watcher", ["sys.settrace(lambda *a: None)", "sys.setprofile(lambda *a: None)"])
+def test_a_profiler_or_tracer_gets_the_normal_exit(watcher):
+    """With a tracer (coverage, a debugger) or a profiler (cProfile) watching, the interpreter exits normally, so
+    the watcher can write its results after the program: the teardown runs the global's destructor."""
+    done = run_console_script("return 3", before=f"{FINALIZED}\n{watcher}")
+    assert done.returncode == 3
+    assert done.stdout.splitlines() == ["atexit handler ran", "finalized"]
