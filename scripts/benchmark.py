@@ -30,7 +30,7 @@ from envs.execution.protocol import (
     summarise,
     summary_lines,
 )
-from scripts.evaluate import add_adaptation_options
+from scripts.evaluate import adaptation_parts, add_adaptation_options
 from scripts.options import MAX_EPISODES
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
@@ -77,8 +77,6 @@ def protocol_from_args(args: argparse.Namespace) -> ProtocolConfig:
         raise EnvError(f"--episodes {args.episodes}: must be 1..{MAX_EPISODES}")
     if args.workers < 1:
         raise EnvError(f"--workers {args.workers}: must be >= 1")
-    from scripts.evaluate import adaptation_parts
-
     evaluation = EvaluationConfig(episodes=args.episodes, task=task.override(shape=task.shape or "square"),
                                   hole_at_goal=args.demo_noise is not None,
                                   contact_adaptation=not args.no_contact_adaptation,
