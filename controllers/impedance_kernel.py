@@ -213,6 +213,16 @@ def pose_error_into(pos: np.ndarray, quat: np.ndarray, site_pos: np.ndarray, sit
 
 
 @_jit
+def impedance_factors(jac: np.ndarray, jac_minv: np.ndarray, stiffness: np.ndarray, params: np.ndarray,
+                      work: np.ndarray, vec: np.ndarray) -> bool:
+    """The law's state-dependent factors: Lambda^-1 = J M^-1 J^T + eps I into work[3], and its modal factors P
+    (work[4]) and w (vec[0]) with Lambda = P P^T, K = P diag(w) P^T; False when Lambda^-1 is not positive definite.
+    (Arguments as in `impedance_torque`.)"""
+    inertia_inverse_into(jac, jac_minv, params[0], work[3])
+    return modal_factors_into(work[3], stiffness, work[4], vec[0], work)
+
+
+@_jit
 def impedance_torque(
     jac: np.ndarray,
     jac_minv: np.ndarray,
@@ -245,15 +255,27 @@ def impedance_torque(
     Returns:
         STATUS_OK, or STATUS_NOT_POSITIVE_DEFINITE (nothing written).
     """
+    if not impedance_factors(jac, jac_minv, stiffness, params, work, vec):
+        return STATUS_NOT_POSITIVE_DEFINITE
+    factored_torque(jac, jac_minv, qpos, qvel, qfrc_bias, site_pos, site_mat, target, stiffness, params, last_tau,
+                    ctrl, work, vec)
+    return STATUS_OK
+
+
+@_jit
+def factored_torque(jac: np.ndarray, jac_minv: np.ndarray, qpos: np.ndarray, qvel: np.ndarray,
+                    qfrc_bias: np.ndarray, site_pos: np.ndarray, site_mat: np.ndarray, target: np.ndarray,
+                    stiffness: np.ndarray, params: np.ndarray, last_tau: np.ndarray, ctrl: np.ndarray,
+                    work: np.ndarray, vec: np.ndarray) -> None:
+    """The law from the factors `impedance_factors` left in work[4] (P) and vec[0] (w): the pose error, the
+    posture torque, the modal damping, the nullspace and the limits (module docstring); into last_tau and ctrl.
+    (Arguments as in `impedance_torque`.)"""
     n = last_tau.shape[0]
     nv = jac.shape[1]
     dof0 = int(params[5])
-    lambda_inv, p = work[3], work[4]  # vec rows: 0 w, 1 error, 2 twist, 3 null x, 4 modal, 5 wrench
+    p = work[4]  # vec rows: 0 w, 1 error, 2 twist, 3 null x, 4 modal, 5 wrench
     tau0 = vec[6]
     quat_scratch = vec[7]
-    inertia_inverse_into(jac, jac_minv, params[0], lambda_inv)
-    if not modal_factors_into(lambda_inv, stiffness, p, vec[0], work):
-        return STATUS_NOT_POSITIVE_DEFINITE
     pose_error_into(target[0:3], target[3:7], site_pos, site_mat, vec[1], quat_scratch)
     use_ref = target[7 + n] != 0.0
     for i in range(n):  # posture torque tau_0 = K_n (q_ref - q) - D_n qdot
@@ -293,7 +315,6 @@ def impedance_torque(
         t = min(max(t, -limit), limit)
         last_tau[i] = t
         ctrl[i] = t
-    return STATUS_OK
 
 
 TOOL_ENABLED, TOOL_DEPTH, TOOL_BODY, TOOL_WEIGHT = 0, 1, 2, 3

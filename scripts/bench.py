@@ -79,6 +79,9 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
     "ratio_floor_compiled_work" is that bare physics over all the compiled kernels of a period ("compiled_us", each
     timed alone: the physics with the law and sensing, the flow, the IK, the lead, the contact adaptation, the
     observation's reads, the success check): the ratio that no compiling of the remaining Python could beat.
+    "law_floor_us" times, from every period's state, bare physics, the period under the law of record and under two
+    cheaper laws (controllers.law_floor), and the period of record with its sensing; the "ratio_floor_*_law" keys are
+    that floor if the law were one of them (`law_floor_ratios`).
     Without: 100 steps toward a fixed target 2 cm below the start (no flow), per repeat.
     """
     if model is None:
@@ -99,7 +102,7 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         from envs.execution.episode import run_episode
         from envs.execution.evaluate import EvaluationConfig, build_setup
         from envs.execution.starts import evaluation_starts
-        from envs.execution.profile import profile_periods
+        from envs.execution.profile import law_floor_periods, profile_periods
 
         config = EvaluationConfig(episodes=2 if quick else 5)
         skill, env, policy = build_setup(model, config)
@@ -120,6 +123,7 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         profile = profile_periods(env, policy, starts, config.feedforward_gain)
         compiled = profile.pop("compiled")
         profile["physics"] = 1e6 * substeps / bare  # inside control_and_sensing
+        law_floor = law_floor_periods(env, policy, starts, config.feedforward_gain)
         extra = {"flow_in_loop": True, "episodes": len(starts), "successes": successes,
                  "episode_physics_steps_per_s": bare,
                  "physics_realtime_factor": bare * float(env.model.opt.timestep),
@@ -127,9 +131,25 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
                  "ratio_ceiling_without_python": profile["physics"] / profile["control_and_sensing"],
                  "ratio_floor_compiled_work": profile["physics"] / sum(compiled.values()),
                  "period_us": {key: round(value, 1) for key, value in profile.items()},
-                 "compiled_us": {key: round(value, 1) for key, value in compiled.items()}}
+                 "compiled_us": {key: round(value, 1) for key, value in compiled.items()},
+                 **law_floor_ratios(law_floor, compiled)}
     return {"env_steps_per_s": median, "physics_steps_per_s": median * substeps,
             "realtime_factor": median * period, **extra}
+
+
+def law_floor_ratios(law_floor: dict[str, float], compiled: dict[str, float]) -> dict[str, Any]:
+    """The ratio to bare physics that no compiling of the remaining Python could beat, under the law of record and
+    under the cheaper laws of controllers.law_floor: bare physics over (the period under that law + the sensing +
+    every other compiled kernel of a period). The laws, the sensing (the period of record less its law) and the
+    physics are timed from the same states (`law_floor_periods`); the other kernels are `profile_periods`' of the
+    same episodes."""
+    sensing = law_floor["law_of_record_and_sensing"] - law_floor["law_of_record"]
+    others = sum(compiled.values()) - compiled["physics_law_and_sensing"]
+    physics = law_floor["physics"]
+    return {"law_floor_us": {key: round(value, 1) for key, value in law_floor.items()},
+            "ratio_floor_law_of_record": physics / (law_floor["law_of_record_and_sensing"] + others),
+            "ratio_floor_held_factors_law": physics / (law_floor["held_factors_law"] + sensing + others),
+            "ratio_floor_spring_damper_law": physics / (law_floor["spring_damper_law"] + sensing + others)}
 
 
 def episode_physics_rate(env: PegInHoleEnv, states: list[np.ndarray]) -> float:

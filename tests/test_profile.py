@@ -12,7 +12,7 @@ from envs.execution import episode, feedforward
 from envs.execution.episode import run_episode
 from envs.execution.evaluate import EvaluationConfig, build_setup
 from envs.execution.starts import evaluation_starts
-from envs.execution.profile import PARTS, profile_periods
+from envs.execution.profile import LAW_FLOOR_PARTS, PARTS, law_floor_periods, profile_periods
 from envs.task import Task
 from rflow.skill_io import save_skill
 from skill_fixtures import tiny_skill
@@ -60,3 +60,13 @@ def test_the_parts_add_up_to_the_period_and_the_episodes_are_unchanged(setup):
     from envs.execution.profile import COMPILED
     for _, module, names in COMPILED:  # the kernels themselves again, not their timers
         assert all(hasattr(getattr(importlib.import_module(module), name), "py_func") for name in names)
+
+
+def test_the_law_floor_times_every_part_and_leaves_the_episodes_unchanged(setup):
+    env, policy, starts, config = setup
+    plain = _records(env, policy, starts, config)
+    floor = law_floor_periods(env, policy, starts, config.feedforward_gain)
+    assert floor["periods"] == sum(json.loads(r)["steps"] for r in plain) - 1 > 0  # the first period is the load
+    assert all(floor[part] > 0.0 for part in LAW_FLOOR_PARTS)
+    assert "run_period" not in vars(env)
+    assert _records(env, policy, starts, config) == plain

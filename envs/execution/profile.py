@@ -19,8 +19,13 @@ import importlib
 import time
 from typing import Any, Callable, Sequence
 
+import mujoco
+import numpy as np
+
+from controllers.law_floor import LAW_HELD_FACTORS, LAW_OF_RECORD, LAW_SPRING_DAMPER, reference_period
 from envs.execution import episode
 from envs.execution.episode import run_episode
+from envs.period_kernel import controlled_period
 
 PARTS: tuple[tuple[str, str, str], ...] = (
     ("control_and_sensing", "env", "run_period"),
@@ -119,4 +124,69 @@ def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_ga
     out["compiled"] = {part: timers.totals["compiled." + part] * scale for part, _, _ in COMPILED}
     out["reset_ms"] = timers.reset_ns * 1e-6 / max(len(starts), 1)
     out["periods"] = float(periods)
+    return out
+
+
+LAW_FLOOR_PARTS: tuple[str, ...] = ("physics", "spring_damper_law", "held_factors_law", "law_of_record",
+                                    "law_of_record_and_sensing")
+"""What `law_floor_periods` times from every period's state: bare mj_step; the period under the cheaper laws of
+controllers.law_floor and under the law of record, without sensing; the compiled period of record (law and sensing,
+envs.period_kernel)."""
+
+
+def law_floor_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_gain: float = 1.0) -> dict[str, Any]:
+    """Time each LAW_FLOOR_PARTS from the state at the start of every control period of the episodes of ``starts``.
+
+    Before each period of record runs, its state (the whole MjData, whose kinematics the tool load reads before
+    mj_step1, and every writable buffer of the period's arguments) is saved; each part then runs from it, in an
+    order shuffled per period, and the state is restored after each, so all parts pay for the same contacts and the
+    episodes themselves run as they would unprofiled.
+    The first period is left out of the timings (the kernels' load).
+
+    Returns:
+        {part: us per period} and "periods" (the number timed).
+    """
+    model = env.model
+    saved_data = mujoco.MjData(model)
+    totals = dict.fromkeys(LAW_FLOOR_PARTS, 0)
+    seen = [0]
+    run_period = env.run_period
+    n = env.n_substeps
+    laws = {"spring_damper_law": LAW_SPRING_DAMPER, "held_factors_law": LAW_HELD_FACTORS,
+            "law_of_record": LAW_OF_RECORD}
+
+    def timed(period: Any) -> None:
+        args = period.arguments
+        if period.problem is None and args is not None:
+            data = env.data
+            mujoco.mj_copyData(saved_data, model, data)
+            saved = [(a, a.copy()) for a in args if isinstance(a, np.ndarray) and a.flags.writeable]
+            order = list(LAW_FLOOR_PARTS)
+            np.random.default_rng(seen[0]).shuffle(order)
+            for part in order:
+                begin = time.perf_counter_ns()
+                if part == "physics":
+                    for _ in range(n):
+                        mujoco.mj_step(model, data)
+                elif part == "law_of_record_and_sensing":
+                    controlled_period(n, *args)
+                else:
+                    reference_period(n, laws[part], *args[:23])
+                if seen[0] > 0:
+                    totals[part] += time.perf_counter_ns() - begin
+                mujoco.mj_copyData(data, model, saved_data)
+                for array, copy in saved:
+                    np.copyto(array, copy)
+            seen[0] += 1
+        run_period(period)
+
+    env.run_period = timed
+    try:
+        for start in starts:
+            run_episode(env, policy, start, feedforward_gain=feedforward_gain)
+    finally:
+        del env.run_period
+    periods = max(seen[0] - 1, 1)
+    out: dict[str, Any] = {part: totals[part] * 1e-3 / periods for part in LAW_FLOOR_PARTS}
+    out["periods"] = float(seen[0] - 1)
     return out
