@@ -19,6 +19,8 @@ this program's marker ``{"command": <the pih subcommand>, "version": <the packag
     rflow builds the folder beside its place and swaps it in itself, since rflow does not depend on envs);
   - dataset folders (`pih export`): the marker file pih_export.json (built in a staging folder and swapped in
     by envs.datasets.output, which also takes an empty folder);
+  - and both folders only while they hold nothing but the files they list, unchanged (pihutil.manifest's
+    .pih-files.json): a file somebody added or edited there keeps the whole folder from being replaced;
   - every other file (MP4, PNG, Markdown): an entry in the registry ".pih-outputs.json" of its folder (a
     marked JSON file) holding the file's SHA-256 as written. A file changed since, or not listed, is not ours.
     The registry is rewritten (atomically) after each such output; two commands writing registered files
@@ -234,9 +236,12 @@ def is_own_output(path: str | os.PathLike[str]) -> bool:
     if p.is_symlink():
         return False
     if p.is_dir():
-        from rflow.skill_io import is_checkpoint
+        from envs.datasets.output import export_strangers
+        from rflow.skill_io import checkpoint_strangers, is_checkpoint
 
-        return is_checkpoint(p) or (p / EXPORT_MARKER_FILE).is_file()
+        if is_checkpoint(p):
+            return not checkpoint_strangers(p)
+        return (p / EXPORT_MARKER_FILE).is_file() and not export_strangers(p)
     if not p.is_file():
         return False
     suffix = p.suffix.lower()

@@ -41,9 +41,10 @@ import numpy as np
 import numpy.typing as npt
 
 from pihutil.atomic import atomic_folder
+from pihutil.manifest import read_manifest, strangers, write_manifest
 from rflow.errors import RFlowError
 from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
-from rflow.model import RiemannianFlow, read_json
+from rflow.model import CONFIG_FILE, WEIGHTS_FILE, RiemannianFlow, read_json
 from rflow.small_linalg import eigh_sym
 from rflow.stiffness import StiffnessBounds, clip_eigenvalues, log_euclidean_mean
 
@@ -219,15 +220,38 @@ def is_checkpoint(path: str | os.PathLike[str]) -> bool:
     return isinstance(record, dict) and record.get("format") == SKILL_FORMAT
 
 
+LEGACY_EXTRAS: tuple[str, ...] = ("demos.npz", "loss.png")
+"""Files `pih train` wrote beside skill.json and the model folders before checkpoints listed their files."""
+
+
+def checkpoint_strangers(path: str | os.PathLike[str]) -> list[str]:
+    """What inside the checkpoint folder ``path`` `save_skill` did not write, or changed since (its file list,
+    pihutil.manifest; a checkpoint without one: anything but skill.json, the models' folders with their
+    model.json and weights.pt, and LEGACY_EXTRAS). [] when --overwrite may replace the folder."""
+    listed: Mapping[str, str | None] | None = read_manifest(path)
+    if listed is None:
+        try:
+            models = json.loads((Path(path) / SKILL_FILE).read_text()).get("models", [])
+        except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+            models = []
+        names = [SKILL_FILE, *LEGACY_EXTRAS]
+        for name in models if isinstance(models, list) else []:
+            if isinstance(name, str) and any(name in names_ for names_ in MODEL_DIRS.values()):
+                names += [f"{name}/{CONFIG_FILE}", f"{name}/{WEIGHTS_FILE}"]
+        listed = dict.fromkeys(names)
+    return strangers(path, listed)
+
+
 def check_checkpoint_target(directory: str | os.PathLike[str], overwrite: bool = False) -> Path:
     """Check that a checkpoint may be written at ``directory`` (call before any work).
 
-    Only a previous checkpoint (`is_checkpoint`) is ever replaced, and only with ``overwrite``; a plain file
-    or any other folder at ``directory`` is never touched.
+    Only a previous checkpoint (`is_checkpoint`) holding nothing but what `save_skill` wrote there
+    (`checkpoint_strangers`) is ever replaced, and only with ``overwrite``; a plain file, any other folder, or
+    a checkpoint somebody added files to or changed, is never touched.
 
     Raises:
         RFlowError: the parent folder is missing; something that is not a checkpoint is there; a checkpoint
-            is there and ``overwrite`` is False.
+            is there and ``overwrite`` is False; it holds files that are not the checkpoint's.
     """
     out = Path(directory)
     parent = out.parent if str(out.parent) else Path(".")
@@ -240,6 +264,11 @@ def check_checkpoint_target(directory: str | os.PathLike[str], overwrite: bool =
                              f"{SKILL_FORMAT!r}): not replacing it; choose another path")
         if not overwrite:
             raise RFlowError(f"checkpoint {out} already exists (use --overwrite to replace it)")
+        found = checkpoint_strangers(out)
+        if found:
+            shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
+            raise RFlowError(f"checkpoint {out} holds files it did not write or that changed since ({shown}): not "
+                             "replacing it; move them out or choose another path")
     return out
 
 
@@ -266,11 +295,12 @@ def save_skill(directory: str | os.PathLike[str], skill: PoseSkill,
     with atomic_folder(out, before_swap=lambda: check_checkpoint_target(out, overwrite)) as tmp:  # still ours
         for name in MODEL_DIRS[skill.layout]:
             skill.models[name].save(tmp / name)
+        for name, writer in (extra or {}).items():
+            writer(tmp / name)
         record = {"format": SKILL_FORMAT, "layout": skill.layout, "models": list(MODEL_DIRS[skill.layout]),
                   "metadata": skill.metadata, "training": skill.training}
         (tmp / SKILL_FILE).write_text(json.dumps(record, indent=2, allow_nan=True))
-        for name, writer in (extra or {}).items():
-            writer(tmp / name)
+        write_manifest(tmp)
     return out
 
 

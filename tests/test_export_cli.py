@@ -126,3 +126,25 @@ def test_evaluation_episodes_are_exported_from_their_replay(tmp_path: Path) -> N
     reader = imageio.get_reader(tmp_path / "le" / "videos" / "observation.images.front" / "chunk-000" / "file-000.mp4")
     assert reader.count_frames() == len(data["index"])
     reader.close()
+
+
+@pytest.mark.parametrize("change", ["added", "edited", "folder"])
+def test_overwrite_never_deletes_what_the_user_put_into_an_export(tmp_path: Path, demo_file: Path, change: str,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "ds"
+    args = ["export", "--demos", str(demo_file), "--format", "lerobot", "--out", str(out), "--overwrite"]
+    assert main(args) == 0
+    assert main(args) == 0  # an untouched export of ours is replaced
+    if change == "added":
+        (out / "notes.txt").write_text("mine")
+    elif change == "edited":
+        (out / "pih_export.json").write_text((out / "pih_export.json").read_text() + " ")
+    else:
+        (out / "mine").mkdir()
+        (out / "mine" / "f").write_text("x")
+    before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "did not write or that changed since" in err and len(err.strip().splitlines()) == 1
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before

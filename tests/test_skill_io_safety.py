@@ -75,3 +75,31 @@ def test_nan_weights_are_refused_naming_the_file(skill, tmp_path, which):
     torch.save(state, weights)
     with pytest.raises(RFlowError, match="position/weights.pt"):
         load_skill(out)
+
+
+@pytest.mark.parametrize("change", ["added file", "edited weights", "new folder", "symlink", "legacy added"])
+def test_overwrite_never_deletes_what_somebody_put_into_a_checkpoint(skill, tmp_path, change):
+    out = tmp_path / "model"
+    save_skill(out, skill)
+    save_skill(out, skill, overwrite=True)  # an untouched checkpoint of ours is replaced
+    if change == "added file":
+        (out / "notes.txt").write_text("keep me")
+    elif change == "edited weights":
+        with open(out / "position" / "weights.pt", "ab") as handle:
+            handle.write(b"\0")
+    elif change == "new folder":
+        (out / "mine").mkdir()
+    elif change == "symlink":
+        os.symlink(tmp_path, out / "link")
+    else:  # a checkpoint from before the file list: its known files only
+        from pihutil.manifest import MANIFEST_NAME
+
+        (out / MANIFEST_NAME).unlink()
+        save_skill(out, skill, overwrite=True)
+        (out / MANIFEST_NAME).unlink()
+        (out / "position" / "notes.txt").write_text("keep me")
+    before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
+    with pytest.raises(RFlowError, match="did not write or that changed since"):
+        save_skill(out, skill, overwrite=True)
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]  # no staging folder left

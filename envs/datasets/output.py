@@ -1,6 +1,7 @@
 """The export folder: written under a temporary name beside it and renamed into place, so a failure or Ctrl-C
 leaves nothing half-written; an existing folder is replaced only when asked to and only if it is one of our
-exports (it holds the marker file, envs.datasets.features.MARKER_FILE).
+exports (it holds the marker file, envs.datasets.features.MARKER_FILE) holding nothing but the files the export
+wrote, unchanged (its file list, pihutil.manifest).
 """
 
 from __future__ import annotations
@@ -12,6 +13,15 @@ from typing import Iterator
 from envs.datasets.features import MARKER_FILE
 from envs.errors import EnvError
 from pihutil.atomic import atomic_folder
+from pihutil.manifest import read_manifest, strangers, write_manifest
+
+
+def export_strangers(out: Path) -> list[str]:
+    """What inside the export folder ``out`` `pih export` did not write or that changed since (its file list,
+    pihutil.manifest); everything but the marker file when it has no list (written before exports listed their
+    files). [] when --overwrite may replace the folder."""
+    listed = read_manifest(out)
+    return strangers(out, listed if listed is not None else {MARKER_FILE: None})
 
 
 def check_export_folder(out: Path, overwrite: bool) -> None:
@@ -36,6 +46,11 @@ def check_export_folder(out: Path, overwrite: bool) -> None:
                        "choose another folder")
     if not overwrite:
         raise EnvError(f"--out {out} already holds an export (pass --overwrite to replace it)")
+    found = export_strangers(out)
+    if found:
+        shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
+        raise EnvError(f"--out {out} holds files the export did not write or that changed since ({shown}): not "
+                       "replacing it; move them out or choose another folder")
 
 
 @contextmanager
@@ -52,3 +67,4 @@ def staged_folder(out: Path, overwrite: bool) -> Iterator[Path]:
         yield staging
         if not (staging / MARKER_FILE).is_file():
             raise EnvError(f"export to {out}: no {MARKER_FILE} was written")
+        write_manifest(staging)
