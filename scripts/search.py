@@ -50,9 +50,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"points per demo, 2..{LASA_POINTS} (default {LASA_POINTS}: the benchmark's)")
 
 
+OPTUNA_TABLES = frozenset({"alembic_version", "studies", "study_directions", "study_system_attributes",
+                           "study_user_attributes", "trial_heartbeats", "trial_intermediate_values", "trial_params",
+                           "trial_system_attributes", "trial_user_attributes", "trial_values", "trials",
+                           "version_info"})
+"""The tables of an Optuna RDB storage (Optuna 4): an existing OUT/study.db with any other table is not a study."""
+
+
+def check_study_file(path: Path) -> None:
+    """An existing default storage ``path`` is written into (its study resumed) only when it is an SQLite file
+    holding Optuna's tables and nothing else; somebody's other database is refused before any work.
+
+    Raises:
+        RFlowError: naming the file and what it holds.
+    """
+    import sqlite3
+
+    if not path.exists() and not path.is_symlink():
+        return
+    if path.is_symlink() or not path.is_file():
+        raise RFlowError(f"--out {path} is not a file: not writing a study into it; choose another --out")
+    try:
+        with sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True) as connection:
+            tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    except sqlite3.Error as err:
+        raise RFlowError(f"--out {path} is not an SQLite database ({err}): not writing a study into it; choose "
+                         "another --out") from None
+    others = sorted(tables - OPTUNA_TABLES)
+    if others:
+        raise RFlowError(f"--out {path} is a database with tables that are not Optuna's ({', '.join(others[:3])}): "
+                         "not writing a study into it; choose another --out")
+
+
 def _storage_url(args: argparse.Namespace, out: Path) -> str:
     """The storage URL, validated by SQLAlchemy's parser (no connection yet)."""
     if args.storage is None:
+        check_study_file(out / "study.db")
         return f"sqlite:///{(out / 'study.db').resolve()}"
     from sqlalchemy.engine import make_url
     from sqlalchemy.exc import ArgumentError

@@ -112,3 +112,23 @@ def test_pih_train_takes_its_hyperparameters_from_a_config_file(tmp_path) -> Non
     args = parser.parse_args(["--demos", "d.npz", "--out", "m", "--config", str(path), "--seed", "4"])
     got = train_script.train_config_from_args(args)
     assert got == TrainConfig(model=config.model, optimizer="adamax", lr=0.004, epochs=7, seed=4, threads=1)
+
+
+@pytest.mark.parametrize("kind", ["another database", "not sqlite"])
+def test_somebody_else_s_study_db_is_never_written_into(kind, tmp_path, capsys) -> None:
+    import sqlite3
+
+    out = tmp_path / "out"
+    out.mkdir()
+    db = out / "study.db"
+    if kind == "another database":
+        with sqlite3.connect(db) as connection:
+            connection.execute("CREATE TABLE contacts (name TEXT)")
+    else:
+        db.write_text("my notes")
+    before = db.read_bytes()
+    assert cli.main(["search", "--shape", "Angle", "--trials", "1", "--epochs", "1", "--n-points", "20",
+                     "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "study.db" in err[0]
+    assert db.read_bytes() == before and sorted(p.name for p in out.iterdir()) == ["study.db"]
