@@ -51,16 +51,19 @@ def main(args: argparse.Namespace) -> int:
 
     if not args.model.is_dir():
         raise EnvError(f"--model {args.model}: no such checkpoint folder")
+    from rflow.skill_io import load_skill
+
+    load_skill(args.model)  # a corrupt checkpoint is one line before any output or episode
     check_output_folder("--out", args.out, inputs=[args.model], estimate_bytes=4 * MiB)
     paths = {key: args.out / name for key, name in OUTPUTS.items()}
-    for path in paths.values():  # outputs already there are checked before the folder is made or any episode runs
-        if path.exists() or path.is_symlink():
-            check_output("--out", path, args.overwrite, inputs=[args.model], estimate_bytes=2 * MiB)
-    args.out.mkdir(parents=True, exist_ok=True)
+    # Before any episode runs: the outputs already there are ours, and so is the registry the figure joins.
+    for path in paths.values() if args.out.is_dir() else ():
+        check_output("--out", path, args.overwrite, inputs=[args.model], estimate_bytes=2 * MiB)
     config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task_from_args(args))
     names = [n for n in IMPERFECTION_NAMES if n in args.only]
     rows = run_sensitivity(args.model, config, names,
                            on_variant=lambda name: print(f"evaluating: {name}", file=sys.stderr, flush=True))
+    args.out.mkdir(parents=True, exist_ok=True)  # made once there is something to write: a bad model leaves nothing
     table = sensitivity_table(rows)
     worst = costliest(rows)
     verdict = ("no imperfection alone lowered the success rate on these episodes" if worst is None else

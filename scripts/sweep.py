@@ -145,7 +145,7 @@ def main(args: argparse.Namespace) -> int:
     existing = [name for name in OUTPUTS if (out / name).exists()]
     if existing and not (args.resume or args.overwrite):
         raise EnvError(f"--out {out} already holds {', '.join(existing)} (use --resume or --overwrite)")
-    for name in existing:
+    for name in OUTPUTS if out.is_dir() else ():  # those there are ours; a registry there is ours (sweep.png)
         check_output("--out", out / name, args.overwrite or args.resume)
     checksum = journal_run(args.model, cells[0].config)["skill_sha256"]
     out.mkdir(parents=True, exist_ok=True)

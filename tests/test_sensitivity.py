@@ -53,3 +53,35 @@ def test_the_command_writes_table_json_and_figure(model, tmp_path) -> None:
 def test_an_unknown_imperfection_is_refused(model, tmp_path, capsys) -> None:
     assert main(["sensitivity", "--model", str(model), "--out", str(tmp_path / "x"), "--only", "gravity"]) == 2
     assert "gravity" in capsys.readouterr().err
+
+
+def test_a_foreign_registry_is_refused_before_any_episode(model, tmp_path, capsys, monkeypatch) -> None:
+    import scripts.sensitivity  # noqa: F401 -- the command's module, whose runner must not be reached
+
+    out = tmp_path / "sens"
+    out.mkdir()
+    (out / ".pih-outputs.json").write_text('{"files": {}}')  # not written by pih
+    monkeypatch.setattr("envs.execution.sensitivity.run_sensitivity",
+                        lambda *a, **k: pytest.fail("episodes ran before the outputs were checked"))
+    assert main(["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "1", "--workers", "1",
+                 "--only", "payload"]) == 2
+    assert ".pih-outputs.json" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == [".pih-outputs.json"]
+
+
+@pytest.mark.parametrize("bad", ["task", "model"])
+def test_bad_input_leaves_no_output_folder(model, tmp_path, capsys, bad) -> None:
+    out = tmp_path / "new" if bad == "task" else tmp_path / "deep"
+    args = ["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "1", "--workers", "1",
+            "--only", "payload"]
+    if bad == "task":
+        (tmp_path / "bad.toml").write_text("this is = not [toml")
+        args += ["--task", str(tmp_path / "bad.toml")]
+    else:
+        garbage = tmp_path / "garbage"
+        garbage.mkdir()
+        (garbage / "skill.json").write_text("{")
+        args[2] = str(garbage)
+    assert main(args) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert not out.exists()

@@ -178,3 +178,13 @@ def test_a_sweep_in_lockstep_gives_the_records_of_one_episode_at_a_time(model_di
 
     alone, batched = records(1), records(3)
     assert batched == alone and len(alone) == 8 and {r["cell"] for r in alone} == {0, 1}
+
+
+def test_a_foreign_registry_is_refused_before_any_episode(model_dir, tmp_path, capsys) -> None:
+    out = tmp_path / "sweep"
+    out.mkdir()
+    (out / ".pih-outputs.json").write_text('{"files": {}}')  # not written by pih
+    argv = ["sweep", "--model", str(model_dir), "--clearance-mm", "1", "--episodes", "1", "--time-limit-s", "0.2",
+            "--workers", "1", "--out", str(out), "--quiet"]
+    assert cli.main(argv) == 2 and ".pih-outputs.json" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == [".pih-outputs.json"]
