@@ -39,6 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from pihutil.npz import open_npz
 from envs.output import save_npz, strict_json
 from envs.poses import quat_angle_rad
 
@@ -301,7 +302,7 @@ def load_demos(path: str | os.PathLike[str]) -> DemoSet:
     if not Path(path).is_file():
         raise EnvError(f"demo file {src} not found")
     try:
-        with np.load(path, allow_pickle=False) as archive:
+        with open_npz(path) as archive:
             missing = [k for k in REQUIRED_KEYS if k not in archive.files]
             if missing:
                 raise EnvError(f"{src}: missing keys {missing} (a demo file needs {list(REQUIRED_KEYS)})")

@@ -44,6 +44,7 @@ import numpy.typing as npt
 
 from envs.demo_file import GOAL_TOL_M, GOAL_TOL_RAD, STIFFNESS_REL_TOL, DemoSet
 from envs.errors import EnvError
+from pihutil.npz import open_npz
 from envs.poses import QUAT_NORM_TOL, Pose, make_continuous, mean_quat, minimum_jerk, resample_trajectory
 from rflow.quaternion import quat_angle_rad, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
 from rflow.small_linalg import norm
@@ -270,7 +271,7 @@ def load_recorded_demos(path: str | os.PathLike[str]) -> RecordedDemos:
     if not Path(path).is_file():
         raise EnvError(f"import file {source} not found")
     try:
-        with np.load(path, allow_pickle=False) as archive:
+        with open_npz(path) as archive:
             if not isinstance(archive, np.lib.npyio.NpzFile):
                 raise EnvError(f"{source} is a single .npy array, not an .npz archive with pos and quat")
             files = list(archive.files)

@@ -212,12 +212,12 @@ def _is_marked_json(path: Path) -> bool:
 def _is_marked_npz(path: Path) -> bool:
     import zipfile
 
-    import numpy as np
+    from pihutil.npz import open_npz
 
     try:
-        with np.load(path, allow_pickle=False) as archive:
+        with open_npz(path) as archive:
             return MARKER_KEY in archive.files
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError, TypeError):  # a .npy is no archive
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
         return False
 
 

@@ -219,14 +219,16 @@ def load_preview(model_dir: Path) -> dict[str, Any] | None:
 
     import numpy as np
 
+    from pihutil.npz import open_npz
+
     path = model_dir / "demos.npz"
     if not path.is_file():
         return None
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with open_npz(path) as data:
             arrays = {key: np.asarray(data[key], dtype=np.float64) for key in ("pos", "quat", "dt", "stiffness")
                       if key in data.files}
-    except (OSError, ValueError, EOFError, KeyError, TypeError, zipfile.BadZipFile) as err:
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
         raise EnvError(f"{path}: not a readable demo preview ({type(err).__name__}: {err})") from None
     pos, quat = arrays.get("pos"), arrays.get("quat")
     if (pos is None or quat is None or pos.ndim != 3 or pos.shape[2] != 3 or quat.shape != pos.shape[:2] + (4,)

@@ -28,6 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from envs.output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
+from pihutil.npz import open_npz
 from rflow.errors import RFlowError
 from rflow.lasa import (
     BENCHMARK_MANIFOLDS,
@@ -244,7 +245,7 @@ def _figure(out: Path, shape: str, results: list[ShapeResult]) -> bool:
         for r in results:
             path = trajectory_path(out, r.shape, r.manifold, r.method)
             if r.error is None and path.is_file():
-                with np.load(path, allow_pickle=False) as arrays:
+                with open_npz(path) as arrays:
                     panels.append((r, arrays["demos_z"], arrays["generated_z"]))
         plot_results(out / "figures" / f"{shape}.png", shape, panels, save_figure)
     except Exception as err:  # noqa: BLE001 - a figure never aborts the batch

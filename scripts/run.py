@@ -84,6 +84,7 @@ def main(args: argparse.Namespace) -> int:
 
     from envs.demo_file import save_demos
     from envs.demos import collect_demos
+    from envs.expert import ExpertConfig
     from envs.execution.evaluate import EvaluationConfig, evaluate
     from envs.execution.figures import plot_outcomes
     from envs.scene_config import SceneConfig
@@ -95,6 +96,10 @@ def main(args: argparse.Namespace) -> int:
     task = task_from_args(args)
     task = task.override(shape=task.shape or "square")
     config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task)  # checked first
+    samples = ExpertConfig().num_samples  # what each recorded demo holds
+    if (samples - 1) // args.subsample + 1 < 2:
+        raise EnvError(f"--subsample {args.subsample}: the demos' {samples} samples would leave fewer than 2; "
+                       f"at most {samples - 1}")
     out = args.root / args.name
     check_run_folder(out, args.overwrite, video=not args.no_video)
     out.mkdir(parents=True, exist_ok=True)

@@ -66,6 +66,12 @@ def _pickled_preview(tmp: Path) -> None:
     np.savez(tmp / "model" / "demos.npz", pos=np.array([object()], dtype=object), quat=np.zeros((1, 2, 4)), dt=0.1)
 
 
+def _npy_named_npz(tmp: Path) -> None:
+    """A .npy file (one bare array) under a .npz name."""
+    with open(tmp / "array.npz", "wb") as handle:
+        np.save(handle, np.zeros((3, 4)))
+
+
 def _nan_goal(tmp: Path) -> None:
     demos = synthetic_demos()
     np.savez(tmp / "nan.npz", pos=demos.pos, quat=demos.quat, dt=demos.dt, goal_pos=np.array([np.nan, 0.0, 0.0]),
@@ -144,6 +150,11 @@ CASES: dict[str, Case] = {
                                       "model.layers = 2.5 must be an integer", (_config(2.5),)),
     "lasa-config-bool-layers": Case("lasa --shape NShape --config {tmp}/best.json", "model.layers = true",
                                     (_config(True),)),
+    "train-npy-named-npz": Case("train --demos {tmp}/array.npz --out {tmp}/ck", "not a .npz archive",
+                                (_npy_named_npz,)),
+    "import-npy-named-npz": Case("demos --import {tmp}/array.npz --tool-offset flange --out {tmp}/i.npz",
+                                 "not a .npz archive", (_npy_named_npz,)),
+    "run-subsample-too-large": Case("run --root {tmp} --name r --subsample 5000", "--subsample 5000"),
     "train-pickled-demos": Case("train --demos {tmp}/pickled.npz --out {tmp}/ck", "not a readable .npz",
                                 (_pickled_demos,)),
     "evaluate-pickled-preview": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --figure {{tmp}}/f.png",
