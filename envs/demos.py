@@ -434,16 +434,19 @@ def scene_config_from_demos(demos: DemoSet) -> SceneConfig:
         EnvError: a stored scene configuration that does not build a valid SceneConfig.
     """
     stored = demos.config.get("scene", {}) if isinstance(demos.config, dict) else {}
+    if not isinstance(stored, dict):
+        raise EnvError(f"demo file scene configuration is invalid: 'scene' must be a JSON object, got "
+                       f"{type(stored).__name__}")
     fields = {}
-    for name in ("hole_depth_m", "insertion_depth_m", "goal_yaw_deg"):
-        if name in stored:
-            fields[name] = float(stored[name])
-    if "goal_pos" in stored:
-        fields["goal_pos"] = tuple(float(v) for v in stored["goal_pos"])
-    if stored.get("hole_at_goal") is not None:
-        pos, quat = stored["hole_at_goal"]
-        fields["hole_at_goal"] = (tuple(float(v) for v in pos), tuple(float(v) for v in quat))
     try:
+        for name in ("hole_depth_m", "insertion_depth_m", "goal_yaw_deg"):
+            if name in stored:
+                fields[name] = float(stored[name])
+        if "goal_pos" in stored:
+            fields["goal_pos"] = tuple(float(v) for v in stored["goal_pos"])
+        if stored.get("hole_at_goal") is not None:
+            pos, quat = stored["hole_at_goal"]
+            fields["hole_at_goal"] = (tuple(float(v) for v in pos), tuple(float(v) for v in quat))
         if isinstance(stored.get("contact"), dict):
             fields["contact"] = ContactConfig(**{k: tuple(v) if isinstance(v, list) else v
                                                 for k, v in stored["contact"].items()})

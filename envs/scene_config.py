@@ -78,6 +78,11 @@ def hole_from_goal(
     return pos, mat_to_quat(rot_hole)
 
 
+NUMBER_FIELDS: tuple[str, ...] = ("clearance_m", "chamfer_m", "hole_depth_m", "insertion_depth_m", "goal_yaw_deg",
+                                  "grasp_force_n", "pad_stiffness_nm_rad", "free_peg_height_m")
+"""The SceneConfig fields that are plain numbers (checked to be numbers before their ranges)."""
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """What to build (defaults: the paper's goal, square peg grasped by the hand, 1 mm clearance, no chamfer).
@@ -119,6 +124,12 @@ class SceneConfig:
     contact: ContactConfig = field(default_factory=ContactConfig)
 
     def __post_init__(self) -> None:
+        for name in NUMBER_FIELDS:  # a scene read from a file may hold anything: one line naming the field
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise EnvError(f"scene {name}={value!r} must be a number")
+        if not isinstance(self.shape, str) or not isinstance(self.peg_mode, str):
+            raise EnvError(f"scene shape={self.shape!r} and peg_mode={self.peg_mode!r} must be strings")
         check_shape(self.shape)
         check_clearance(self.clearance_m)
         check_chamfer(self.chamfer_m)

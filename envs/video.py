@@ -45,6 +45,10 @@ GOAL_AXES_RGBA = (
 )
 
 
+MAX_FRAME_PX = 4096
+"""The largest frame side (pixels) an offscreen buffer is asked for (the GL drivers' usual limit is 4096-16384)."""
+
+
 @dataclass(frozen=True)
 class VideoConfig:
     """Video settings.
@@ -79,8 +83,9 @@ class VideoConfig:
     def __post_init__(self) -> None:
         for name in ("width", "height"):
             value = getattr(self, name)
-            if not isinstance(value, int) or value < 16 or value % 8:
-                raise EnvError(f"VideoConfig: {name} must be an integer >= 16 and a multiple of 8, got {value!r}")
+            if not isinstance(value, int) or not 16 <= value <= MAX_FRAME_PX or value % 8:
+                raise EnvError(f"VideoConfig: {name} must be a multiple of 8 in [16, {MAX_FRAME_PX}] pixels, got "
+                               f"{value!r}")
         if not isinstance(self.fps, int) or not 1 <= self.fps <= 240:
             raise EnvError(f"VideoConfig: fps must be an integer in [1, 240], got {self.fps!r}")
         if not 0 <= self.quality <= 10:

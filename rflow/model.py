@@ -15,6 +15,8 @@ them: weights with torch.save(state_dict) / torch.load(weights_only=True), the r
 from __future__ import annotations
 
 import json
+import pickle
+import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -324,11 +326,19 @@ class RiemannianFlow:
             if isinstance(err, RFlowError):
                 raise
             raise RFlowError(f"corrupt {src / CONFIG_FILE}: bad field {err}") from None
+        if dim != normalisation.mean.size:  # checked before the network is built: its size follows dim
+            raise RFlowError(f"corrupt {src / CONFIG_FILE}: dim={dim} differs from the normalisation's "
+                             f"{normalisation.mean.size} dimensions")
         network = ImitationFlow(dim, config, normalisation.goal).double()
         try:
-            state = torch.load(src / WEIGHTS_FILE, map_location="cpu", weights_only=True)
+            with warnings.catch_warnings():  # torch warns about pickle protocols before refusing them
+                warnings.simplefilter("ignore")
+                state = torch.load(src / WEIGHTS_FILE, map_location="cpu", weights_only=True)
         except FileNotFoundError:
             raise RFlowError(f"no {WEIGHTS_FILE} in model directory {src}") from None
+        except pickle.UnpicklingError:  # never unpickled: a foreign or damaged file
+            raise RFlowError(f"corrupt {src / WEIGHTS_FILE}: not a file of plain tensors (it is damaged, or it "
+                             "needs unpickling, which pih never does)") from None
         except Exception as err:  # torch raises assorted errors for truncated or foreign files
             first_line = str(err).splitlines()[0] if str(err) else ""
             raise RFlowError(f"corrupt {src / WEIGHTS_FILE}: {type(err).__name__}: {first_line}") from None

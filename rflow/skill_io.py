@@ -33,6 +33,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -340,7 +341,9 @@ def _check_finite_weights(model_dir: Path) -> None:
 
     path = model_dir / WEIGHTS_FILE
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns about pickle protocols before refusing them
+            warnings.simplefilter("ignore")
+            state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # noqa: BLE001 -- reported by RiemannianFlow.load with its own message
         return
     if not isinstance(state, dict):

@@ -121,6 +121,9 @@ class TrainConfig:
         for name, value in counts.items():
             if not 1 <= value <= MAX_COUNT:
                 raise RFlowError(f"{name} {value} must be in 1..{MAX_COUNT:,}")
+        if self.horizon_groups > self.batch_size:
+            raise RFlowError(f"horizon_groups {self.horizon_groups} must not exceed batch_size {self.batch_size} (it "
+                             "counts the distinct horizons of a batch)")
         if not 0 <= self.val_fraction < 1:
             raise RFlowError(f"val_fraction {self.val_fraction} must be in [0, 1)")
         if not (self.grad_clip > 0 and self.init_noise > 0 and self.goal_tolerance >= 0):

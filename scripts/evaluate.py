@@ -290,7 +290,8 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
         if journal.exists() and not (args.resume or args.overwrite):
             raise EnvError(f"journal {journal} already exists: use --resume to continue that run, "
                            "--overwrite to start again, or another --journal")
-        check_output("--journal", journal, args.overwrite or args.resume, inputs=inputs, estimate_bytes=records)
+        check_output("--journal", journal, args.overwrite or args.resume, suffix=".jsonl", inputs=inputs,
+                     estimate_bytes=records)
     if any(p is not None for p in (args.video, args.figure, args.stiffness_figure, args.force_figure)):
         check_video_episodes(args.video_episodes, config.episodes)
     if args.figure is not None or args.stiffness_figure is not None:

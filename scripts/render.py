@@ -119,6 +119,9 @@ def render_trajectory(source: TrajectorySource, out: Path, video: VideoConfig, h
 
 def main(args: argparse.Namespace) -> int:
     """Render the requested trajectory; returns the exit status."""
+    for option, value in (("--width-px", args.width_px), ("--height-px", args.height_px)):
+        if value % 8:
+            raise EnvError(f"{option} {value}: must be a multiple of 8 (H.264 frames)")
     video = VideoConfig(width=args.width_px, height=args.height_px, fps=args.fps, camera=args.camera)
     check_camera(args.camera)
     check_output("--out", args.out, args.overwrite, suffix=".mp4", inputs=[args.demos], estimate_bytes=VIDEO_BYTES)

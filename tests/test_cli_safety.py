@@ -72,6 +72,43 @@ def _npy_named_npz(tmp: Path) -> None:
         np.save(handle, np.zeros((3, 4)))
 
 
+def _metadata(key: str, value: object) -> Callable[[Path], None]:
+    """The checkpoint's skill.json metadata with ``key`` set to ``value``."""
+    def prepare(tmp: Path) -> None:
+        path = tmp / "model" / "skill.json"
+        record = json.loads(path.read_text())
+        record["metadata"][key] = value
+        path.write_text(json.dumps(record))
+    return prepare
+
+
+def _model_json(key: str, value: object) -> Callable[[Path], None]:
+    """The position model's model.json with ``key`` set to ``value``."""
+    def prepare(tmp: Path) -> None:
+        path = tmp / "model" / "position" / "model.json"
+        record = json.loads(path.read_text())
+        record[key] = value
+        path.write_text(json.dumps(record))
+    return prepare
+
+
+def _pickled_weights(tmp: Path) -> None:
+    """weights.pt as a pickle of a plain dict (pickle protocol 4): refused without unpickling."""
+    import pickle
+
+    (tmp / "model" / "position" / "weights.pt").write_bytes(pickle.dumps({"w": [1.0]}, protocol=4))
+
+
+def _scene_config(scene: object) -> Callable[[Path], None]:
+    """A demo file whose recorded config holds ``scene``."""
+    def prepare(tmp: Path) -> None:
+        demos = synthetic_demos()
+        np.savez(tmp / "scene.npz", pos=demos.pos, quat=demos.quat, dt=demos.dt, goal_pos=demos.goal_pos,
+                 goal_quat=demos.goal_quat, shape="square", clearance_m=0.001,
+                 config_json=json.dumps({"scene": scene}))
+    return prepare
+
+
 def _nan_goal(tmp: Path) -> None:
     demos = synthetic_demos()
     np.savez(tmp / "nan.npz", pos=demos.pos, quat=demos.quat, dt=demos.dt, goal_pos=np.array([np.nan, 0.0, 0.0]),
@@ -154,6 +191,22 @@ CASES: dict[str, Case] = {
                                 (_npy_named_npz,)),
     "import-npy-named-npz": Case("demos --import {tmp}/array.npz --tool-offset flange --out {tmp}/i.npz",
                                  "not a .npz archive", (_npy_named_npz,)),
+    "evaluate-metadata-clearance-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "clearance_m='x' must be",
+                                             (_metadata("clearance_m", "x"),)),
+    "evaluate-metadata-scene-number": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "'scene' must be a JSON",
+                                           (_metadata("scene", 5),)),
+    "evaluate-model-dim-huge": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "dim=1000000000000 differs",
+                                    (_model_json("dim", 10**12),)),
+    "evaluate-pickled-weights": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "which pih never does",
+                                     (_pickled_weights,)),
+    "evaluate-journal-suffix": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --journal {{tmp}}/j.txt",
+                                    "must end in .jsonl"),
+    "render-width-not-multiple-of-8": Case("render --demos {tmp}/demos.npz --width-px 17 --out {tmp}/r.mp4",
+                                           "--width-px 17"),
+    "render-scene-list": Case("render --demos {tmp}/scene.npz --out {tmp}/r.mp4", "'scene' must be a JSON object",
+                              (_scene_config([1, 2]),)),
+    "train-scene-chamfer-list": Case("train --demos {tmp}/scene.npz --out {tmp}/ck", "chamfer_m=[1] must be a number",
+                                     (_scene_config({"chamfer_m": [1]}),)),
     "run-subsample-too-large": Case("run --root {tmp} --name r --subsample 5000", "--subsample 5000"),
     "train-pickled-demos": Case("train --demos {tmp}/pickled.npz --out {tmp}/ck", "not a readable .npz",
                                 (_pickled_demos,)),

@@ -148,3 +148,13 @@ def test_overwrite_never_deletes_what_the_user_put_into_an_export(tmp_path: Path
     err = capsys.readouterr().err
     assert "did not write or that changed since" in err and len(err.strip().splitlines()) == 1
     assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before
+
+
+@pytest.mark.parametrize("text", ["16x40000", "8x480", "641x480"])
+def test_a_frame_size_no_renderer_makes_is_refused_naming_the_option(text: str) -> None:
+    from envs.errors import EnvError
+    from scripts.export import parse_size
+
+    with pytest.raises(EnvError, match="--video-size .*multiples of 8 in \\[16, 4096\\]"):
+        parse_size(text)
+    assert parse_size("640x480") == (640, 480)

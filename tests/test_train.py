@@ -263,3 +263,12 @@ def test_the_prior_in_the_likelihood_pass_is_the_separate_prior():
         torch.testing.assert_close(log_prob, network.transition_log_prob(p0, p1, tau), rtol=1e-5, atol=1e-5)
         torch.testing.assert_close(q, network.latent(z)[0], rtol=1e-5, atol=1e-5)
         torch.testing.assert_close(prior_deviation(network, z, q), separate, rtol=1e-5, atol=1e-6)
+
+
+def test_more_horizon_groups_than_a_batch_holds_is_refused() -> None:
+    from rflow.errors import RFlowError
+    from rflow.train import TrainConfig
+
+    with pytest.raises(RFlowError, match="horizon_groups 129 must not exceed batch_size 128"):
+        TrainConfig(batch_size=128, horizon_groups=129)
+    TrainConfig(batch_size=128, horizon_groups=128)

@@ -68,6 +68,8 @@ def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: P
         raise EnvError(f"the skill was trained on {demo_shape!r} demos but the scene's peg is {shape!r}")
     kwargs: dict[str, Any] = {"shape": shape}
     recorded = metadata.get("scene") or {}
+    if not isinstance(recorded, dict):
+        raise EnvError(f"the skill's metadata 'scene' must be a JSON object, got {type(recorded).__name__}")
     for key in ("goal_pos", "goal_yaw_deg", "hole_depth_m", "insertion_depth_m"):
         if key in recorded and recorded[key] is not None:
             kwargs[key] = tuple(recorded[key]) if isinstance(recorded[key], list) else recorded[key]
@@ -77,6 +79,8 @@ def scene_config_for(metadata: dict[str, Any], config: EvaluationConfig, goal: P
             kwargs[key] = value
     clearance = task.clearance_m if "clearance_m" in config.scene_from_task else metadata.get("clearance_m")
     if clearance is not None:
+        if isinstance(clearance, bool) or not isinstance(clearance, (int, float)):
+            raise EnvError(f"the skill's metadata clearance_m={clearance!r} must be a number")
         kwargs["clearance_m"] = float(clearance)
     kwargs["pad_stiffness_nm_rad"] = task.pad_stiffness_nm_rad  # the cell's pads, like its perturbations
     if config.hole_at_goal:
