@@ -17,7 +17,7 @@ class BatchConfig:
     """How a batch runs.
 
     Attributes:
-        workers: parallel workers; 1 runs the units in this process, no pool (process backend).
+        workers: parallel workers; 1 runs the units in this process, no pool (process backend; see ``isolate``).
             With the ray backend, the number of actors (1: one per CPU of the Ray cluster).
         unit_timeout_s: wall-clock limit per unit (None: no limit); a unit over it is recorded "wall_timeout",
             an outcome of the unit (batch.supervision).
@@ -35,6 +35,9 @@ class BatchConfig:
         start_timeout_s: process backend: a worker not ready this long after it was started (a spawned one stuck
             importing, a forked one stuck on a lock that another thread of this process held at the fork) is
             killed and counts as lost at start, so a start never hangs the batch.
+        isolate: process backend: run the units in a supervised worker process even when ``workers`` is 1, so
+            that code which may crash the interpreter (a segfault, os._exit: a user's policy) loses one try of a
+            unit, never the batch.
     """
 
     workers: int = 1
@@ -44,6 +47,7 @@ class BatchConfig:
     ray_address: str | None = None
     start_method: str = "spawn"
     start_timeout_s: float = 600.0
+    isolate: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:

@@ -134,7 +134,7 @@ def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Wo
                 pass
             elif config.backend == "ray":
                 run_on_ray(schedule, setup, init, work, config)
-            elif config.workers == 1:
+            elif config.workers == 1 and not config.isolate:
                 _run_here(schedule, setup, init, work, config.unit_timeout_s)
             else:
                 run_in_processes(schedule, setup, init, work, config)

@@ -68,3 +68,17 @@ def not_a_policy(task: PolicyTask) -> Any:
 def raises(task: PolicyTask) -> Any:
     """Fails while building the policy."""
     raise ValueError("no weights found")
+
+
+class ExitsInAct(HoldStart):
+    """Takes its process down at its first action, as a crashing extension (a segfault) would."""
+
+    def act(self, observation: Observation) -> Action:
+        import os
+
+        os._exit(3)
+
+
+def exits(task: PolicyTask) -> ExitsInAct:
+    """A policy whose act() ends the process."""
+    return ExitsInAct()

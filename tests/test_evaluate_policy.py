@@ -120,3 +120,14 @@ def test_policy_options_are_checked_before_any_episode(demos, tmp_path, capsys, 
     assert main(["evaluate", *args, *RUN, "--json", str(tmp_path / "e.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("pih evaluate: error:") and words in err and "\n" not in err
+
+
+def test_a_policy_that_takes_its_process_down_loses_its_episodes_not_the_run(demos, tmp_path, capsys) -> None:
+    """Even with one worker a user's policy runs in a supervised process: each try of an episode dies with it, the
+    episodes end as infrastructure errors after their retries, and the JSON is written."""
+    out = tmp_path / "exits.json"
+    code = main(["evaluate", "--policy", "policies_for_tests:exits", "--demos", str(demos), "--episodes", "2",
+                 "--pos-range-mm", "10", "--workers", "1", "--lockstep", "1", "--quiet", "--json", str(out)])
+    assert code != 0 and out.is_file()
+    data = json.loads(out.read_text())
+    assert len(data["infrastructure_errors"]) == 2 and data["successes"] == 0

@@ -325,11 +325,11 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
 
 def run_episodes(starts: Sequence[StartPose], setup: Any, init_worker: Callable[[Any], dict[str, Any]],
                  here: dict[str, Any], config: EvaluationConfig, progress: bool, journal: Journal | None,
-                 desc: str, inherit: bool = False) -> tuple[Any, list[EpisodeRecord], float]:
+                 desc: str, inherit: bool = False, isolate: bool = False) -> tuple[Any, list[EpisodeRecord], float]:
     """The batch of an evaluation: each start an episode (`_run_unit`) in this process on ``here`` (the context of
     env, policy and gain built already) or in workers that build theirs with ``init_worker(setup)``; with
     ``inherit``, forked workers take their copy of ``here`` instead (`_Inherited`), and only spawned or Ray workers
-    build their own.
+    build their own. With ``isolate`` even one worker is a supervised process (`batch.BatchConfig.isolate`).
 
     Returns:
         (the batch outcome, the records sorted by episode index, the wall time of the journal's earlier parts).
@@ -338,8 +338,8 @@ def run_episodes(starts: Sequence[StartPose], setup: Any, init_worker: Callable[
 
     from batch.processes import start_method
 
-    batch = config.batch_config()
-    in_process = batch.backend == "process" and batch.workers == 1
+    batch = dataclasses.replace(config.batch_config(), isolate=isolate)
+    in_process = batch.backend == "process" and batch.workers == 1 and not isolate
     if inherit and batch.backend == "process" and start_method(batch) == "fork":
         init_worker = _Inherited(here)
     done = journal.done() if journal is not None else {}

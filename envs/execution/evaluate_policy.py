@@ -264,7 +264,8 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
             "slots": SlotPool(env, policy, _PolicySlotMaker(_PolicySetup(spec, metadata, config)))}
     del env, policy  # workers build their own
     outcome, records, earlier_s = run_episodes(starts, _PolicySetup(spec, metadata, config), _init_policy_worker,
-                                               here, config, progress, journal, f"evaluate ({spec.spec})")
+                                               here, config, progress, journal, f"evaluate ({spec.spec})",
+                                               isolate=True)  # a user's code may take its process down
     return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, "", metadata, scene,
                             goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
