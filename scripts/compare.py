@@ -37,6 +37,7 @@ from envs.execution.comparison import compare_evaluations, load_evaluation, sequ
 from envs.execution.pairing import pair_records
 from envs.execution.sequential import SequentialComparison
 from envs.execution.statistics import DECISIONS
+from scripts.options import refuse_unused
 
 KIND = "pih compare"
 EXIT_REGRESSION = 1
@@ -44,6 +45,10 @@ EXIT_INCOMPLETE = 3
 EXIT_INTERRUPTED = 130
 DEFAULT_MAX_EPISODES = 400
 DEFAULT_CHUNK = 10
+
+
+PAIRED_OPTIONS = ("margin", "alpha", "json", "overwrite", "sequential")
+"""The options that apply when two evaluation files are compared (the rest are the sequential mode's)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -101,6 +106,10 @@ def check_args(args: argparse.Namespace) -> None:
         raise EnvError(f"--progress-margin {args.progress_margin}: must lie in [0, 1)")
     check_json_output(args.json, args.overwrite, [*args.evaluations, args.base_model, args.cand_model])
     if not args.sequential:
+        parser = argparse.ArgumentParser(add_help=False)
+        add_arguments(parser)
+        sequential_only = [a.dest for a in parser._actions if a.option_strings and a.dest not in PAIRED_OPTIONS]
+        refuse_unused(args, add_arguments, sequential_only, "applies to --sequential only")
         if len(args.evaluations) != 2:
             raise EnvError(f"give two evaluations, BASE.json CAND.json (got {len(args.evaluations)}), or --sequential "
                            "with --base-model and --cand-model")

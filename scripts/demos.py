@@ -22,7 +22,8 @@ import numpy as np
 from envs.errors import EnvError  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.demos_import import add_import_arguments, run_import  # noqa: E402
-from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera, count, number, seed  # noqa: E402
+from scripts.options import (MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera, count, number,  # noqa: E402
+                             refuse_unused, seed)
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator loads in main(), never for --help
@@ -114,6 +115,11 @@ def main(args: argparse.Namespace) -> int:
     """Record demos (or run the success-rate check, or import recorded demos); returns the exit status."""
     if args.import_file is not None:
         return run_import(args)
+    refuse_unused(args, add_arguments, ["import_format", "tool_offset", "dt_s", "snap_goal", "ends_apart"],
+                  "applies to --import only")
+    if args.check is not None:
+        refuse_unused(args, add_arguments, ["out", "video", "noise", "overwrite"],
+                      "not with --check (it records nothing)")
     from envs.demos import collect_demos, demo_episode_config
     from envs.expert import ExpertConfig
     from envs.env import PegInHoleEnv

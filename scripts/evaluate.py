@@ -37,7 +37,7 @@ from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
 from envs.execution.config import DEFAULT_LOOKAHEAD_S, MAX_LOCKSTEP, MODES, EvaluationConfig  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402
-from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, seed  # noqa: E402
+from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, refuse_unused, seed  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
 from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
 
@@ -294,6 +294,11 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
                      estimate_bytes=records)
     if any(p is not None for p in (args.video, args.figure, args.stiffness_figure, args.force_figure)):
         check_video_episodes(args.video_episodes, config.episodes)
+    else:
+        refuse_unused(args, add_arguments, ["video_episodes"],
+                      "applies to --video, --figure, --stiffness-figure and --force-figure only")
+    if args.video is None:
+        refuse_unused(args, add_arguments, ["camera"], "applies to --video only")
     if args.figure is not None or args.stiffness_figure is not None:
         load_preview(args.model)
     if args.video is not None:
@@ -520,6 +525,10 @@ def main(args: argparse.Namespace) -> int:
                           ("force_figure", chosen)):
         if extras[key]:
             print(f"wrote {extras[key]} (episodes {episodes})")
+        elif getattr(args, key) is not None:
+            print(f"pih evaluate: --{key.replace('_', '-')} {getattr(args, key)} not written: no episode to show "
+                  f"({'no episode was seated' if key in ('figure', 'stiffness_figure') else 'none chosen'})",
+                  file=sys.stderr)
     if not args.quiet:
         print(f"total {time.perf_counter() - wall:.1f} s")
     return 0

@@ -44,7 +44,7 @@ from rflow.lasa import (
 from rflow.model import ModelConfig
 from rflow.train import TrainConfig
 from scripts.lasa_report import MANIFOLD_LABELS, METHOD_LABELS, gains, markdown_table, plot_comparison, plot_results
-from scripts.options import MAX_EPOCHS, MAX_WORKERS, count, number, seed
+from scripts.options import MAX_EPOCHS, MAX_WORKERS, count, number, refuse_unused, seed
 
 JOURNAL = "journal.jsonl"
 EXIT_FAILED_UNITS = 1
@@ -385,7 +385,14 @@ def run_one(args: argparse.Namespace) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """`pih lasa`; returns the exit status."""
-    return run_all(args) if args.all else run_one(args)
+    if args.all:
+        refuse_unused(args, add_arguments, ["shape", "manifold", "method", "json", "save_trajectories", "figure",
+                                            "progress"],
+                      "applies to a single --shape, not to --all (use --shapes, --manifolds, --methods, --out)")
+        return run_all(args)
+    refuse_unused(args, add_arguments, ["workers", "out", "resume", "backend", "ray_address", "unit_timeout_s",
+                                        "shapes", "manifolds", "methods"], "applies to --all only")
+    return run_one(args)
 
 
 if __name__ == "__main__":

@@ -83,3 +83,27 @@ def check_camera(camera: str) -> None:
 
     if camera not in CAMERAS:
         raise EnvError(f"--camera {camera!r} is not a camera of the scene (available: {', '.join(CAMERAS)})")
+
+
+def refuse_unused(args: argparse.Namespace, add_arguments: Callable[[argparse.ArgumentParser], None],
+                  dests: list[str], why: str) -> None:
+    """A option given on the command line that this use of the command would ignore is refused, so a user never
+    believes an option acted: every ``dests`` whose value differs from the default ``add_arguments`` gives it.
+
+    Args:
+        args: the parsed command line.
+        add_arguments: the command's option builder (the defaults are read from a parser it fills).
+        dests: the options' destinations that do not apply.
+        why: the reason, completing "--OPTION: ..." (e.g. "applies to --all only").
+
+    Raises:
+        EnvError: naming the first such option.
+    """
+    from envs.errors import EnvError
+
+    parser = argparse.ArgumentParser(add_help=False)
+    add_arguments(parser)
+    options = {action.dest: action.option_strings[-1] for action in parser._actions if action.option_strings}
+    for dest in dests:
+        if getattr(args, dest, None) != parser.get_default(dest):
+            raise EnvError(f"{options.get(dest, dest)}: {why}")
