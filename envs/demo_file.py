@@ -299,6 +299,8 @@ def load_demos(path: str | os.PathLike[str]) -> DemoSet:
             non-unit quaternions, or demos that do not end at the stored goal.
     """
     src = str(path)
+    if Path(path).is_dir():
+        raise EnvError(f"demo file {src} is a folder, not a .npz file")
     if not Path(path).is_file():
         raise EnvError(f"demo file {src} not found")
     try:

@@ -116,6 +116,10 @@ class SuccessConfig:
             check_number(f.name, getattr(self, f.name))
 
 
+MAX_POS_RANGE_M = 0.5
+"""The largest start-position range (half-width of the box, m): beyond it no start is within the Panda's reach."""
+
+
 @dataclass(frozen=True)
 class StartRange:
     """Where an evaluation's episodes start (envs.execution.starts.sample_starts): a centre pose, the mean demo
@@ -132,7 +136,8 @@ class StartRange:
     around: str = "mean"
 
     def __post_init__(self) -> None:
-        check_number("pos_range_m", self.pos_range_m)
+        if not check_number("pos_range_m", self.pos_range_m) <= MAX_POS_RANGE_M:
+            raise EnvError(f"pos_range_m={self.pos_range_m!r} must be <= {MAX_POS_RANGE_M} (the arm's reach)")
         if not check_number("rot_range_deg", self.rot_range_deg) < 180.0:
             raise EnvError(f"rot_range_deg={self.rot_range_deg!r} must be < 180")
         if self.around not in AROUND:

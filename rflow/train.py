@@ -379,9 +379,8 @@ def fit(
             if not (torch.isfinite(loss) and torch.isfinite(grad_norm)):
                 network.load_state_dict(good_state)
                 history.seconds = time.perf_counter() - t0
-                err = RFlowError(
-                    f"training diverged: non-finite loss at epoch {epoch + 1}; the last good weights are in "
-                    "this error's .model"
+                err = RFlowError(  # a caller of fit() finds the last good weights in err.model
+                    f"training diverged: non-finite loss at epoch {epoch + 1} (a smaller learning rate may help)"
                 )
                 err.model = RiemannianFlow(  # type: ignore[attr-defined]
                     man, goal, norm, dt, config.model, network

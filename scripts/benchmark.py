@@ -31,7 +31,7 @@ from envs.execution.protocol import (
     summary_lines,
 )
 from scripts.evaluate import adaptation_parts, add_adaptation_options
-from scripts.options import MAX_EPISODES
+from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, count, seed
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
 MAX_SEEDS = 1000
@@ -44,11 +44,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run = parser.add_argument_group("protocol")
     run.add_argument("--demo-seeds", default="0-4", help="one replicate per demo seed: '0-4', '0,3,9' (default 0-4)")
     run.add_argument("--episodes", type=int, default=200, help="evaluation episodes per replicate (default 200)")
-    run.add_argument("--start-seed-offset", type=int, default=1000,
+    run.add_argument("--start-seed-offset", type=seed, default=1000,
                      help="replicate s evaluates starts and hole errors of seed s + offset (default 1000)")
-    run.add_argument("--demos", type=int, default=7, help="demos per replicate (default 7, as the paper)")
+    run.add_argument("--demos", type=count(MAX_DEMOS), default=7, help="demos per replicate (default 7, as the paper)")
     run.add_argument("--shape", help="peg and hole shape (default: the task's, else square)")
-    run.add_argument("--epochs", type=int, default=None, help="training epochs (default: `pih train`'s)")
+    run.add_argument("--epochs", type=count(MAX_EPOCHS), default=None, help="training epochs (default: `pih train`'s)")
     run.add_argument("--workers", type=int, default=2, help="training and evaluation processes (default 2)")
     run.add_argument("--demo-noise", metavar="SPEC",
                      help="record each replicate's demos as a real cell would (`pih demos --noise`, e.g. 'realistic'); "

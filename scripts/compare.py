@@ -37,7 +37,7 @@ from envs.execution.comparison import compare_evaluations, load_evaluation, sequ
 from envs.execution.pairing import pair_records
 from envs.execution.sequential import SequentialComparison
 from envs.execution.statistics import DECISIONS
-from scripts.options import refuse_unused
+from scripts.options import MAX_EPISODES, count, refuse_unused
 
 KIND = "pih compare"
 EXIT_REGRESSION = 1
@@ -66,9 +66,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="run both models on the same starts, chunk by chunk, until the e-processes decide")
     group.add_argument("--base-model", type=Path, help="checkpoint of the base skill (its demo starts give the starts)")
     group.add_argument("--cand-model", type=Path, help="checkpoint of the candidate skill")
-    group.add_argument("--max-episodes", dest="episodes", type=int, default=DEFAULT_MAX_EPISODES,
+    group.add_argument("--max-episodes", dest="episodes", type=count(MAX_EPISODES), default=DEFAULT_MAX_EPISODES,
                        help=f"stop undecided after this many pairs (default {DEFAULT_MAX_EPISODES})")
-    group.add_argument("--chunk", type=int, default=DEFAULT_CHUNK,
+    group.add_argument("--chunk", type=count(MAX_EPISODES), default=DEFAULT_CHUNK,
                        help=f"episodes per model run between updates (default {DEFAULT_CHUNK})")
     group.add_argument("--progress-margin", type=float,
                        help="margin of the mean insertion progress (0-1) in the sequential test (default: --margin)")

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.execution.config import DEFAULT_LOOKAHEAD_S, MAX_LOCKSTEP, MODES, EvaluationConfig  # noqa: E402
+from envs.execution.config import DEFAULT_LOOKAHEAD_S, MAX_LOCKSTEP, MAX_SPEED, MODES, EvaluationConfig  # noqa: E402
 from envs.output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, refuse_unused, seed  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
@@ -105,7 +105,7 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
                        help="closed loop: flow time of the velocity query, s")
     skill.add_argument("--feedforward", type=number(minimum=0.0), default=d.feedforward_gain,
                        help="gain of the impedance velocity feed-forward, 0 = off")
-    skill.add_argument("--speed", type=number(above=0.0), default=d.speed,
+    skill.add_argument("--speed", type=number(above=0.0, maximum=MAX_SPEED), default=d.speed,
                        help="time scaling of the learned flow, both modes")
     skill.add_argument("--stiffness",
                        help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`), "

@@ -26,7 +26,7 @@ from envs.errors import EnvError
 from envs.execution.config import MODES, EvaluationConfig
 from envs.output import MiB, check_output, check_output_folder, write_json
 from scripts.options import MAX_EPISODES, MAX_WORKERS, count, number, seed
-from scripts.task_options import add_task_file_arguments, scene_from_task, task_from_args
+from scripts.task_options import add_task_file_arguments, check_option_value, scene_from_task, task_from_args
 
 AXIS_OPTIONS: dict[str, tuple[str, float]] = {
     "clearance_m": ("--clearance-mm", 1e-3),
@@ -138,7 +138,14 @@ def main(args: argparse.Namespace) -> int:
                         for name, (option, scale) in AXIS_OPTIONS.items()}, stiffness=parse_stiffness(args.stiffness))
     if args.resume and args.overwrite:
         raise EnvError("--resume and --overwrite exclude each other")
-    cells = sweep_cells(base_config(args), axes)
+    base = base_config(args)
+    try:
+        cells = sweep_cells(base, axes)
+    except EnvError:  # name the axis option and the value as given, when one value alone is at fault
+        for name, (option, scale) in AXIS_OPTIONS.items():
+            for value in getattr(axes, name):
+                check_option_value(base.task, option, value / scale, name, value)
+        raise
     out: Path = args.out
     records = 64 * 1024 + RECORD_BYTES * args.episodes * len(cells)
     created = check_output_folder("--out", out, inputs=[args.model], estimate_bytes=2 * records + 4 * MiB)

@@ -124,11 +124,32 @@ def task_from_args(args: argparse.Namespace, base: Task | None = None) -> Task:
         raise EnvError(f"--task {given} and --preset {alias}: give one (--preset NAME is --task NAME)")
     spec = given if given is not None else alias
     task = load_task(spec) if spec is not None else (base or Task())
-    values = {}
+    values, given = {}, {}
     for option, (name, scale) in OPTION_FIELDS.items():
         value = getattr(args, option, None)
         values[name] = value if value is None or scale is None else value * scale
-    return task.override(**values)
+        if value is not None:
+            given[option] = (value, name)
+    try:
+        return task.override(**values)
+    except EnvError:  # name the option and its value as given, when one alone is at fault
+        for option, (value, name) in given.items():
+            check_option_value(task, f"--{option.replace('_', '-')}", value, name, values[name])
+        raise
+
+
+def check_option_value(task: Task, option: str, given: Any, name: str, value: Any) -> None:
+    """``task`` with its field ``name`` set to ``value`` (the option's ``given`` value in the field's unit) must be
+    valid; the error names the option and the value as given, the field's own message after it.
+
+    Raises:
+        EnvError: "OPTION GIVEN: out of range (the field's message)".
+    """
+    try:
+        task.override(**{name: value})
+    except EnvError as err:
+        raise EnvError(f"{option} {given:g}: out of range ({err})" if isinstance(given, float) else
+                       f"{option} {given}: {err}") from None
 
 
 def scene_from_task(args: argparse.Namespace) -> tuple[str, ...]:

@@ -93,6 +93,10 @@ SCENE_FROM_TASK: tuple[str, ...] = ("peg_mode", "clearance_m", "chamfer_m", "gra
 the hole depth and the goal are always the demos': a skill is evaluated at the depth it was taught."""
 
 
+MAX_SPEED = 10.0
+"""The largest time scaling of the learned flow an evaluation runs (10x the demonstrated speed)."""
+
+
 @dataclass(frozen=True)
 class EvaluationConfig:
     """What `evaluate` runs: the task (envs.task.Task), how the skill executes it and how the episodes run.
@@ -161,7 +165,8 @@ class EvaluationConfig:
         if self.mode not in MODES:
             raise EnvError(f"mode={self.mode!r} must be one of {', '.join(MODES)}")
         check_number("lookahead_s", self.lookahead_s, strict=True)
-        check_number("speed", self.speed, strict=True)
+        if not check_number("speed", self.speed, strict=True) <= MAX_SPEED:
+            raise EnvError(f"speed={self.speed!r} must be <= {MAX_SPEED} (a time scaling of the learned flow)")
         check_number("feedforward_gain", self.feedforward_gain)
         if not isinstance(self.task, Task):
             raise EnvError(f"task={self.task!r} must be an envs.task.Task")

@@ -79,6 +79,9 @@ class ProtocolConfig:
             raise EnvError(f"demo seeds {list(seeds)} must be distinct integers >= 0 (at least one)")
         if not isinstance(self.start_seed_offset, int) or self.start_seed_offset < 1:
             raise EnvError(f"start seed offset {self.start_seed_offset!r} must be an integer >= 1")
+        if max(seeds) + self.start_seed_offset > 2**32 - 1:
+            raise EnvError(f"start seeds up to {max(seeds) + self.start_seed_offset} (demo seed + offset "
+                           f"{self.start_seed_offset}) exceed the seed range 0..2**32-1")
         clash = sorted(set(self.start_seeds()) & set(seeds))
         if clash:
             raise EnvError(f"start seeds {clash} equal demo seeds: choose a larger start seed offset")
