@@ -39,7 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from pihutil.npz import open_npz
+from envs.npz_file import open_npz
 from envs.output import save_npz, strict_json
 from envs.poses import quat_angle_rad
 

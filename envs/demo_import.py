@@ -44,7 +44,7 @@ import numpy.typing as npt
 
 from envs.demo_file import GOAL_TOL_M, GOAL_TOL_RAD, STIFFNESS_REL_TOL, DemoSet
 from envs.errors import EnvError
-from pihutil.npz import open_npz
+from envs.npz_file import open_npz
 from envs.poses import QUAT_NORM_TOL, Pose, make_continuous, mean_quat, minimum_jerk, resample_trajectory
 from rflow.quaternion import quat_angle_rad, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
 from rflow.small_linalg import norm

@@ -212,7 +212,7 @@ def _is_marked_json(path: Path) -> bool:
 def _is_marked_npz(path: Path) -> bool:
     import zipfile
 
-    from pihutil.npz import open_npz
+    from envs.npz_file import open_npz
 
     try:
         with open_npz(path) as archive:
@@ -236,12 +236,12 @@ def is_own_output(path: str | os.PathLike[str]) -> bool:
     if p.is_symlink():
         return False
     if p.is_dir():
-        from envs.datasets.output import export_strangers
+        from pihutil.manifest import folder_strangers
         from rflow.skill_io import checkpoint_strangers, is_checkpoint
 
         if is_checkpoint(p):
             return not checkpoint_strangers(p)
-        return (p / EXPORT_MARKER_FILE).is_file() and not export_strangers(p)
+        return (p / EXPORT_MARKER_FILE).is_file() and not folder_strangers(p, {EXPORT_MARKER_FILE: None})
     if not p.is_file():
         return False
     suffix = p.suffix.lower()

@@ -79,4 +79,11 @@ def strangers(folder: str | os.PathLike[str], listed: Mapping[str, str | None]) 
     return sorted(found)
 
 
-__all__ = ["MANIFEST_NAME", "read_manifest", "strangers", "write_manifest"]
+def folder_strangers(folder: str | os.PathLike[str], unlisted: Mapping[str, str | None]) -> list[str]:
+    """`strangers` of ``folder`` against its manifest, or against ``unlisted`` (what the program is known to have
+    written there) when it has none, e.g. a folder written before folders listed their files."""
+    listed = read_manifest(folder)
+    return strangers(folder, listed if listed is not None else unlisted)
+
+
+__all__ = ["MANIFEST_NAME", "folder_strangers", "read_manifest", "strangers", "write_manifest"]

@@ -42,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pihutil.atomic import atomic_folder
-from pihutil.manifest import read_manifest, strangers, write_manifest
+from pihutil.manifest import folder_strangers, write_manifest
 from rflow.errors import RFlowError
 from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
 from rflow.model import CONFIG_FILE, WEIGHTS_FILE, RiemannianFlow, read_json
@@ -229,18 +229,15 @@ def checkpoint_strangers(path: str | os.PathLike[str]) -> list[str]:
     """What inside the checkpoint folder ``path`` `save_skill` did not write, or changed since (its file list,
     pihutil.manifest; a checkpoint without one: anything but skill.json, the models' folders with their
     model.json and weights.pt, and LEGACY_EXTRAS). [] when --overwrite may replace the folder."""
-    listed: Mapping[str, str | None] | None = read_manifest(path)
-    if listed is None:
-        try:
-            models = json.loads((Path(path) / SKILL_FILE).read_text()).get("models", [])
-        except (OSError, UnicodeDecodeError, ValueError, AttributeError):
-            models = []
-        names = [SKILL_FILE, *LEGACY_EXTRAS]
-        for name in models if isinstance(models, list) else []:
-            if isinstance(name, str) and any(name in names_ for names_ in MODEL_DIRS.values()):
-                names += [f"{name}/{CONFIG_FILE}", f"{name}/{WEIGHTS_FILE}"]
-        listed = dict.fromkeys(names)
-    return strangers(path, listed)
+    try:
+        models = json.loads((Path(path) / SKILL_FILE).read_text()).get("models", [])
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        models = []
+    names = [SKILL_FILE, *LEGACY_EXTRAS]
+    for name in models if isinstance(models, list) else []:
+        if isinstance(name, str) and any(name in names_ for names_ in MODEL_DIRS.values()):
+            names += [f"{name}/{CONFIG_FILE}", f"{name}/{WEIGHTS_FILE}"]
+    return folder_strangers(path, dict.fromkeys(names))
 
 
 def check_checkpoint_target(directory: str | os.PathLike[str], overwrite: bool = False) -> Path:

@@ -219,7 +219,7 @@ def load_preview(model_dir: Path) -> dict[str, Any] | None:
 
     import numpy as np
 
-    from pihutil.npz import open_npz
+    from envs.npz_file import open_npz
 
     path = model_dir / "demos.npz"
     if not path.is_file():

@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from envs.output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
-from pihutil.npz import open_npz
+from envs.npz_file import open_npz
 from rflow.errors import RFlowError
 from rflow.lasa import (
     BENCHMARK_MANIFOLDS,

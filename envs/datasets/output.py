@@ -13,15 +13,7 @@ from typing import Iterator
 from envs.datasets.features import MARKER_FILE
 from envs.errors import EnvError
 from pihutil.atomic import atomic_folder
-from pihutil.manifest import read_manifest, strangers, write_manifest
-
-
-def export_strangers(out: Path) -> list[str]:
-    """What inside the export folder ``out`` `pih export` did not write or that changed since (its file list,
-    pihutil.manifest); everything but the marker file when it has no list (written before exports listed their
-    files). [] when --overwrite may replace the folder."""
-    listed = read_manifest(out)
-    return strangers(out, listed if listed is not None else {MARKER_FILE: None})
+from pihutil.manifest import folder_strangers, write_manifest
 
 
 def check_export_folder(out: Path, overwrite: bool) -> None:
@@ -46,7 +38,7 @@ def check_export_folder(out: Path, overwrite: bool) -> None:
                        "choose another folder")
     if not overwrite:
         raise EnvError(f"--out {out} already holds an export (pass --overwrite to replace it)")
-    found = export_strangers(out)
+    found = folder_strangers(out, {MARKER_FILE: None})  # an export from before the file lists: the marker only
     if found:
         shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
         raise EnvError(f"--out {out} holds files the export did not write or that changed since ({shown}): not "

@@ -1,4 +1,5 @@
-"""Reading a NumPy .npz archive without pickles, refusing any other file first.
+"""Reading a NumPy .npz archive without pickles, refusing any other file first (every reader of .npz files in envs
+and scripts).
 
 ``np.load`` returns a bare array for a .npy file whatever its name, which is no archive and no context manager, so
 a .npy renamed .npz failed deep in the readers with a TypeError. `open_npz` raises ValueError for anything that
