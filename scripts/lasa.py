@@ -27,8 +27,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from envs.output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
 from envs.npz_file import open_npz
+from envs.output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
 from rflow.errors import RFlowError
 from rflow.lasa import (
     BENCHMARK_MANIFOLDS,
