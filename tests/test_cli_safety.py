@@ -231,6 +231,8 @@ CASES: dict[str, Case] = {
                                              "argument --start-seed-offset"),
     "compare-max-episodes-negative": Case("compare --sequential --max-episodes -5", "argument --max-episodes"),
     "train-demos-folder": Case("train --demos {tmp}/model --out {tmp}/ck", "is a folder, not a .npz file"),
+    "train-overwrite-checkpoint-with-notes": Case("train --demos {tmp}/demos.npz --out {tmp}/model --overwrite",
+                                                  "holds files its checkpoint did not write", (_foreign("model/n.txt"),)),
     "run-subsample-too-large": Case("run --root {tmp} --name r --subsample 5000", "--subsample 5000"),
     "train-pickled-demos": Case("train --demos {tmp}/pickled.npz --out {tmp}/ck", "not a readable .npz",
                                 (_pickled_demos,)),
