@@ -221,8 +221,9 @@ def is_checkpoint(path: str | os.PathLike[str]) -> bool:
     return isinstance(record, dict) and record.get("format") == SKILL_FORMAT
 
 
-LEGACY_EXTRAS: tuple[str, ...] = ("demos.npz", "loss.png")
-"""Files `pih train` wrote beside skill.json and the model folders before checkpoints listed their files."""
+LEGACY_EXTRAS: tuple[str, ...] = ("demos.npz", "loss.png", ".pih-outputs.json")
+"""Files `pih train` wrote beside skill.json and the model folders before checkpoints listed their files (the
+last: the registry of the loss figure, envs.output)."""
 
 
 def checkpoint_strangers(path: str | os.PathLike[str]) -> list[str]:

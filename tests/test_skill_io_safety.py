@@ -103,3 +103,15 @@ def test_overwrite_never_deletes_what_somebody_put_into_a_checkpoint(skill, tmp_
         save_skill(out, skill, overwrite=True)
     assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]  # no staging folder left
+
+
+def test_a_checkpoint_from_before_the_file_lists_is_still_replaced(skill, tmp_path):
+    """`pih train` wrote skill.json, the models, the demo preview, the loss figure and its registry: all known."""
+    from pihutil.manifest import MANIFEST_NAME
+
+    out = tmp_path / "model"
+    save_skill(out, skill, {"demos.npz": lambda p: p.write_bytes(b"x"), "loss.png": lambda p: p.write_bytes(b"x"),
+                            ".pih-outputs.json": lambda p: p.write_text("{}")})
+    (out / MANIFEST_NAME).unlink()
+    save_skill(out, skill, overwrite=True)
+    assert (out / MANIFEST_NAME).is_file()
