@@ -58,16 +58,25 @@ def as_json(value: Any, what: str) -> Any:
         raise BatchError(f"{what} is not JSON-serialisable: {err}") from None
 
 
-def _first_difference(old: dict[str, Any], new: dict[str, Any]) -> str:
-    """A short description of the first key where two run descriptions differ."""
-    for key in sorted(set(old) | set(new)):
-        if key not in old:
-            return f"{key!r} is new"
-        if key not in new:
-            return f"{key!r} is missing"
-        if old[key] != new[key]:
-            return f"{key!r} was {json.dumps(old[key])[:80]}, now {json.dumps(new[key])[:80]}"
-    return "none"
+def _first_difference(old: Any, new: Any, path: str = "") -> str:
+    """A short description of the first place where two run descriptions differ: the path into them down to the
+    first differing value (e.g. 'cells[1].settings.clearance_m' was 0.0002, now 0.0003)."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(set(old) | set(new)):
+            where = f"{path}.{key}" if path else str(key)
+            if key not in old:
+                return f"{where!r} is new"
+            if key not in new:
+                return f"{where!r} is missing"
+            if old[key] != new[key]:
+                return _first_difference(old[key], new[key], where)
+    elif isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
+        for index, (a, b) in enumerate(zip(old, new)):
+            if a != b:
+                return _first_difference(a, b, f"{path}[{index}]")
+    if old == new:
+        return "none"
+    return f"{path!r} was {json.dumps(old)[:80]}, now {json.dumps(new)[:80]}"
 
 
 @dataclass

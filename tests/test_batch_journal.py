@@ -131,3 +131,13 @@ def test_earlier_wall_time_adds_each_segment_up_to_its_last_line(tmp_path):
     assert json.loads(path.read_text().splitlines()[-1])["segment"] == 2
     with Journal.open(tmp_path / "new.jsonl", RUN) as journal:
         assert journal.earlier_wall_s == 0.0
+
+
+def test_a_resume_of_another_run_names_the_first_value_that_differs(tmp_path) -> None:
+    path = tmp_path / "j.jsonl"
+    run = {"cells": [{"settings": {"clearance_m": 0.0002}}, {"settings": {"clearance_m": 0.0003}}], "seed": 0}
+    with Journal.open(path, run):
+        pass
+    other = {"cells": [{"settings": {"clearance_m": 0.0002}}, {"settings": {"clearance_m": 0.0004}}], "seed": 0}
+    with pytest.raises(BatchError, match=r"'cells\[1\]\.settings\.clearance_m' was 0\.0003, now 0\.0004"):
+        Journal.open(path, other, resume=True)
