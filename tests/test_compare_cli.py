@@ -120,3 +120,20 @@ def test_sequential_mode_runs_paired_episodes_until_a_decision_independent_of_th
         decided.append(data["sequential"]["decided_at_pair"])
         assert len(data["base_evaluation"]["per_episode"]) == decided[-1]
     assert decided[0] == decided[1] < 20
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("index", True, "integer 'index'"),
+    ("time_to_insert_s", "fast", "time_to_insert_s='fast', not a number or null"),
+    ("peak_sustained_wrist_force_n", True, "peak_sustained_wrist_force_n=True, not a number or null"),
+])
+def test_a_record_field_of_the_wrong_type_is_one_line_not_a_figure(tmp_path, capsys, field, value, message):
+    data = synthetic_evaluation(BASE)
+    data["per_episode"][0][field] = value
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(data))
+    good = tmp_path / "good.json"
+    good.write_text(json.dumps(synthetic_evaluation(BASE)))
+    assert pih(["compare", str(good), str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err

@@ -8,6 +8,8 @@ error, so episode i of the base skill and episode i of the candidate form a pair
 
 from __future__ import annotations
 
+import math
+
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -41,16 +43,28 @@ def _short(values: FloatArray) -> str:
     return "[" + ", ".join(f"{v:.6g}" for v in values) + "]"
 
 
+NUMERIC_FIELDS: tuple[str, ...] = ("time_to_insert_s", "insertion_depth_mm", "peak_sustained_wrist_force_n")
+"""Episode-record fields the comparison's metrics read as numbers (envs.execution.comparison.metric_values)."""
+
+
 def _check_record(record: Any, side: str) -> Mapping[str, Any]:
     if not isinstance(record, Mapping):
         raise EnvError(f"{side}: an episode record must be a JSON object, got {type(record).__name__}")
     for key, length in (("start_pos", 3), ("start_quat", 4)):
         if _numbers(record.get(key), length) is None:
             raise EnvError(f"{side}: episode {record.get('index', '?')} has no numeric {key} of length {length}")
-    if not isinstance(record.get("index"), int) or not isinstance(record.get("success"), bool):
+    index = record.get("index")
+    if isinstance(index, bool) or not isinstance(index, int) or not isinstance(record.get("success"), bool):
         raise EnvError(f"{side}: an episode record needs an integer 'index' and a boolean 'success'")
     if not isinstance(record.get("perturbation", {}), Mapping):
-        raise EnvError(f"{side}: episode {record['index']} has a perturbation that is not an object")
+        raise EnvError(f"{side}: episode {index} has a perturbation that is not an object")
+    for key in NUMERIC_FIELDS:  # what the comparison reads: a number or null, never text or a boolean
+        value = record.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise EnvError(f"{side}: episode {index} has {key}={value!r}, not a number or null")
+    time = record.get("time_to_insert_s")
+    if record["success"] and not (isinstance(time, (int, float)) and math.isfinite(time) and time >= 0.0):
+        raise EnvError(f"{side}: episode {index} is seated but its time_to_insert_s={time!r} is no time")
     return record
 
 
