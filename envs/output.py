@@ -236,12 +236,12 @@ def is_own_output(path: str | os.PathLike[str]) -> bool:
     if p.is_symlink():
         return False
     if p.is_dir():
-        from pihutil.manifest import folder_strangers
+        from pihutil.manifest import folder_strangers, read_manifest
         from rflow.skill_io import checkpoint_strangers, is_checkpoint
 
         if is_checkpoint(p):
             return not checkpoint_strangers(p)
-        return (p / EXPORT_MARKER_FILE).is_file() and not folder_strangers(p, {EXPORT_MARKER_FILE: None})
+        return (p / EXPORT_MARKER_FILE).is_file() and read_manifest(p) is not None and not folder_strangers(p, {})
     if not p.is_file():
         return False
     suffix = p.suffix.lower()

@@ -56,7 +56,7 @@ def read_manifest(folder: str | os.PathLike[str]) -> dict[str, str] | None:
 def strangers(folder: str | os.PathLike[str], listed: Mapping[str, str | None]) -> list[str]:
     """What under ``folder`` the program did not write: every entry that is not a listed file with its listed
     SHA-256 (None: any content), not the manifest and not a folder on the way to a listed file; symbolic links
-    always. Relative POSIX paths, sorted; [] when the folder may be replaced."""
+    and special files (FIFOs, sockets, devices) always. Relative POSIX paths, sorted; [] when the folder may be replaced."""
     root = Path(folder)
     needed = {Path(name).parent.as_posix() for name in listed}
     for name in list(needed):
@@ -72,6 +72,8 @@ def strangers(folder: str | os.PathLike[str], listed: Mapping[str, str | None]) 
             elif path.is_dir():
                 if rel not in needed:
                     found.append(rel)
+            elif not path.is_file():  # a FIFO, a socket, a device: never opened
+                found.append(rel)
             elif rel == MANIFEST_NAME and here == root:
                 continue
             elif rel not in listed or (listed[rel] is not None and _sha256(path) != listed[rel]):

@@ -56,6 +56,10 @@ with `PAPER_SCHEDULE`, 299/300 with this. The default skill's training (both mod
 (`pih bench`'s "training" figure times the two schedules on the same code)."""
 
 
+MAX_HORIZON_GROUPS = 1024
+"""The most distinct horizons a batch draws (each a matrix exponential per step; more than a batch holds are unused)."""
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Hyperparameters of `fit`. Defaults follow the paper (11 layers, ReLU, Adam, lr 1e-3, batch 128).
@@ -121,9 +125,9 @@ class TrainConfig:
         for name, value in counts.items():
             if not 1 <= value <= MAX_COUNT:
                 raise RFlowError(f"{name} {value} must be in 1..{MAX_COUNT:,}")
-        if self.horizon_groups > self.batch_size:
-            raise RFlowError(f"horizon_groups {self.horizon_groups} must not exceed batch_size {self.batch_size} (it "
-                             "counts the distinct horizons of a batch)")
+        if self.horizon_groups > MAX_HORIZON_GROUPS:
+            raise RFlowError(f"horizon_groups {self.horizon_groups} must be in 1..{MAX_HORIZON_GROUPS} (the distinct "
+                             "horizons drawn per batch)")
         if not 0 <= self.val_fraction < 1:
             raise RFlowError(f"val_fraction {self.val_fraction} must be in [0, 1)")
         if not (self.grad_clip > 0 and self.init_noise > 0 and self.goal_tolerance >= 0):

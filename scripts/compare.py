@@ -121,8 +121,6 @@ def check_args(args: argparse.Namespace) -> None:
             raise EnvError(f"--sequential needs {option}")
         if not model.is_dir():
             raise EnvError(f"{option} {model}: checkpoint folder not found")
-    if args.chunk < 1:
-        raise EnvError(f"--chunk {args.chunk}: must be >= 1")
 
 
 def write_output(path: Path | None, record: dict[str, Any]) -> None:

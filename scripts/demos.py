@@ -118,8 +118,10 @@ def main(args: argparse.Namespace) -> int:
     refuse_unused(args, add_arguments, ["import_format", "tool_offset", "dt_s", "snap_goal", "ends_apart"],
                   "applies to --import only")
     if args.check is not None:
-        refuse_unused(args, add_arguments, ["out", "video", "noise", "overwrite"],
-                      "not with --check (it records nothing)")
+        refuse_unused(args, add_arguments, ["num", "out", "video", "noise", "overwrite"],
+                      "not with --check (it runs --check N starts and records nothing)")
+    if args.video is None:
+        refuse_unused(args, add_arguments, ["camera"], "applies to --video only")
     from envs.demos import collect_demos, demo_episode_config
     from envs.expert import ExpertConfig
     from envs.env import PegInHoleEnv

@@ -359,11 +359,6 @@ def run_one(args: argparse.Namespace) -> int:
     """Train and evaluate one shape, manifold and method; print one summary line."""
     if args.shape is None:
         raise RFlowError("give --shape NAME (or --all)")
-    batch_only = [name for name, given in (("--resume", args.resume), ("--backend", args.backend != "process"),
-                                           ("--ray-address", args.ray_address is not None),
-                                           ("--unit-timeout-s", args.unit_timeout_s is not None)) if given]
-    if batch_only:
-        raise RFlowError(f"{batch_only[0]} applies to --all only")
     shape = check_shape(args.shape)
     manifold = _manifold_name(args.manifold)
     method = _check_method(args.method)

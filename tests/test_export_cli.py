@@ -158,3 +158,17 @@ def test_a_frame_size_no_renderer_makes_is_refused_naming_the_option(text: str) 
     with pytest.raises(EnvError, match="--video-size .*multiples of 8 in \\[16, 4096\\]"):
         parse_size(text)
     assert parse_size("640x480") == (640, 480)
+
+
+def test_an_export_from_before_the_file_lists_is_refused_not_deleted(tmp_path: Path, demo_file: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "ds"
+    args = ["export", "--demos", str(demo_file), "--format", "lerobot", "--out", str(out), "--overwrite"]
+    assert main(args) == 0
+    (out / ".pih-files.json").unlink()  # as exports were written before the lists
+    before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "from before exports listed their files" in err and len(err.strip().splitlines()) == 1
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before

@@ -77,7 +77,8 @@ def test_nan_weights_are_refused_naming_the_file(skill, tmp_path, which):
         load_skill(out)
 
 
-@pytest.mark.parametrize("change", ["added file", "edited weights", "new folder", "symlink", "legacy added"])
+@pytest.mark.parametrize("change", ["added file", "edited weights", "new folder", "symlink", "legacy added",
+                                    "fifo for weights"])
 def test_overwrite_never_deletes_what_somebody_put_into_a_checkpoint(skill, tmp_path, change):
     out = tmp_path / "model"
     save_skill(out, skill)
@@ -91,6 +92,9 @@ def test_overwrite_never_deletes_what_somebody_put_into_a_checkpoint(skill, tmp_
         (out / "mine").mkdir()
     elif change == "symlink":
         os.symlink(tmp_path, out / "link")
+    elif change == "fifo for weights":  # a listed name that is now a FIFO: refused, never opened (no hang)
+        (out / "position" / "weights.pt").unlink()
+        os.mkfifo(out / "position" / "weights.pt")
     else:  # a checkpoint from before the file list: its known files only
         from pihutil.manifest import MANIFEST_NAME
 

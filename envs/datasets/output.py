@@ -13,7 +13,7 @@ from typing import Iterator
 from envs.datasets.features import MARKER_FILE
 from envs.errors import EnvError
 from pihutil.atomic import atomic_folder
-from pihutil.manifest import folder_strangers, write_manifest
+from pihutil.manifest import folder_strangers, read_manifest, write_manifest
 
 
 def check_export_folder(out: Path, overwrite: bool) -> None:
@@ -38,7 +38,10 @@ def check_export_folder(out: Path, overwrite: bool) -> None:
                        "choose another folder")
     if not overwrite:
         raise EnvError(f"--out {out} already holds an export (pass --overwrite to replace it)")
-    found = folder_strangers(out, {MARKER_FILE: None})  # an export from before the file lists: the marker only
+    if read_manifest(out) is None:
+        raise EnvError(f"--out {out} is an export from before exports listed their files: pih cannot tell its files "
+                       "from others there; remove it yourself or choose another folder")
+    found = folder_strangers(out, {})
     if found:
         shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
         raise EnvError(f"--out {out} holds files the export did not write or that changed since ({shown}): not "

@@ -8,8 +8,6 @@ error, so episode i of the base skill and episode i of the candidate form a pair
 
 from __future__ import annotations
 
-import math
-
 from typing import Any, Mapping, Sequence
 
 import numpy as np
