@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -110,14 +111,17 @@ def write_atomic(path: str | os.PathLike[str], write: Callable[[IO[Any]], None],
 
 
 @contextmanager
-def atomic_folder(path: str | os.PathLike[str], before_swap: Callable[[], None] | None = None) -> Iterator[Path]:
+def atomic_folder(path: str | os.PathLike[str], before_swap: Callable[[], None] | None = None,
+                  keep_replaced: Callable[[Path], bool] | None = None) -> Iterator[Path]:
     """Yield a new empty folder beside ``path`` (".NAME.tmp-XXXXXXXX", mode 0777 less the umask) to build a
     folder output in; when the block ends without an exception, swap it in for ``path``.
 
     The swap: ``before_swap()`` (the caller's last check, e.g. that what is at ``path`` may still be
     replaced; it may raise), then an existing ``path`` is renamed aside into ".NAME.old-XXXXXXXX", the new
-    folder renamed to ``path`` and the old one deleted. On any error the new folder is deleted and, if
-    ``path`` was moved aside, it is put back.
+    folder renamed to ``path`` and the old one deleted, unless ``keep_replaced(old)`` says otherwise (the same
+    check again, on the folder as it was moved: a file that appeared between the check and the move is then
+    kept there, and a line on stderr says where). On any error the new folder is deleted and, if ``path`` was
+    moved aside, it is put back.
 
     Raises:
         Whatever the block or ``before_swap`` raises; OSError from the renames.
@@ -142,7 +146,12 @@ def atomic_folder(path: str | os.PathLike[str], before_swap: Callable[[], None] 
         raise
     finally:
         if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
+            replaced = aside / out.name
+            if keep_replaced is not None and replaced.exists() and keep_replaced(replaced):
+                sys.stderr.write(f"kept the replaced {out} at {replaced}: files appeared in it while it was "
+                                 "replaced\n")
+            else:
+                shutil.rmtree(aside, ignore_errors=True)
 
 
 __all__ = ["AtomicFile", "atomic_folder", "umask", "write_atomic"]

@@ -291,7 +291,8 @@ def save_skill(directory: str | os.PathLike[str], skill: PoseSkill,
         Whatever a writer raises (the temporary directory is removed first).
     """
     out = check_checkpoint_target(directory, overwrite)
-    with atomic_folder(out, before_swap=lambda: check_checkpoint_target(out, overwrite)) as tmp:  # still ours
+    with atomic_folder(out, before_swap=lambda: check_checkpoint_target(out, overwrite),  # still ours, and
+                       keep_replaced=lambda old: bool(checkpoint_strangers(old))) as tmp:  # still so when moved
         for name in MODEL_DIRS[skill.layout]:
             skill.models[name].save(tmp / name)
         for name, writer in (extra or {}).items():

@@ -99,3 +99,20 @@ def test_a_failed_rename_puts_the_old_folder_back(tmp_path: Path, monkeypatch: p
     monkeypatch.undo()
     assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
     assert leftovers(tmp_path) == []
+
+
+def test_a_file_that_appears_between_the_check_and_the_swap_is_kept(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "ck"
+    out.mkdir()
+    (out / "ours.txt").write_text("old")
+
+    def late_check() -> None:  # the caller's check passes, then somebody writes into the folder
+        (out / "theirs.txt").write_text("keep me")
+
+    with atomic_folder(out, before_swap=late_check,
+                       keep_replaced=lambda old: (old / "theirs.txt").exists()) as tmp:
+        (tmp / "ours.txt").write_text("new")
+    assert (out / "ours.txt").read_text() == "new" and not (out / "theirs.txt").exists()
+    kept = [p for p in tmp_path.glob(".ck.old-*/ck/theirs.txt")]
+    assert len(kept) == 1 and kept[0].read_text() == "keep me"
+    assert "kept the replaced" in capsys.readouterr().err

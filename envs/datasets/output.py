@@ -48,6 +48,11 @@ def check_export_folder(out: Path, overwrite: bool) -> None:
                        "replacing it; move them out or choose another folder")
 
 
+def _not_only_ours(old: Path) -> bool:
+    """Whether a replaced folder, as it was moved aside, holds anything but an export's own listed files."""
+    return any(old.iterdir()) and (read_manifest(old) is None or bool(folder_strangers(old, {})))
+
+
 @contextmanager
 def staged_folder(out: Path, overwrite: bool) -> Iterator[Path]:
     """Yield a temporary folder beside ``out`` to write the export into (with its MARKER_FILE); on a normal exit
@@ -58,7 +63,8 @@ def staged_folder(out: Path, overwrite: bool) -> Iterator[Path]:
         EnvError: see `check_export_folder`; no MARKER_FILE was written.
     """
     check_export_folder(out, overwrite)
-    with atomic_folder(out, before_swap=lambda: check_export_folder(out, overwrite)) as staging:
+    with atomic_folder(out, before_swap=lambda: check_export_folder(out, overwrite),
+                       keep_replaced=_not_only_ours) as staging:
         yield staging
         if not (staging / MARKER_FILE).is_file():
             raise EnvError(f"export to {out}: no {MARKER_FILE} was written")
