@@ -21,8 +21,9 @@ fi
 PYTHON="${PYTHON:-python3}"
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
-# The CPU build first, pinned, so no resolver ever pulls CUDA wheels.
-.venv/bin/python -m pip install -q "torch==2.13.0"
+# torch first, pinned, so no resolver pulls another build: the CPU file this project's machines hold; elsewhere set
+# TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu (PyPI's torch for Linux is the CUDA build).
+.venv/bin/python -m pip install -q ${TORCH_INDEX_URL:+--index-url "$TORCH_INDEX_URL"} "torch==2.13.0"
 .venv/bin/python -m pip install -q -e ".[test,cluster,search,datasets]"
 # Compile the numba kernels once (cached beside their modules), so the first `pih run` does not wait ~25 s.
 MUJOCO_GL="${MUJOCO_GL:-egl}" .venv/bin/pih warmup

@@ -102,6 +102,14 @@ class ImpedanceConfig:
         return np.diag([self.translational_stiffness] * 3 + [self.rotational_stiffness] * 3)
 
 
+MAX_JOINT_ANGLE_RAD = 2.0 * np.pi
+"""The largest |joint angle| a posture reference may ask for (every Panda joint lies within +-3.0 rad)."""
+MIN_STIFFNESS = 1e-3
+"""The smallest stiffness eigenvalue a command may have (N/m or N m/rad): K^-1 scales the feed-forward lead."""
+MAX_STIFFNESS = 1e6
+"""The largest (N/m or N m/rad): 200x a Panda's Cartesian stiffness of record; far below the law's overflow."""
+
+
 def validate_stiffness(stiffness: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """Check that a Cartesian stiffness is a finite, symmetric, positive definite 6x6 matrix.
 
@@ -112,7 +120,8 @@ def validate_stiffness(stiffness: npt.ArrayLike) -> npt.NDArray[np.float64]:
         The matrix as a C-contiguous float64 array.
 
     Raises:
-        ControllerError: wrong shape, non-finite entries, asymmetry or a non-positive eigenvalue.
+        ControllerError: wrong shape, non-finite entries, asymmetry, a non-positive eigenvalue, or eigenvalues
+            outside [MIN_STIFFNESS, MAX_STIFFNESS].
     """
     try:
         k = np.ascontiguousarray(stiffness, dtype=np.float64)
@@ -125,9 +134,13 @@ def validate_stiffness(stiffness: npt.ArrayLike) -> npt.NDArray[np.float64]:
     scale = float(np.max(np.abs(k)))
     if float(np.max(np.abs(k - k.T))) > 1e-9 * max(scale, 1.0):
         raise ControllerError("stiffness is not symmetric (max |K - K^T| too large)")
-    smallest = float(eigh_sym(k)[0][0])
+    eigenvalues = eigh_sym(k)[0]
+    smallest, largest = float(eigenvalues[0]), float(eigenvalues[-1])
     if smallest <= 0.0:
         raise ControllerError(f"stiffness is not positive definite (smallest eigenvalue {smallest:.3g})")
+    if smallest < MIN_STIFFNESS or largest > MAX_STIFFNESS:
+        raise ControllerError(f"stiffness eigenvalues {smallest:.3g} to {largest:.3g} must lie in [{MIN_STIFFNESS:g}, "
+                              f"{MAX_STIFFNESS:g}] (N/m, N m/rad): outside it the law's lead and torque overflow")
     return k
 
 
@@ -511,7 +524,10 @@ class CartesianImpedanceController:
         if q_nullspace is None:
             target[7 + n] = 0.0
         else:
-            target[7:7 + n] = as_vector(q_nullspace, n, "q_nullspace")
+            q_ref = as_vector(q_nullspace, n, "q_nullspace")
+            if float(np.max(np.abs(q_ref))) > MAX_JOINT_ANGLE_RAD:
+                raise ControllerError(f"q_nullspace {q_ref.tolist()} must lie within +-{MAX_JOINT_ANGLE_RAD} rad")
+            target[7:7 + n] = q_ref
             target[7 + n] = 1.0
         return self.checked_stiffness(stiffness)
 

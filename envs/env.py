@@ -103,6 +103,15 @@ class PeriodCommand:
     problem: str | None = None
 
 
+def _frozen_pose(pos: npt.ArrayLike, quat: npt.ArrayLike) -> Pose:
+    """A Pose on read-only copies: the nominal poses every observation and policy task hands out, which no policy
+    may change for the episodes after it."""
+    pos, quat = np.array(pos, dtype=np.float64), np.array(quat, dtype=np.float64)
+    pos.setflags(write=False)
+    quat.setflags(write=False)
+    return Pose(pos=pos, quat=quat)
+
+
 class PegInHoleEnv:
     """A Panda holding a peg above the shape sorter; commands are tcp poses (see the module docstring).
 
@@ -187,9 +196,9 @@ class PegInHoleEnv:
                                       episode_config.wrist_sensor, joints)
         self.stability = InstabilityCheck(self.data, self._arm_dof, episode_config.max_joint_speed_rad_s)
         nominal_hole_pos, nominal_hole_quat = self.scene.hole_pose(self.shape)
-        self.nominal_hole = Pose(pos=nominal_hole_pos, quat=nominal_hole_quat)
+        self.nominal_hole = _frozen_pose(nominal_hole_pos, nominal_hole_quat)
         goal_pos, goal_quat = self.scene.goal_pose()
-        self.nominal_goal = Pose(pos=goal_pos, quat=goal_quat)
+        self.nominal_goal = _frozen_pose(goal_pos, goal_quat)
         self.believed_hole, self.believed_goal = self.nominal_hole, self.nominal_goal
         self._set_hole_error(Perturbation())
         self.tracker = SuccessTracker(episode_config.success)
@@ -264,18 +273,23 @@ class PegInHoleEnv:
         Raises:
             EnvError: a malformed start pose, an unreachable one (naming the pose), or one in collision.
         """
-        rng = np.random.default_rng(seed)
-        if perturbation is None:
-            perturbation = sample_perturbation(self.config.perturbations, rng)
-        if start_pose is not None:
-            return self._reset_at(self._as_pose(start_pose, "start pose"), perturbation)
-        errors = []
-        for _ in range(MAX_START_DRAWS):
-            try:
-                return self._reset_at(self.sample_start(rng), perturbation)
-            except EnvError as err:
-                errors.append(str(err))
-        raise EnvError(f"no reachable start in {MAX_START_DRAWS} draws from the start region (last: {errors[-1]})")
+        try:
+            rng = np.random.default_rng(seed)
+            if perturbation is None:
+                perturbation = sample_perturbation(self.config.perturbations, rng)
+            if start_pose is not None:
+                return self._reset_at(self._as_pose(start_pose, "start pose"), perturbation)
+            errors = []
+            for _ in range(MAX_START_DRAWS):
+                try:
+                    return self._reset_at(self.sample_start(rng), perturbation)
+                except EnvError as err:
+                    errors.append(str(err))
+            raise EnvError(f"no reachable start in {MAX_START_DRAWS} draws from the start region (last: "
+                           f"{errors[-1]})")
+        except Exception:  # the simulator may be half reset: no step until a reset succeeds
+            self._done, self._reason = True, "its reset failed"
+            raise
 
     def _set_hole_error(self, perturbation: Perturbation) -> None:
         """Move the sorter (mocap) by the hole-pose error and update the holes the scorer uses."""

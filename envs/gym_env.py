@@ -213,6 +213,14 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         self.reward_config = reward
         self.stiffness_action = bool(stiffness_action)
         self.privileged = bool(privileged)
+        from envs.video import MAX_FRAME_PX
+
+        if not isinstance(camera, str):  # MuJoCo's name lookup takes a string only (None crashes it)
+            raise EnvError(f"{ENV_ID}: camera={camera!r} must be the name of a camera of the scene")
+        for name, value in (("width", width), ("height", height)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 16 <= value <= MAX_FRAME_PX:
+                raise EnvError(f"{ENV_ID}: {name}={value!r} must be an integer number of pixels in [16, "
+                               f"{MAX_FRAME_PX}]")
         self._camera, self._size = camera, (int(width), int(height))
         self._renderer: Any = None
         self.sim = PegInHoleEnv(scene_config, controller_config, episode_config)

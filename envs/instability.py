@@ -1,5 +1,5 @@
-"""Physics failures of an episode, checked after every control period: a MuJoCo bad-state warning (MuJoCo has then
-reset the state), a non-finite state, or an arm joint faster than the episode allows. The episode records what was
+"""Physics failures of an episode, checked after every control period: a MuJoCo bad-state or bad-control warning
+(MuJoCo has then reset the state or zeroed the controls), a non-finite state, or an arm joint faster than the episode allows. The episode records what was
 found as its end reason ("instability: ..."), it does not raise. The check is one compiled call on views of the
 MjData (`state_problem`, ~1 us instead of ~15 us of numpy calls per period); Python only words what it found."""
 
@@ -16,7 +16,10 @@ BAD_STATE_WARNINGS: tuple[mujoco.mjtWarning, ...] = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADCTRL,
 )
+"""MuJoCo's warnings of a bad state (it then resets the state) or a bad control (it then zeroes the controls: the
+arm falls limp)."""
 _BAD_STATE_INDICES = np.array([int(w) for w in BAD_STATE_WARNINGS])
 
 
@@ -87,7 +90,8 @@ class InstabilityCheck:
         now = f"t={time_s:.3f} s"
         if code == STATE_WARNING:
             fired = [w.name for w, new, old in zip(BAD_STATE_WARNINGS, self._counts, before) if new > old]
-            return f"MuJoCo warning {', '.join(fired)} at {now} (MuJoCo reset the state)"
+            what = "zeroed the controls" if fired == ["mjWARN_BADCTRL"] else "reset the state"
+            return f"MuJoCo warning {', '.join(fired)} at {now} (MuJoCo {what})"
         if code == STATE_NOT_FINITE:
             return f"non-finite state at {now}"
         return f"joint speed {speed:.1f} rad/s exceeds {self.max_joint_speed_rad_s} rad/s at {now}"

@@ -172,7 +172,7 @@ def lookahead_points(model: RiemannianFlow, points: npt.ArrayLike, dt: float | N
     """
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise RFlowError(f"step dt={dt} must be > 0")
-    if not (isinstance(steps, int) and steps >= 1):
+    if isinstance(steps, bool) or not (isinstance(steps, int) and steps >= 1):
         raise RFlowError(f"lookahead steps {steps!r} must be an integer >= 1")
     arr = np.asarray(points, dtype=np.float64)
     if arr.shape[1:] != model.point_shape or arr.ndim != len(model.point_shape) + 1:
@@ -182,6 +182,8 @@ def lookahead_points(model: RiemannianFlow, points: npt.ArrayLike, dt: float | N
     if chart.name in ("euclidean", "sphere"):  # the whole step compiled (rflow.flow_kernel.chart_flow_steps)
         out = np.empty((steps,) + arr.shape)
         side = None if hemisphere is None else np.asarray(hemisphere, dtype=np.float64)
+        if side is not None and chart.name == "sphere" and (side.shape != (4,) or not np.all(np.isfinite(side))):
+            raise RFlowError(f"hemisphere {side.tolist()} must be a quaternion: 4 finite numbers")
         bad = model.inference.chart_steps(np.ascontiguousarray(arr), out, chart, norm.mean, norm.std, dt, side)
         if bad >= 0:
             chart.log(arr[bad])  # raises what the single point's query raises

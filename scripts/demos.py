@@ -114,6 +114,8 @@ def _check(args: argparse.Namespace, scene: SceneConfig, expert: ExpertConfig) -
 def main(args: argparse.Namespace) -> int:
     """Record demos (or run the success-rate check, or import recorded demos); returns the exit status."""
     if args.import_file is not None:
+        refuse_unused(args, add_arguments, ["num", "seed", "entry_speed_mm_s", "camera"],
+                      "records the scripted expert's demos; it does not apply to --import")
         return run_import(args)
     refuse_unused(args, add_arguments, ["import_format", "tool_offset", "dt_s", "snap_goal", "ends_apart"],
                   "applies to --import only")

@@ -22,7 +22,8 @@ if TYPE_CHECKING:  # the simulator loads when the command runs, never for --help
     from envs.execution.evaluate_policy import PolicySpec
 
 SKILL_ONLY: tuple[str, ...] = ("--mode", "--lookahead-s", "--speed", "--stiffness", "--no-contact-adaptation",
-                               "--model", "--video", "--figure", "--stiffness-figure", "--force-figure")
+                               "--adaptation-off", "--model", "--video", "--figure", "--stiffness-figure",
+                               "--force-figure")
 """Options of `pih evaluate` that act on the RiemannianFlow skill only (or replay it), refused with --policy."""
 
 
@@ -67,7 +68,8 @@ def check_policy_args(args: argparse.Namespace) -> None:
     d = EvaluationConfig()
     given = {"--mode": args.mode != d.mode, "--lookahead-s": args.lookahead_s != DEFAULT_LOOKAHEAD_S,
              "--speed": args.speed != d.speed, "--stiffness": args.stiffness is not None,
-             "--no-contact-adaptation": args.no_contact_adaptation, "--model": args.model is not None,
+             "--no-contact-adaptation": args.no_contact_adaptation,
+             "--adaptation-off": getattr(args, "adaptation_off", None) is not None, "--model": args.model is not None,
              "--video": args.video is not None, "--figure": args.figure is not None,
              "--stiffness-figure": args.stiffness_figure is not None, "--force-figure": args.force_figure is not None}
     refused = [option for option in SKILL_ONLY if given[option]]

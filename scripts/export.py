@@ -21,6 +21,7 @@ from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demo
 from envs.datasets.output import check_export_folder, staged_folder
 from envs.errors import EnvError
 from envs.output import MiB, check_output_folder
+from scripts.options import refuse_unused
 
 DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x128"}
 VIDEO_BYTES = 500 * MiB
@@ -132,6 +133,8 @@ def main(args: argparse.Namespace) -> int:
         if args.video or extra:
             raise EnvError(f"{'--video' if args.video else '--' + extra[0].replace('_', '-')} applies to --episodes "
                            "only (a demo file holds no camera frames; render a demo with `pih render`)")
+    if not args.video:
+        refuse_unused(args, add_arguments, ["camera"], "applies to --video only")
     parse_select(args.select)
     if args.video and args.format == "lerobot":
         from envs.video import VideoConfig

@@ -233,6 +233,12 @@ CASES: dict[str, Case] = {
     "train-demos-folder": Case("train --demos {tmp}/model --out {tmp}/ck", "is a folder, not a .npz file"),
     "train-overwrite-checkpoint-with-notes": Case("train --demos {tmp}/demos.npz --out {tmp}/model --overwrite",
                                                   "holds files its checkpoint did not write", (_foreign("model/n.txt"),)),
+    "import-with-num": Case("demos --import {tmp}/rec.npz --tool-offset flange --num 3 --out {tmp}/i.npz",
+                            "--num: records the scripted expert's demos", (_recording,)),
+    "export-camera-without-video": Case("export --demos {tmp}/demos.npz --format lerobot --camera side --out {tmp}/ex",
+                                        "--camera: applies to --video only"),
+    "evaluate-policy-adaptation-off": Case("evaluate --policy policies_for_tests:hold --demos {tmp}/demos.npz "
+                                           "--adaptation-off push", "--adaptation-off: not with --policy"),
     "run-subsample-too-large": Case("run --root {tmp} --name r --subsample 5000", "--subsample 5000"),
     "train-pickled-demos": Case("train --demos {tmp}/pickled.npz --out {tmp}/ck", "not a readable .npz",
                                 (_pickled_demos,)),

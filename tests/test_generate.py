@@ -166,3 +166,13 @@ def test_lookahead_points_chain_the_single_point_step_bit_for_bit():
         lookahead_points(skill.models["position"], pos, 0.05, 0)
     with pytest.raises(RFlowError, match="dt"):
         lookahead_points(skill.models["position"], pos, -0.05, 2)
+
+
+@pytest.mark.parametrize("hemisphere", [[1.0, 0.0], [], [np.nan, 0.0, 0.0, 1.0]])
+def test_a_hemisphere_that_is_no_quaternion_is_refused_not_read_past(hemisphere) -> None:
+    from rflow.generate import lookahead_points
+    from skill_fixtures import GOAL_QUAT, tiny_skill
+
+    model = tiny_skill().models["orientation"]
+    with pytest.raises(RFlowError, match="hemisphere"):  # a short one was read past its end by the kernel
+        lookahead_points(model, np.asarray(GOAL_QUAT)[None], 0.05, 2, hemisphere=hemisphere)

@@ -281,6 +281,11 @@ class EpisodeRun:
         try:
             if not isinstance(action, Action):
                 raise EnvError(f"{type(self.policy).__name__}.act returned a {type(action).__name__}, not an Action")
+            for name in ("pose", "anchor"):
+                value = getattr(action, name)
+                if not (isinstance(value, Pose) or (name == "anchor" and value is None)):
+                    raise EnvError(f"{type(self.policy).__name__}.act returned an Action whose {name} is a "
+                                   f"{type(value).__name__}, not an envs.poses.Pose")
             stiffness = command_stiffness(env, action)
             target = led_pose(env, action, self.gain, stiffness)  # = feedforward_pose, stiffness made once
             period = env.prepare_period(target, stiffness)
@@ -370,8 +375,12 @@ class EpisodeRun:
         rec = self.record
         last = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         where = f" at {Path(last.filename).name}:{last.lineno}" if last else ""
+        try:
+            text = str(err)
+        except Exception:  # noqa: BLE001 -- an exception that cannot print itself still ends only its episode
+            text = "(its message could not be printed)"
         rec.success, rec.failure = False, "error"
-        rec.reason = f"error: {type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}{where}"
+        rec.reason = f"error: {type(err).__name__}: {text.splitlines()[0] if text else ''}{where}"
         self.running = False
         self._finished = True
 
