@@ -208,6 +208,9 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
             raise EnvError(f"{ENV_ID}: render_mode={render_mode!r} must be None or 'rgb_array'")
         if not isinstance(reward, RewardConfig):
             raise EnvError(f"{ENV_ID}: reward={reward!r} must be a RewardConfig")
+        for name, flag in (("stiffness_action", stiffness_action), ("privileged", privileged)):
+            if not isinstance(flag, (bool, np.bool_)):  # "no" would count as true
+                raise EnvError(f"{ENV_ID}: {name}={flag!r} must be True or False")
         scene_config, controller_config, episode_config = configs_from_kwargs(options, task)
         self.render_mode = render_mode
         self.reward_config = reward

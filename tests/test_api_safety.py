@@ -110,3 +110,18 @@ def test_a_control_mujoco_zeroes_ends_the_episode_as_an_instability(env) -> None
     env.data.warning[mujoco.mjtWarning.mjWARN_BADCTRL].number += 1  # what MuJoCo counts when it zeroes a bad ctrl
     found = check.check(0.1)
     assert found is not None and "mjWARN_BADCTRL" in found and "zeroed the controls" in found
+
+
+@pytest.mark.parametrize("flag", ["stiffness_action", "privileged"])
+def test_a_gym_flag_that_is_no_boolean_is_refused(flag) -> None:
+    with pytest.raises(EnvError, match=f"{flag}='no' must be True or False"):  # "no" counted as true
+        gymnasium.make(ENV_ID, **{flag: "no"})
+
+
+@pytest.mark.parametrize("floor", [-1.0, 0.0, float("nan"), True])
+def test_nearest_spd_refuses_a_floor_that_would_not_make_it_spd(floor) -> None:
+    from rflow.errors import RFlowError
+    from rflow.manifolds.spd import nearest_spd
+
+    with pytest.raises(RFlowError, match="min_eigenvalue"):
+        nearest_spd(-np.eye(3), min_eigenvalue=floor)

@@ -218,8 +218,11 @@ def nearest_spd(a: Array, min_eigenvalue: float = 1e-9) -> Array:
     floored at ``min_eigenvalue`` times max(1, max |lambda|) so the result is strictly positive definite.
 
     Raises:
-        RFlowError: not square, NaN/inf.
+        RFlowError: not square, NaN/inf, or a floor that is not a positive number.
     """
+    if isinstance(min_eigenvalue, bool) or not (isinstance(min_eigenvalue, (int, float)) and min_eigenvalue > 0.0
+                                                 and math.isfinite(min_eigenvalue)):
+        raise RFlowError(f"min_eigenvalue={min_eigenvalue!r} must be a positive number (the result is SPD)")
     a = as_array(a, "matrix")
     shape = tuple(a.shape)
     if len(shape) < 2 or shape[-1] != shape[-2]:
