@@ -50,3 +50,19 @@ def test_sphere_prepare_puts_all_ends_on_one_hemisphere():
     demos = np.stack([path, -path])
     prepared = get_manifold("sphere").prepare(demos)
     assert np.allclose(prepared[0, -1], prepared[1, -1])
+
+
+@pytest.mark.parametrize("name, tangent, goal", [
+    ("sphere", [1e155, 1e155, 0.0], [1.0, 0.0, 0.0, 0.0]),
+    ("spd_normal", [800.0, 800.0, 800.0, 0.0, 0.0, 0.0], np.eye(3)),
+])
+def test_an_exponential_map_that_overflows_is_refused_not_nan(name, tangent, goal) -> None:
+    import warnings
+
+    from rflow.errors import RFlowError
+    from rflow.manifolds import get_manifold
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # NumPy's overflow warnings on the way
+        with pytest.raises(RFlowError, match="overflowed"):
+            get_manifold(name).exp(np.asarray(tangent), np.asarray(goal, dtype=float))

@@ -58,6 +58,15 @@ class Manifold:
         return f"Manifold({self.name!r})"
 
 
+def _finite(points: Array, manifold: str) -> Array:
+    """``points`` of an exponential map, refused when it overflowed (NumPy only warns and returns NaN or inf for a
+    tangent too long for the map's arithmetic, e.g. 1e155 on S^3 or a normal coordinate of 800 on SPD). Torch
+    tensors, which training differentiates, pass unchecked."""
+    if isinstance(points, np.ndarray) and not np.all(np.isfinite(points)):
+        raise RFlowError(f"{manifold}: the exponential map of a tangent overflowed (the tangent is too long)")
+    return points
+
+
 class EuclideanSpace(Manifold):
     """R^n: tangent = x - goal."""
 
@@ -96,7 +105,7 @@ class UnitQuaternions(Manifold):
         return sphere.log_map(points, goal)
 
     def exp(self, tangent: Array, goal: Array) -> Array:
-        return sphere.exp_map(tangent, goal)
+        return _finite(sphere.exp_map(tangent, goal), self.name)
 
     def distance(self, a: Array, b: Array) -> Array:
         return sphere.distance(a, b)
@@ -130,7 +139,7 @@ class SPDMatrices(Manifold):
         return spd.mandel(spd.log_map(points, goal))
 
     def exp(self, tangent: Array, goal: Array) -> Array:
-        return spd.exp_map(spd.mandel_inverse(tangent), goal)
+        return _finite(spd.exp_map(spd.mandel_inverse(tangent), goal), self.name)
 
     def distance(self, a: Array, b: Array) -> Array:
         return spd.log_euclidean_distance(a, b)
@@ -149,7 +158,7 @@ class SPDNormalMatrices(SPDMatrices):
         return spd.mandel(spd.normal_log_map(points, goal))
 
     def exp(self, tangent: Array, goal: Array) -> Array:
-        return spd.normal_exp_map(spd.mandel_inverse(tangent), goal)
+        return _finite(spd.normal_exp_map(spd.mandel_inverse(tangent), goal), self.name)
 
 
 class ProductManifold(Manifold):
