@@ -13,8 +13,8 @@ mj_jacSite, the law, mj_step2; no torque disturbance, no sensing), with one of t
     LAW_OF_RECORD       the law of record itself (`impedance_torque`: the factors at every step), as the
                         reference the two are timed against.
 
-The first two are not controllers of the testbed: no episode runs them. They bound from below what a cheaper law of record
-could save (the README's speed section).
+The first two are not controllers of the testbed: no episode runs them. They bound from below what a cheaper law
+of record could save (the README's speed section).
 """
 
 from __future__ import annotations

@@ -287,7 +287,7 @@ class PegInHoleEnv:
                     errors.append(str(err))
             raise EnvError(f"no reachable start in {MAX_START_DRAWS} draws from the start region (last: "
                            f"{errors[-1]})")
-        except Exception:  # the simulator may be half reset: no step until a reset succeeds
+        except BaseException:  # the simulator may be half reset (also after Ctrl-C): no step until a reset succeeds
             self._done, self._reason = True, "its reset failed"
             raise
 

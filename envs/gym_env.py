@@ -77,6 +77,7 @@ from envs.episode_config import EpisodeConfig
 from envs.observation import REASON_TIME_LIMIT, Observation
 from envs.errors import EnvError
 from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
+from envs.rendering import MAX_FRAME_PX
 from envs.scene_config import SceneConfig
 from envs.task import Task
 from rflow.small_linalg import norm
@@ -216,8 +217,6 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         self.reward_config = reward
         self.stiffness_action = bool(stiffness_action)
         self.privileged = bool(privileged)
-        from envs.video import MAX_FRAME_PX
-
         if not isinstance(camera, str):  # MuJoCo's name lookup takes a string only (None crashes it)
             raise EnvError(f"{ENV_ID}: camera={camera!r} must be the name of a camera of the scene")
         for name, value in (("width", width), ("height", height)):

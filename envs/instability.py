@@ -1,6 +1,6 @@
 """Physics failures of an episode, checked after every control period: a MuJoCo bad-state or bad-control warning
-(MuJoCo has then reset the state or zeroed the controls), a non-finite state, or an arm joint faster than the episode allows. The episode records what was
-found as its end reason ("instability: ..."), it does not raise. The check is one compiled call on views of the
+(MuJoCo has then reset the state or zeroed the controls), a non-finite state, or an arm joint faster than the
+episode allows. The episode records what was found as its end reason ("instability: ..."), it does not raise. The check is one compiled call on views of the
 MjData (`state_problem`, ~1 us instead of ~15 us of numpy calls per period); Python only words what it found."""
 
 from __future__ import annotations

@@ -309,12 +309,12 @@ def check_output(option: str, path: str | os.PathLike[str] | None, overwrite: bo
             kind = "folder" if out.is_dir() else "file"
             what = "is not a checkpoint written by pih" if folder else "was not written by pih (no pih marker)"
             if out.is_dir() and not out.is_symlink():
+                from pihutil.manifest import shown
                 from rflow.skill_io import checkpoint_strangers, is_checkpoint
 
                 found = checkpoint_strangers(out) if is_checkpoint(out) else []
                 if found:
-                    shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
-                    what = f"holds files its checkpoint did not write or that changed since ({shown})"
+                    what = f"holds files its checkpoint did not write or that changed since ({shown(found)})"
             raise EnvError(f"{where}: the {kind} there {what}: not replacing it; choose another path")
         if not overwrite:
             raise EnvError(f"{where} already exists (use --overwrite to replace it)")

@@ -16,6 +16,8 @@ from typing import Any
 
 from envs.errors import EnvError
 
+MAX_FRAME_PX = 4096
+"""The largest frame side (pixels) an offscreen buffer is asked for (the GL drivers' usual limit is 4096-16384)."""
 DEFAULT_GL_BACKEND = "egl"
 """The headless backend used unless ``MUJOCO_GL`` names another (egl, osmesa or glfw)."""
 

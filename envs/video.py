@@ -23,7 +23,7 @@ from typing import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from envs.rendering import gl_context, use_headless_rendering
+from envs.rendering import MAX_FRAME_PX, gl_context, use_headless_rendering
 
 use_headless_rendering()  # for a library user who imports mujoco after us; we make our own context
 
@@ -43,10 +43,6 @@ GOAL_AXES_RGBA = (
     np.array([0.1, 0.8, 0.1, 1.0], dtype=np.float32),
     np.array([0.1, 0.2, 0.9, 1.0], dtype=np.float32),
 )
-
-
-MAX_FRAME_PX = 4096
-"""The largest frame side (pixels) an offscreen buffer is asked for (the GL drivers' usual limit is 4096-16384)."""
 
 
 @dataclass(frozen=True)

@@ -56,7 +56,8 @@ def read_manifest(folder: str | os.PathLike[str]) -> dict[str, str] | None:
 def strangers(folder: str | os.PathLike[str], listed: Mapping[str, str | None]) -> list[str]:
     """What under ``folder`` the program did not write: every entry that is not a listed file with its listed
     SHA-256 (None: any content), not the manifest and not a folder on the way to a listed file; symbolic links
-    and special files (FIFOs, sockets, devices) always. Relative POSIX paths, sorted; [] when the folder may be replaced."""
+    and special files (FIFOs, sockets, devices) always. Relative POSIX paths, sorted; [] when the folder may be
+    replaced."""
     root = Path(folder)
     needed = {Path(name).parent.as_posix() for name in listed}
     for name in list(needed):
@@ -88,4 +89,9 @@ def folder_strangers(folder: str | os.PathLike[str], unlisted: Mapping[str, str 
     return strangers(folder, listed if listed is not None else unlisted)
 
 
-__all__ = ["MANIFEST_NAME", "folder_strangers", "read_manifest", "strangers", "write_manifest"]
+def shown(found: list[str], most: int = 3) -> str:
+    """The first ``most`` of ``found`` for a one-line message ("a, b, c and 4 more")."""
+    return ", ".join(found[:most]) + (f" and {len(found) - most} more" if len(found) > most else "")
+
+
+__all__ = ["MANIFEST_NAME", "folder_strangers", "read_manifest", "shown", "strangers", "write_manifest"]

@@ -42,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pihutil.atomic import atomic_folder
-from pihutil.manifest import folder_strangers, write_manifest
+from pihutil.manifest import folder_strangers, shown, write_manifest
 from rflow.errors import RFlowError
 from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
 from rflow.model import CONFIG_FILE, WEIGHTS_FILE, RiemannianFlow, read_json
@@ -265,9 +265,8 @@ def check_checkpoint_target(directory: str | os.PathLike[str], overwrite: bool =
             raise RFlowError(f"checkpoint {out} already exists (use --overwrite to replace it)")
         found = checkpoint_strangers(out)
         if found:
-            shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
-            raise RFlowError(f"checkpoint {out} holds files it did not write or that changed since ({shown}): not "
-                             "replacing it; move them out or choose another path")
+            raise RFlowError(f"checkpoint {out} holds files it did not write or that changed since "
+                             f"({shown(found)}): not replacing it; move them out or choose another path")
     return out
 
 

@@ -106,10 +106,7 @@ def check_args(args: argparse.Namespace) -> None:
         raise EnvError(f"--progress-margin {args.progress_margin}: must lie in [0, 1)")
     check_json_output(args.json, args.overwrite, [*args.evaluations, args.base_model, args.cand_model])
     if not args.sequential:
-        parser = argparse.ArgumentParser(add_help=False)
-        add_arguments(parser)
-        sequential_only = [a.dest for a in parser._actions if a.option_strings and a.dest not in PAIRED_OPTIONS]
-        refuse_unused(args, add_arguments, sequential_only, "applies to --sequential only")
+        refuse_unused(args, add_arguments, None, "applies to --sequential only", keep=PAIRED_OPTIONS)
         if len(args.evaluations) != 2:
             raise EnvError(f"give two evaluations, BASE.json CAND.json (got {len(args.evaluations)}), or --sequential "
                            "with --base-model and --cand-model")

@@ -58,7 +58,7 @@ def parse_size(text: str) -> tuple[int, int]:
         width, height = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise EnvError(f"--video-size {text!r} must be WIDTHxHEIGHT, e.g. 640x480") from None
-    from envs.video import MAX_FRAME_PX
+    from envs.rendering import MAX_FRAME_PX
 
     if not (16 <= width <= MAX_FRAME_PX and 16 <= height <= MAX_FRAME_PX) or width % 8 or height % 8:
         raise EnvError(f"--video-size {text!r}: width and height must be multiples of 8 in [16, {MAX_FRAME_PX}] "

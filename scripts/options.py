@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Callable
+from typing import Callable, Sequence
 
 MAX_SEED = 2**32 - 1
 MAX_EPISODES = 100_000
@@ -86,14 +86,14 @@ def check_camera(camera: str) -> None:
 
 
 def refuse_unused(args: argparse.Namespace, add_arguments: Callable[[argparse.ArgumentParser], None],
-                  dests: list[str], why: str) -> None:
-    """A option given on the command line that this use of the command would ignore is refused, so a user never
+                  dests: Sequence[str] | None, why: str, *, keep: Sequence[str] = ()) -> None:
+    """An option given on the command line that this use of the command would ignore is refused, so a user never
     believes an option acted: every ``dests`` whose value differs from the default ``add_arguments`` gives it.
 
     Args:
         args: the parsed command line.
         add_arguments: the command's option builder (the defaults are read from a parser it fills).
-        dests: the options' destinations that do not apply.
+        dests: the options' destinations that do not apply; None: every option but those in ``keep``.
         why: the reason, completing "--OPTION: ..." (e.g. "applies to --all only").
 
     Raises:
@@ -104,6 +104,6 @@ def refuse_unused(args: argparse.Namespace, add_arguments: Callable[[argparse.Ar
     parser = argparse.ArgumentParser(add_help=False)
     add_arguments(parser)
     options = {action.dest: action.option_strings[-1] for action in parser._actions if action.option_strings}
-    for dest in dests:
+    for dest in dests if dests is not None else [d for d in options if d not in keep]:
         if getattr(args, dest, None) != parser.get_default(dest):
             raise EnvError(f"{options.get(dest, dest)}: {why}")

@@ -96,9 +96,13 @@ def test_workers_killed_while_starting_are_replaced(tmp_path, start):
 
 def test_workers_that_hang_while_starting_are_killed_and_replaced(tmp_path):
     """Both first workers hang in init (as a forked child would on a lock held at the fork): each is killed at
-    the start limit and replaced; the batch ends with the usual records instead of waiting forever."""
+    the start limit and replaced; the batch ends with the usual records instead of waiting forever. The first two
+    units must run at the same time, so on a loaded machine the first replacement cannot finish the batch alone
+    before the second hung worker's limit is seen."""
     setup = {**SETUP, "hang_starts": 2, "counter": str(tmp_path / "c")}
-    outcome = run_batch(units(4), setup, init, work, failure,
+    meet = {"do": "meet", "folder": str(tmp_path / "m"), "count": 2}
+    (tmp_path / "m").mkdir()
+    outcome = run_batch(units(4, {0: meet, 1: meet}), setup, init, work, failure,
                         BatchConfig(workers=2, start_method="fork", start_timeout_s=2.0))
     assert outcome.complete and outcome.records == run(units(4)).records
     assert [(e["event"], e["replaced"], e["where"]["exit_code"], e["detail"]) for e in outcome.events] == [

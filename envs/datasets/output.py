@@ -13,7 +13,7 @@ from typing import Iterator
 from envs.datasets.features import MARKER_FILE
 from envs.errors import EnvError
 from pihutil.atomic import atomic_folder
-from pihutil.manifest import folder_strangers, read_manifest, write_manifest
+from pihutil.manifest import folder_strangers, read_manifest, shown, write_manifest
 
 
 def check_export_folder(out: Path, overwrite: bool) -> None:
@@ -43,9 +43,8 @@ def check_export_folder(out: Path, overwrite: bool) -> None:
                        "from others there; remove it yourself or choose another folder")
     found = folder_strangers(out, {})
     if found:
-        shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
-        raise EnvError(f"--out {out} holds files the export did not write or that changed since ({shown}): not "
-                       "replacing it; move them out or choose another folder")
+        raise EnvError(f"--out {out} holds files the export did not write or that changed since ({shown(found)}): "
+                       "not replacing it; move them out or choose another folder")
 
 
 def _not_only_ours(old: Path) -> bool:
