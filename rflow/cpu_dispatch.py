@@ -20,8 +20,9 @@ scipy) is not pinned: ``OPENBLAS_CORETYPE`` is the host's own setting, so what f
 from __future__ import annotations
 
 import os
+import sys
 import warnings
-from typing import MutableMapping
+from typing import Mapping, MutableMapping
 
 PINNED_ENVIRONMENT: dict[str, str] = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE",
                                       "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}
@@ -36,6 +37,32 @@ def pin_cpu_dispatch(environ: MutableMapping[str, str] = os.environ) -> None:
     """
     for key, value in PINNED_ENVIRONMENT.items():
         environ.setdefault(key, value)
+
+
+def check_numpy_dispatch(features: Mapping[str, bool] | None = None,
+                         environ: Mapping[str, str] = os.environ) -> None:
+    """Warn (RuntimeWarning) when numpy runs loops that ``NPY_DISABLE_CPU_FEATURES`` turns off: numpy reads the
+    variable once, when it is imported, so a program that imported numpy before `rflow` (or `envs`, which import it
+    first) keeps the host's AVX-512 loops, whose exp, arctan2, ... round otherwise, and its episode records differ
+    from `pih`'s on this CPU and from other CPUs'.
+
+    Args:
+        features: numpy's runtime CPU features (default: its own ``__cpu_features__``, when numpy is loaded).
+        environ: where the wanted setting is read.
+    """
+    if features is None:
+        if "numpy" not in sys.modules:
+            return
+        try:
+            from numpy._core._multiarray_umath import __cpu_features__ as features
+        except ImportError:  # another numpy layout: nothing to check against
+            return
+    running = [group for group in environ.get("NPY_DISABLE_CPU_FEATURES", "").split() if features.get(group)]
+    if running:
+        warnings.warn(f"numpy was imported before rflow and runs its {' '.join(running)} loops: episode records will "
+                      f"differ from pih's and from other CPUs'; import rflow (or envs) before numpy, or start Python "
+                      f"with NPY_DISABLE_CPU_FEATURES={PINNED_ENVIRONMENT['NPY_DISABLE_CPU_FEATURES']!r}",
+                      RuntimeWarning, stacklevel=3)
 
 
 def check_torch_dispatch() -> None:

@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -19,6 +20,7 @@ SCRIPT = """
 import json, sys
 from pathlib import Path
 sys.path.insert(0, {tests!r})
+import rflow  # first, as pih does: numpy then loads with the pinned loops
 from skill_fixtures import tiny_skill
 from rflow.skill_io import save_skill
 from envs.execution.evaluate import EvaluationConfig, evaluate
@@ -76,3 +78,32 @@ def test_the_test_session_pins_numpy_before_a_test_module_imports_it():
                           capture_output=True, text=True, timeout=300, cwd=tests.parent,
                           env={k: v for k, v in os.environ.items() if k not in PINNED_ENVIRONMENT})
     assert done.returncode == 0 and "2 passed" in done.stdout, done.stdout[-3000:]
+
+
+@pytest.mark.parametrize("package", ["envs", "controllers", "envs.gym_env"])
+def test_importing_a_package_of_the_project_pins_numpy_before_numpy_loads(package):
+    """A script that starts with `import envs` (or the Gym module, or the controllers) runs numpy's loops as `pih`
+    does: each package imports rflow, which sets NPY_DISABLE_CPU_FEATURES, before anything imports numpy."""
+    code = (f"import {package}, os\n"
+            "from numpy._core._multiarray_umath import __cpu_features__ as f\n"
+            "print(os.environ.get('NPY_DISABLE_CPU_FEATURES'), any(f.get(g, False) for g in "
+            "('X86_V4', 'AVX512_SKX', 'AVX512_ICL', 'AVX512_SPR')))")
+    done = subprocess.run([sys.executable, "-W", "error::RuntimeWarning", "-c", code], capture_output=True, text=True,
+                          timeout=300, cwd=Path(__file__).parent.parent,
+                          env={k: v for k, v in os.environ.items() if k not in PINNED_ENVIRONMENT})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == PINNED_ENVIRONMENT["NPY_DISABLE_CPU_FEATURES"].split() + ["False"]
+
+
+def test_numpy_imported_first_with_loops_the_pin_turns_off_is_warned_about():
+    """numpy reads NPY_DISABLE_CPU_FEATURES only when it loads: loops it runs that the setting names are reported
+    (a host without AVX-512 runs none, so the features are given here)."""
+    from rflow.cpu_dispatch import check_numpy_dispatch
+
+    pinned = {"NPY_DISABLE_CPU_FEATURES": PINNED_ENVIRONMENT["NPY_DISABLE_CPU_FEATURES"]}
+    with pytest.warns(RuntimeWarning, match="runs its X86_V4 AVX512_ICL loops"):
+        check_numpy_dispatch({"X86_V3": True, "X86_V4": True, "AVX512_ICL": True, "AVX512_SPR": False}, pinned)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_numpy_dispatch({"X86_V3": True, "X86_V4": False, "AVX512_ICL": False}, pinned)  # the pin took
+        check_numpy_dispatch({"X86_V4": True}, {"NPY_DISABLE_CPU_FEATURES": ""})  # the user's own choice, as pih's
