@@ -32,6 +32,8 @@ by the grasp offset and any slip), held for one control period (10 ms by default
     u[6:9]  (only with ``stiffness_action=True``) the translational stiffness diagonal k_x, k_y, k_z in N/m within
             STIFFNESS_RANGE_N_M (c = 1550, h = 1450); the commanded 6x6 world-frame stiffness is
             K = diag(k_x, k_y, k_z, k_r, k_r, k_r) with k_r the controller's rotational stiffness.
+An action that is not real numbers, has n entries in another shape than (n,) (axes of length 1 aside) or holds NaN
+or inf is an EnvError naming it, in one line; so is ``step`` before ``reset`` or after the episode ended.
 
 Observation (Dict; every value float32): what a real cell measures, as the Policy protocol's observation
 (envs.execution.policy_protocol):
@@ -62,6 +64,7 @@ starts at a given peg_tip pose instead.
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from dataclasses import dataclass
 from typing import Any
 
@@ -191,6 +194,30 @@ def joint_position_bounds(model: mujoco.MjModel, size: int) -> tuple[FloatArray,
     return low[:size], high[:size]
 
 
+def _as_command_vector(value: Any, what: str, size: int) -> FloatArray:
+    """``value`` as a float64 vector (size,): real numbers (bool, integer or float dtype) in an array of ``size``
+    entries whose other axes have length 1 (a policy's (1, size) output is taken; (2, 3) for 6 entries is not).
+
+    Raises:
+        EnvError: in one line naming ``what``: not numbers (strings, None, complex), or another shape.
+    """
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError) as err:  # e.g. a ragged sequence
+        raise EnvError(f"{ENV_ID}: {what} is not an array of numbers ({err})") from None
+    objects = raw.dtype.kind == "O"  # numbers numpy does not type (e.g. Decimal), or None, a dict, ...
+    if objects and all(isinstance(v, numbers.Number) and not isinstance(v, complex) for v in raw.flat):
+        raw = raw.astype(np.float64)
+    if raw.dtype.kind not in "biuf":  # strings, complex numbers, None, other objects
+        shown = " ".join(repr(value).split())  # one line
+        shown = shown if len(shown) <= 80 else shown[:77] + "..."
+        raise EnvError(f"{ENV_ID}: {what} must be an array of {size} real numbers, got {shown}"
+                       f"{'' if objects else f' (dtype {raw.dtype})'}")
+    if raw.size != size or raw.ndim == 0 or max(raw.shape) != size:
+        raise EnvError(f"{ENV_ID}: {what} has shape {raw.shape}, expected ({size},)")
+    return np.asarray(value, dtype=np.float64).reshape(-1)  # the conversion actions always had
+
+
 def _box(low: npt.ArrayLike, high: npt.ArrayLike) -> spaces.Box:
     return spaces.Box(low=np.asarray(low, dtype=np.float32), high=np.asarray(high, dtype=np.float32),
                       dtype=np.float32)
@@ -226,6 +253,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         self._camera, self._size = camera, (int(width), int(height))
         self._renderer: Any = None
         self.sim = PegInHoleEnv(scene_config, controller_config, episode_config)
+        self._reset_called = False  # the simulator is reset below (for the observation space), the env is not
         if mujoco.mj_name2id(self.sim.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
             raise EnvError(f"{ENV_ID}: camera={camera!r} is not a camera of the scene")
         self._rot_stiffness = controller_config.rotational_stiffness
@@ -255,11 +283,9 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         """The physical command u = c + a h of a normalised action a, clipped to [-1, 1] first (module docstring).
 
         Raises:
-            EnvError: a wrong shape, NaN or inf.
+            EnvError: not real numbers, a wrong shape, NaN or inf (`_as_command_vector`).
         """
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != self.action_space.shape:
-            raise EnvError(f"{ENV_ID}: action must have shape {self.action_space.shape}, got {a.shape}")
+        a = _as_command_vector(action, "action", self.physical_low.size)
         if not np.all(np.isfinite(a)):
             raise EnvError(f"{ENV_ID}: action {a.tolist()} contains NaN or inf")
         centre, half = 0.5 * (self.physical_high + self.physical_low), 0.5 * (self.physical_high - self.physical_low)
@@ -269,11 +295,11 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         """The normalised action (float32) of a physical command u (module docstring): a = (u - c) / h, not clipped.
 
         Raises:
-            EnvError: a wrong shape.
+            EnvError: not real numbers, a wrong shape, NaN or inf (`_as_command_vector`).
         """
-        u = np.asarray(physical, dtype=np.float64).reshape(-1)
-        if u.shape != self.physical_low.shape:
-            raise EnvError(f"{ENV_ID}: a physical command must have shape {self.physical_low.shape}, got {u.shape}")
+        u = _as_command_vector(physical, "physical command", self.physical_low.size)
+        if not np.all(np.isfinite(u)):
+            raise EnvError(f"{ENV_ID}: physical command {u.tolist()} contains NaN or inf")
         centre, half = 0.5 * (self.physical_high + self.physical_low), 0.5 * (self.physical_high - self.physical_low)
         return ((u - centre) / half).astype(np.float32)
 
@@ -370,12 +396,22 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         if unknown:
             raise EnvError(f"{ENV_ID}: unknown reset option(s) {sorted(unknown)}; the only one is 'start_pose'")
         obs = self.sim.reset(seed=int(self.np_random.integers(2**63 - 1)), start_pose=(options or {}).get("start_pose"))
+        self._reset_called = True
         return self._observe(obs), {"start_pos": self.sim.start.pos.copy(), "start_quat": self.sim.start.quat.copy(),
                                     "perturbation": self.sim.perturbation, **self._truth(obs)}
 
     def step(self, action: npt.ArrayLike) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         """One control period at the pose a normalised action commands; returns (obs, reward, terminated, truncated,
-        info), ``info`` with the end reason, success, the commanded pose and the simulator's truth (PRIVILEGED_KEYS)."""
+        info), ``info`` with the end reason, success, the commanded pose and the simulator's truth (PRIVILEGED_KEYS).
+
+        Raises:
+            EnvError: before the first ``reset()``, after the episode ended (or its reset failed), or a bad action
+                (not real numbers, a wrong shape, NaN or inf).
+        """
+        if not self._reset_called:
+            raise EnvError(f"{ENV_ID}: step() before reset(): call reset() first")
+        if self.sim.done:
+            raise EnvError(f"{ENV_ID}: no episode to step: it ended ({self.sim.reason}); call reset() first")
         pose, stiffness = self.command(action)
         result = self.sim.step(pose, stiffness)
         truncated = result.done and result.reason == REASON_TIME_LIMIT

@@ -176,25 +176,37 @@ def resample_trajectory(times: npt.ArrayLike, pos: npt.ArrayLike, quat: npt.Arra
     Args:
         times: (K,) strictly increasing sample times, seconds.
         pos: (K, 3) positions.
-        quat: (K, 4) unit quaternions (made continuous first).
+        quat: (K, 4) unit quaternions, norms within QUAT_NORM_TOL of 1 (made continuous first).
         new_times: (L,) query times within [times[0], times[-1]] (clipped to it).
 
     Returns:
         (pos (L, 3), quat (L, 4)).
 
     Raises:
-        EnvError: mismatched shapes or non-increasing times.
+        EnvError: inputs that are not numbers, mismatched shapes, NaN/inf, non-increasing times, or a quaternion
+            whose norm is off 1 by more than QUAT_NORM_TOL (a zero one).
     """
-    t = np.asarray(times, dtype=float)
-    p = np.asarray(pos, dtype=float)
-    q = np.asarray(quat, dtype=float)
+    try:
+        t, p, q, tn = (np.asarray(a, dtype=float) for a in (times, pos, quat, new_times))
+    except (TypeError, ValueError) as err:
+        raise EnvError(f"resample_trajectory: times, pos, quat and new_times must be arrays of numbers "
+                       f"({err})") from None
     if t.ndim != 1 or t.size < 2 or p.shape != (t.size, 3) or q.shape != (t.size, 4):
         raise EnvError(f"resample_trajectory: need times (K>=2,), pos (K, 3), quat (K, 4); got "
                        f"{t.shape}, {p.shape}, {q.shape}")
+    for name, arr in (("times", t), ("pos", p), ("quat", q), ("new_times", tn)):
+        if not np.isfinite(arr).all():
+            raise EnvError(f"resample_trajectory: {name} contains NaN or inf (first at "
+                           f"{np.argwhere(~np.isfinite(arr))[0].tolist()})")
     if np.any(np.diff(t) <= 0.0):
         raise EnvError("resample_trajectory: times must be strictly increasing")
+    off = np.abs(np.linalg.norm(q, axis=-1) - 1.0)
+    if off.max() > QUAT_NORM_TOL:
+        worst = int(np.argmax(off))
+        raise EnvError(f"resample_trajectory: quat {q[worst].tolist()} at sample {worst} is not a unit quaternion "
+                       f"(norm {np.sqrt(np.sum(q[worst] ** 2)):.6g}, tolerance {QUAT_NORM_TOL:g})")
     q = make_continuous(q)
-    tn = np.clip(np.asarray(new_times, dtype=float), t[0], t[-1])
+    tn = np.clip(tn, t[0], t[-1])
     new_pos = np.stack([np.interp(tn, t, p[:, i]) for i in range(3)], axis=-1)
     seg = np.clip(np.searchsorted(t, tn, side="right") - 1, 0, t.size - 2)
     s = (tn - t[seg]) / (t[seg + 1] - t[seg])

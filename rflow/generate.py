@@ -9,12 +9,14 @@ Closed loop (`next_point`, `velocity`): the current point through b^-1, one late
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
 from rflow.errors import RFlowError
+from rflow.inference import check_dt
 from rflow.model import RiemannianFlow
 
 CHUNK_POINTS = 8192  # points per batched flow pass: small enough to stay in cache
@@ -50,6 +52,35 @@ def _check_starts(model: RiemannianFlow, starts: npt.ArrayLike) -> tuple[np.ndar
     return arr, False
 
 
+def _check_steps(steps: object) -> int:
+    """``steps`` as an int: a whole number >= 0 (an int, a numpy integer or a float without a fraction; no bool).
+
+    Raises:
+        RFlowError: naming steps and its value: a string, None, NaN, inf, a fraction, a negative number, a bool.
+    """
+    try:
+        ok = not isinstance(steps, (bool, np.bool_)) and steps >= 0 and int(steps) == steps  # type: ignore[operator]
+    except (TypeError, ValueError, OverflowError):  # not a number, or NaN / inf
+        ok = False
+    if not ok:
+        raise RFlowError(f"steps={steps!r} must be a non-negative integer")
+    return int(steps)  # type: ignore[call-overload]
+
+
+def _check_xi(xi: object) -> None:
+    """Refuse a stop threshold that is not a finite number > 0 (xi = inf would stop every rollout at its start).
+
+    Raises:
+        RFlowError: naming xi and its value.
+    """
+    try:
+        ok = not isinstance(xi, (bool, np.bool_)) and math.isfinite(xi) and xi > 0  # type: ignore[arg-type,operator]
+    except TypeError:
+        ok = False
+    if not ok:
+        raise RFlowError(f"stop threshold xi={xi!r} must be a finite number > 0")
+
+
 def rollout(
     model: RiemannianFlow,
     starts: npt.ArrayLike,
@@ -70,13 +101,12 @@ def rollout(
         The `Rollout` (a batch of one for a single start point).
 
     Raises:
-        RFlowError: bad start shapes, points off the manifold, steps < 0, xi <= 0.
+        RFlowError: bad start shapes, points off the manifold or NaN/inf; steps not a non-negative integer; xi or dt
+            not a finite number > 0.
     """
-    if steps < 0 or int(steps) != steps:
-        raise RFlowError(f"steps {steps} must be a non-negative integer")
-    if not xi > 0:
-        raise RFlowError(f"stop threshold xi={xi} must be > 0")
-    steps = int(steps)
+    steps = _check_steps(steps)
+    _check_xi(xi)
+    check_dt(dt)
     arr, _ = _check_starts(model, starts)
     net = model.inference
     b = arr.shape[0]
@@ -120,8 +150,7 @@ def _check_point(model: RiemannianFlow, arr: np.ndarray) -> tuple[np.ndarray, bo
 
 def _step_tangent(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None) -> tuple[np.ndarray, np.ndarray, bool]:
     """Tangent vectors now and one step later, (B, D) each, and whether a single point was given."""
-    if dt is not None and not (np.isfinite(dt) and dt > 0):
-        raise RFlowError(f"step dt={dt} must be > 0")
+    check_dt(dt)
     try:
         arr = np.asarray(point, dtype=np.float64)
     except (TypeError, ValueError) as err:
@@ -149,7 +178,7 @@ def next_point(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = N
         The next point(s), same shape as ``point``.
 
     Raises:
-        RFlowError: bad shape, point off the manifold, NaN, dt <= 0.
+        RFlowError: bad shape, point off the manifold, NaN; dt not a finite number > 0.
     """
     _, nxt, single = _step_tangent(model, point, dt)
     if single:
@@ -168,22 +197,23 @@ def lookahead_points(model: RiemannianFlow, points: npt.ArrayLike, dt: float | N
     batches of episodes in lockstep.
 
     Raises:
-        RFlowError: bad shape, a point off the manifold, NaN, dt <= 0, steps < 1.
+        RFlowError: points not numbers, of a bad shape, off the manifold or NaN; dt not a finite number > 0;
+            steps < 1; a hemisphere that is not 4 finite numbers, not all zero.
     """
-    if dt is not None and not (np.isfinite(dt) and dt > 0):
-        raise RFlowError(f"step dt={dt} must be > 0")
-    if isinstance(steps, bool) or not (isinstance(steps, int) and steps >= 1):
+    check_dt(dt)
+    if isinstance(steps, bool) or not (isinstance(steps, (int, np.integer)) and steps >= 1):
         raise RFlowError(f"lookahead steps {steps!r} must be an integer >= 1")
-    arr = np.asarray(points, dtype=np.float64)
+    try:
+        arr = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise RFlowError(f"points are not an array of numbers: {err}") from None
     if arr.shape[1:] != model.point_shape or arr.ndim != len(model.point_shape) + 1:
         want = ", ".join(map(str, model.point_shape))
         raise RFlowError(f"points have shape {arr.shape}, expected a batch (B, {want})")
     norm, chart = model.normalisation, model.chart
     if chart.name in ("euclidean", "sphere"):  # the whole step compiled (rflow.flow_kernel.chart_flow_steps)
         out = np.empty((steps,) + arr.shape)
-        side = None if hemisphere is None else np.asarray(hemisphere, dtype=np.float64)
-        if side is not None and chart.name == "sphere" and (side.shape != (4,) or not np.all(np.isfinite(side))):
-            raise RFlowError(f"hemisphere {side.tolist()} must be a quaternion: 4 finite numbers")
+        side = None if hemisphere is None else _check_hemisphere(hemisphere, chart.name == "sphere")
         bad = model.inference.chart_steps(np.ascontiguousarray(arr), out, chart, norm.mean, norm.std, dt, side)
         if bad >= 0:
             chart.log(arr[bad])  # raises what the single point's query raises
@@ -193,6 +223,28 @@ def lookahead_points(model: RiemannianFlow, points: npt.ArrayLike, dt: float | N
     for s in range(steps):
         out[s] = np.stack([next_point(model, point, dt) for point in (arr if s == 0 else out[s - 1])])
     return out
+
+
+def _check_hemisphere(hemisphere: npt.ArrayLike, checked: bool) -> np.ndarray:
+    """``hemisphere`` as a float64 array; with ``checked`` (the quaternion chart reads it) 4 finite numbers, not all
+    zero (a zero one has no side), in Python floats: the closed loop passes it every control period.
+
+    Raises:
+        RFlowError: naming the hemisphere and what is wrong with it.
+    """
+    try:
+        side = np.asarray(hemisphere, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise RFlowError(f"hemisphere is not an array of numbers: {err}") from None
+    if checked:
+        if side.shape != (4,):
+            raise RFlowError(f"hemisphere {side.tolist()} must be a quaternion: 4 finite numbers")
+        w, x, y, z = side.tolist()
+        if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            raise RFlowError(f"hemisphere {side.tolist()} must be a quaternion: 4 finite numbers")
+        if w == x == y == z == 0.0:
+            raise RFlowError("hemisphere [0.0, 0.0, 0.0, 0.0] must be a quaternion: 4 finite numbers, not all zero")
+    return side
 
 
 def velocity(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = None) -> np.ndarray:
@@ -207,7 +259,7 @@ def velocity(model: RiemannianFlow, point: npt.ArrayLike, dt: float | None = Non
         (D,) or (B, D) tangent velocity (tangent units per second).
 
     Raises:
-        RFlowError: bad shape, point off the manifold, NaN, dt <= 0.
+        RFlowError: bad shape, point off the manifold, NaN; dt not a finite number > 0.
     """
     tangent, nxt, single = _step_tangent(model, point, dt)
     vel = (nxt - tangent) / (model.dt if dt is None else float(dt))

@@ -23,6 +23,25 @@ from rflow.flow_kernel import PackedFlow
 from rflow.small_linalg import eigh_sym, expm, matmul, matvec
 
 
+def check_dt(dt: object) -> None:
+    """Refuse a step that is neither None (the default step) nor a finite number of seconds > 0.
+
+    Cheap enough for the control loop (Python floats, no numpy call). A bool is no step, though Python counts it as
+    a number.
+
+    Raises:
+        RFlowError: naming dt and its value: a string, a sequence, NaN, inf, 0, a negative number, a bool.
+    """
+    if dt is None:
+        return
+    try:
+        ok = not isinstance(dt, (bool, np.bool_)) and math.isfinite(dt) and dt > 0
+    except TypeError:  # not a real number: a string, a sequence, a complex number
+        ok = False
+    if not ok:
+        raise RFlowError(f"step dt={dt!r} must be a finite number of seconds > 0")
+
+
 class NumpyImitationFlow:
     """Torch-free copy of an ImitationFlow: b (latent -> normalised tangent), b^-1, and exact latent steps.
 
@@ -110,13 +129,19 @@ class NumpyImitationFlow:
             drift = network.dynamics.drift_matrix().double().numpy().copy()
         return cls(packed, offset, drift, dt)
 
-    def step_matrix(self, dt: float) -> np.ndarray:
-        """Phi(dt)^T = expm(V dt)^T (for row vectors: q_next = q @ Phi^T), cached per dt."""
+    def step_matrix(self, dt: float | None) -> np.ndarray:
+        """Phi(dt)^T = expm(V dt)^T (for row vectors: q_next = q @ Phi^T), cached per dt (None: the default step).
+
+        Raises:
+            RFlowError: dt is not a finite number > 0 (`check_dt`).
+        """
+        if type(dt) is not float:  # checked on every call: float() would take "0.01" or True from the cache
+            check_dt(dt)
+            dt = self.dt if dt is None else dt
         key = float(dt)
         phi_t = self._steps.get(key)
         if phi_t is None:
-            if not (math.isfinite(key) and key > 0):
-                raise RFlowError(f"step dt={dt} must be > 0")
+            check_dt(key)
             phi_t = np.ascontiguousarray(expm(self.drift * key).T)
             if len(self._steps) >= self._MAX_CACHED_STEPS:  # a jittering measured dt must not grow it forever
                 self._steps.clear()
@@ -126,10 +151,19 @@ class NumpyImitationFlow:
     # ---- batches ------------------------------------------------------------------------------------
 
     def _rows(self, x: npt.ArrayLike) -> np.ndarray:
-        """A C-contiguous float64 copy of x as (N, D)."""
-        arr = np.array(x, dtype=np.float64, ndmin=2, order="C")
+        """A C-contiguous float64 copy of x as (N, D).
+
+        Raises:
+            RFlowError: not numbers, a shape other than (N, D) or (D,), or NaN/inf.
+        """
+        try:
+            arr = np.array(x, dtype=np.float64, ndmin=2, order="C")
+        except (TypeError, ValueError) as err:
+            raise RFlowError(f"flow input is not an array of numbers: {err}") from None
         if arr.ndim != 2 or arr.shape[1] != self.dim:
             raise RFlowError(f"flow input has shape {np.shape(x)}, expected (N, {self.dim})")
+        if not np.isfinite(arr).all():
+            raise RFlowError(f"flow input contains NaN or inf (row {int(np.argmin(np.isfinite(arr).all(axis=1)))})")
         return arr
 
     def forward(self, q: npt.ArrayLike) -> np.ndarray:
@@ -160,8 +194,8 @@ class NumpyImitationFlow:
         q0 = np.array(q0, dtype=np.float64, ndmin=2)
         if q0.ndim != 2 or q0.shape[1] != self.dim:
             raise RFlowError(f"latent start has shape {q0.shape}, expected (N, {self.dim})")
-        if steps < 0:
-            raise RFlowError(f"steps {steps} must be >= 0")
+        if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, (int, np.integer)) or steps < 0:
+            raise RFlowError(f"steps={steps!r} must be an integer >= 0")
         out = np.empty((q0.shape[0], steps + 1, self.dim))
         out[:, 0] = q0
         power_t = self.step_matrix(self.dt if dt is None else dt)  # (Phi^n)^T

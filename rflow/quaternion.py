@@ -34,6 +34,13 @@ from rflow.errors import RFlowError
 
 FloatArray = npt.NDArray[np.float64]
 
+#: Largest | ||q|| - 1 | of a quaternion `slerp` takes. Its result has the norm of q0, so a quaternion normalised in
+#: float32 or read from a file passes; a zero or unnormalised one is a mistake.
+SLERP_UNIT_TOL: float = 1e-3
+_SLERP_NORM2_RANGE = ((1.0 - SLERP_UNIT_TOL) ** 2, (1.0 + SLERP_UNIT_TOL) ** 2)
+#: Largest Frobenius norm of R^T R - I of a matrix `mat_to_quat` takes as a rotation (float32 rounding is ~1e-7).
+ROTATION_TOL: float = 1e-5
+
 
 # ------------------------------------------------------------------------------------- the scalar formulas
 
@@ -138,13 +145,34 @@ def matrix_components(w: float, x: float, y: float, z: float) -> tuple[float, fl
 def mat_to_quat(rot: npt.ArrayLike) -> FloatArray:
     """Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix (3, 3) (`matrix_to_quat_components`).
 
+    The matrix must be a rotation: ||R^T R - I||_F <= ROTATION_TOL and det R > 0 (checked in Python floats, ~1 us; a
+    scaled, sheared, reflecting or zero matrix has no quaternion, and Shepperd's method would return one anyway).
+
     Raises:
-        RFlowError: not a finite 3x3 matrix.
+        RFlowError: not numbers, not 3x3, NaN/inf, or not a rotation.
     """
-    m = np.asarray(rot, dtype=np.float64)
-    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+    try:
+        m = np.asarray(rot, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise RFlowError(f"rotation matrix must be 3x3 numbers: {err}") from None
+    if m.shape != (3, 3):
         raise RFlowError(f"rotation matrix must be 3x3 and finite, got shape {m.shape}")
-    return np.array(matrix_to_quat_components(*m.reshape(9).tolist()))
+    values = m.reshape(9).tolist()
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = values
+    a = m00 * m00 + m10 * m10 + m20 * m20 - 1.0  # R^T R - I: the columns' norms and dot products
+    b = m01 * m01 + m11 * m11 + m21 * m21 - 1.0
+    c = m02 * m02 + m12 * m12 + m22 * m22 - 1.0
+    d = m00 * m01 + m10 * m11 + m20 * m21
+    e = m00 * m02 + m10 * m12 + m20 * m22
+    f = m01 * m02 + m11 * m12 + m21 * m22
+    off = a * a + b * b + c * c + 2.0 * (d * d + e * e + f * f)
+    det = m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20) + m02 * (m10 * m21 - m11 * m20)
+    if not (off <= ROTATION_TOL * ROTATION_TOL and det > 0.0):  # NaN and inf fail both comparisons
+        if not all(map(math.isfinite, values)):
+            raise RFlowError("rotation matrix must be 3x3 and finite, got NaN or inf")
+        raise RFlowError(f"rotation matrix {values} is no rotation: ||R^T R - I|| = {math.sqrt(off):.3g} (tolerance "
+                         f"{ROTATION_TOL:g}), det R = {det:.6g}")
+    return np.array(matrix_to_quat_components(*values))
 
 
 def quat_from_rotvec(rotvec: npt.ArrayLike) -> FloatArray:
@@ -176,17 +204,65 @@ def quat_angle_rad(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:
     return np.linalg.norm(quat_to_rotvec(quat_mul(a, quat_conj(b))), axis=-1)
 
 
+def _check_slerp_input(q0: Any, q1: Any, s: Any) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """q0, q1 and s of `slerp` as float64 arrays, checked: unit quaternions (..., 4) within SLERP_UNIT_TOL, finite s.
+
+    One quaternion (the control loop's case) is checked in Python floats (~0.3 us), a batch with one einsum.
+
+    Raises:
+        RFlowError: naming the input: not numbers, not (..., 4), NaN/inf, a norm off 1 (a zero quaternion).
+    """
+    lo, hi = _SLERP_NORM2_RANGE
+    out = []
+    for name, value in (("q0", q0), ("q1", q1)):
+        try:
+            q = np.asarray(value, dtype=float)
+        except (TypeError, ValueError) as err:
+            raise RFlowError(f"slerp: {name} is not an array of numbers: {err}") from None
+        if q.shape == (4,):
+            w, x, y, z = q.tolist()
+            n2 = w * w + x * x + y * y + z * z
+            ok = lo <= n2 <= hi  # NaN fails, and so does inf
+        elif q.shape[-1:] != (4,):
+            raise RFlowError(f"slerp: {name} has shape {q.shape}, expected quaternions (..., 4) (w, x, y, z)")
+        else:
+            n2 = np.einsum("...i,...i->...", q, q)
+            ok = q.size == 0 or bool(n2.min() >= lo and n2.max() <= hi)  # NaN fails
+        if not ok:
+            n2 = np.asarray(n2)
+            bad = np.unravel_index(int(np.argmax(~((n2 >= lo) & (n2 <= hi)))), n2.shape) if n2.ndim else ()
+            where = f" at {list(map(int, bad))}" if bad else ""
+            if not np.all(np.isfinite(q)):
+                raise RFlowError(f"slerp: {name}{where} contains NaN or inf")
+            raise RFlowError(f"slerp: {name}{where} is not a unit quaternion: norm {math.sqrt(float(n2[bad])):.6g} "
+                             f"(tolerance {SLERP_UNIT_TOL:g})")
+        out.append(q)
+    try:
+        t = np.asarray(s, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise RFlowError(f"slerp: s is not an array of numbers: {err}") from None
+    if not (math.isfinite(t.item()) if t.ndim == 0 else bool(np.isfinite(t).all())):
+        raise RFlowError(f"slerp: s contains NaN or inf: {t.tolist() if t.size <= 8 else 'of shape ' + str(t.shape)}")
+    return out[0], out[1], t
+
+
 def slerp(q0: npt.ArrayLike, q1: npt.ArrayLike, s: npt.ArrayLike) -> FloatArray:
     """Spherical linear interpolation along the shorter arc, broadcasting q0, q1 (..., 4) and s (...).
 
-    slerp(q0, q1, s) = q0 * exp(s log(conj(q0) * q1)), with q1 sign-flipped onto q0's hemisphere.
+    slerp(q0, q1, s) = q0 * exp(s log(conj(q0) * q1)), with q1 sign-flipped onto q0's hemisphere. s in [0, 1] goes
+    from q0 to q1; s outside it extrapolates along the same arc (still a rotation). The result has the norm of q0.
+
+    Raises:
+        RFlowError: q0 or q1 not quaternions (..., 4) of norm 1 within SLERP_UNIT_TOL (NaN, inf, zero), s not
+            finite, or shapes that do not broadcast.
     """
-    q0 = np.asarray(q0, dtype=float)
-    q1 = np.asarray(q1, dtype=float)
-    s = np.asarray(s, dtype=float)[..., None]
-    rel = quat_mul(quat_conj(q0), q1)
-    rel = np.where(rel[..., :1] < 0.0, -rel, rel)
-    return quat_mul(q0, quat_from_rotvec(s * quat_to_rotvec(rel)))
+    q0, q1, t = _check_slerp_input(q0, q1, s)
+    try:
+        rel = quat_mul(quat_conj(q0), q1)
+        rel = np.where(rel[..., :1] < 0.0, -rel, rel)
+        return quat_mul(q0, quat_from_rotvec(t[..., None] * quat_to_rotvec(rel)))
+    except ValueError:  # numpy's broadcasting error
+        raise RFlowError(f"slerp: q0 {q0.shape}, q1 {q1.shape} and s {t.shape} do not broadcast") from None
 
 
 def rotate(quat: npt.ArrayLike, vec: npt.ArrayLike) -> FloatArray:

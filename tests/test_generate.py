@@ -176,3 +176,57 @@ def test_a_hemisphere_that_is_no_quaternion_is_refused_not_read_past(hemisphere)
     model = tiny_skill().models["orientation"]
     with pytest.raises(RFlowError, match="hemisphere"):  # a short one was read past its end by the kernel
         lookahead_points(model, np.asarray(GOAL_QUAT)[None], 0.05, 2, hemisphere=hemisphere)
+
+
+@pytest.mark.parametrize("arguments, words", [
+    ({"steps": float("nan")}, "steps=nan"),  # ValueError from int(nan) before
+    ({"steps": float("inf")}, "steps=inf"),  # OverflowError
+    ({"steps": "5"}, "steps='5'"),  # TypeError from '5' < 0
+    ({"steps": None}, "steps=None"),
+    ({"steps": True}, "steps=True"),  # ran one step
+    ({"xi": float("inf")}, "xi=inf"),  # stopped every rollout at its start, "converged"
+    ({"xi": "x"}, "xi='x'"),
+    ({"xi": True}, "xi=True"),
+    ({"dt": "x"}, "dt='x'"),  # ValueError from float('x')
+    ({"dt": [0.1]}, r"dt=\[0.1\]"),  # TypeError
+    ({"dt": True}, "dt=True"),  # stepped 1 s
+])
+def test_a_rollout_argument_that_is_no_valid_number_is_refused_by_name(model_and_demos, arguments, words):
+    model, _ = model_and_demos
+    with pytest.raises(RFlowError, match=words):
+        rollout(model, GOAL + 0.05, **{"steps": 5, **arguments})
+
+
+@pytest.mark.parametrize("dt", ["x", [0.1], 1j, True])
+def test_a_closed_loop_step_that_is_no_positive_number_is_refused_by_name(model_and_demos, dt):
+    """next_point, velocity and lookahead_points raised TypeError (np.isfinite of a string), or stepped 1 s for True."""
+    from rflow.generate import lookahead_points
+
+    model, _ = model_and_demos
+    for query in (lambda: next_point(model, GOAL + 0.01, dt), lambda: velocity(model, GOAL + 0.01, dt),
+                  lambda: lookahead_points(model, (GOAL + 0.01)[None], dt, 2)):
+        with pytest.raises(RFlowError, match="dt="):
+            query()
+
+
+@pytest.mark.parametrize("points, hemisphere, words", [
+    ("abc", None, "points are not an array of numbers"),  # ValueError from np.asarray before
+    (None, "abc", "hemisphere is not an array of numbers"),
+    (None, [0.0, 0.0, 0.0, 0.0], "not all zero"),  # a zero hemisphere was taken and flipped nothing
+])
+def test_lookahead_points_or_a_hemisphere_that_are_no_numbers_are_refused(points, hemisphere, words) -> None:
+    from rflow.generate import lookahead_points
+    from skill_fixtures import GOAL_QUAT, tiny_skill
+
+    model = tiny_skill().models["orientation"]
+    with pytest.raises(RFlowError, match=words):
+        lookahead_points(model, np.asarray(GOAL_QUAT)[None] if points is None else points, 0.05, 2,
+                         hemisphere=hemisphere)
+
+
+def test_a_numpy_integer_is_a_number_of_lookahead_steps(model_and_demos) -> None:
+    from rflow.generate import lookahead_points
+
+    model, _ = model_and_demos
+    points = (GOAL + 0.01)[None]
+    assert np.array_equal(lookahead_points(model, points, 0.05, np.int64(2)), lookahead_points(model, points, 0.05, 2))

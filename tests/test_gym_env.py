@@ -194,3 +194,38 @@ def test_render_returns_an_rgb_frame() -> None:
     finally:
         made.close()
     assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8 and frame.std() > 0.0
+
+
+@pytest.mark.parametrize("action, words", [
+    ("abc", r"action must be an array of 6 real numbers, got 'abc'"),  # numpy's ValueError before
+    ([None] * 6, "action must be an array of 6 real numbers, got \\[None"),  # read as NaN before
+    (None, "action must be an array of 6 real numbers, got None"),  # "must have shape (6,), got (1,)" before
+    (np.zeros(6, dtype=complex), "action must be an array of 6 real numbers"),  # the imaginary part dropped
+    (np.zeros((2, 3)), r"action has shape \(2, 3\), expected \(6,\)"),  # taken as (6,) before
+    (np.zeros((2, 6)), r"action has shape \(2, 6\), expected \(6,\)"),  # "got (12,)" before
+])
+def test_a_bad_action_is_refused_in_one_line_naming_it(env: PegInHoleGymEnv, action, words) -> None:
+    env.reset(seed=0)
+    with pytest.raises(EnvError, match=f"^{ENV_ID}: {words}") as caught:
+        env.step(action)
+    assert "\n" not in str(caught.value)
+    assert env.step(np.zeros((1, 6)))[0]["time_s"] > 0.0  # the episode goes on; a (1, 6) action is the (6,) one
+
+
+def test_to_action_refuses_a_physical_command_with_nan(env: PegInHoleGymEnv) -> None:
+    with pytest.raises(EnvError, match="physical command .* contains NaN"):  # returned a NaN action before
+        env.to_action(np.full(6, np.nan))
+
+
+def test_stepping_before_the_first_reset_or_after_the_end_says_so() -> None:
+    env = PegInHoleGymEnv(time_limit_s=0.03)  # the simulator is reset for the spaces; the environment is not
+    with pytest.raises(EnvError, match=rf"^{ENV_ID}: step\(\) before reset\(\): call reset\(\) first$"):
+        env.step(np.zeros(6))  # stepped from the nominal start before
+    env.reset(seed=0)
+    truncated = False
+    while not truncated:
+        truncated = env.step(np.zeros(6))[3]
+    with pytest.raises(EnvError, match=rf"^{ENV_ID}: no episode to step: it ended \(time_limit\); call reset\(\) "
+                                       r"first$"):
+        env.step(np.zeros(6))
+    env.close()

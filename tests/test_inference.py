@@ -116,3 +116,36 @@ def test_spd_chart_batch_exp_equals_manifold_map(d):
     chart = TangentChart(manifold, goal)
     assert np.allclose(chart.exp(v), manifold.exp(v, goal), rtol=1e-10, atol=1e-10)
     assert np.allclose(chart.log(chart.exp(v)), v, atol=1e-9)
+
+
+def test_a_step_that_is_no_positive_number_is_refused_even_where_float_would_take_it(model):
+    """float('0.01') and float(True) convert: a string or a bool dt must not find a cached step matrix."""
+    from rflow.errors import RFlowError
+
+    net = model.inference
+    net.step_matrix(1.0)
+    net.step_matrix(0.01)
+    for dt in ("0.01", True, "x", [0.01], float("nan"), -0.01):
+        with pytest.raises(RFlowError, match="dt="):
+            net.step_matrix(dt)
+    assert np.array_equal(net.step_matrix(None), net.step_matrix(model.dt))  # None: the default step, as in step()
+
+
+@pytest.mark.parametrize("steps", [2.5, float("nan"), float("inf"), "5", True, -1])
+def test_a_latent_path_length_that_is_no_integer_is_refused_by_name(model, steps):
+    from rflow.errors import RFlowError
+
+    with pytest.raises(RFlowError, match="steps="):  # TypeError from np.empty / '<' before
+        model.inference.latent_path(np.zeros((1, 3)), steps)
+
+
+@pytest.mark.parametrize("batch, words", [([[np.nan, 0.0, 0.0]], "NaN or inf"), ([[0.0, np.inf, 0.0]], "NaN or inf"),
+                                          ("abc", "not an array of numbers")])
+def test_a_flow_input_that_is_no_finite_numbers_is_refused(model, batch, words):
+    """forward, inverse and step returned NaN rows for NaN input, and a string raised numpy's ValueError."""
+    from rflow.errors import RFlowError
+
+    net = model.inference
+    for call in (net.forward, net.inverse, net.step):
+        with pytest.raises(RFlowError, match=words):
+            call(batch)

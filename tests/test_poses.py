@@ -80,3 +80,22 @@ def test_sampled_starts_lie_in_the_region(seed: int) -> None:
 def test_start_region_rejects_negative_widths() -> None:
     with pytest.raises(EnvError, match="pos_half_width_m"):
         StartRegion(pos_half_width_m=(0.1, -0.1, 0.1))
+
+
+@pytest.mark.parametrize("column, value, words", [
+    ("quat", [0.0, 0.0, 0.0, 0.0], "quat .* at sample 2 is not a unit quaternion"),  # resampled into NaN before
+    ("quat", [np.nan, 0.0, 0.0, 1.0], "quat contains NaN or inf"),
+    ("pos", [np.inf, 0.0, 0.0], "pos contains NaN or inf"),
+    ("times", np.nan, "times contains NaN or inf"),  # NaN passed the strictly-increasing check
+    ("new_times", np.nan, "new_times contains NaN or inf"),
+    ("new_times", "x", "times, pos, quat and new_times must be arrays of numbers"),  # numpy's ValueError
+])
+def test_resample_refuses_a_trajectory_that_is_no_finite_poses_by_name(column, value, words) -> None:
+    arrays = {"times": np.linspace(0.0, 1.0, 5), "pos": np.zeros((5, 3)), "quat": np.tile([1.0, 0.0, 0.0, 0.0], (5, 1)),
+              "new_times": np.array([0.1, 0.5])}
+    if column == "new_times":
+        arrays[column] = value if isinstance(value, str) else np.array([0.1, value])
+    else:
+        arrays[column][2] = value
+    with pytest.raises(EnvError, match=f"resample_trajectory: {words}"):
+        resample_trajectory(arrays["times"], arrays["pos"], arrays["quat"], arrays["new_times"])

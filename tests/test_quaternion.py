@@ -91,3 +91,32 @@ def test_a_matrix_must_be_three_by_three_and_finite() -> None:
         mat_to_quat(np.eye(4))
     with pytest.raises(RFlowError, match="3x3"):
         mat_to_quat(np.full((3, 3), np.nan))
+
+
+@pytest.mark.parametrize("q0, q1, s, words", [
+    ([0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], 0.5, "q0 is not a unit quaternion: norm 0"),  # returned zeros
+    ([1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], 0.5, "q1 is not a unit quaternion"),  # returned q0
+    ([2.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], 0.5, "q0 is not a unit quaternion: norm 2"),  # returned (2, 0, 0, 0)
+    ([[1.0, 0.0, 0.0, 0.0], [np.nan, 0.0, 0.0, 1.0]], [1.0, 0.0, 0.0, 0.0], 0.5, r"q0 at \[1\] contains NaN"),
+    ([1.0, 0.0, 0.0, 0.0], [np.inf, 0.0, 0.0, 0.0], 0.5, "q1 contains NaN or inf"),
+    ([1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], np.nan, "s contains NaN"),  # returned NaN
+    ([1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], 0.5, r"q0 has shape \(3,\)"),  # numpy's broadcasting error
+    ("abcd", [1.0, 0.0, 0.0, 0.0], 0.5, "q0 is not an array of numbers"),
+    (np.tile([1.0, 0.0, 0.0, 0.0], (3, 1)), [1.0, 0.0, 0.0, 0.0], [0.1, 0.2], "do not broadcast"),
+])
+def test_slerp_refuses_what_is_no_unit_quaternion_or_finite_fraction_by_name(q0, q1, s, words) -> None:
+    with pytest.raises(RFlowError, match=words):
+        slerp(q0, q1, s)
+
+
+@pytest.mark.parametrize("matrix, words", [
+    (np.ones((3, 3)), "no rotation"),  # Shepperd's method returned (1, 0, 0, 0)
+    (np.zeros((3, 3)), "no rotation"),
+    (2.0 * np.eye(3), "no rotation"),  # scaled
+    (np.diag([1.0, 1.0, -1.0]), "det R = -1"),  # a reflection
+    ([[1.0, 0.1, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "no rotation"),  # sheared
+    ("abc", "3x3 numbers"),  # numpy's ValueError
+])
+def test_a_matrix_that_is_no_rotation_has_no_quaternion(matrix, words) -> None:
+    with pytest.raises(RFlowError, match=words):
+        mat_to_quat(matrix)
