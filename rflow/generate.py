@@ -20,6 +20,8 @@ from rflow.inference import check_dt
 from rflow.model import RiemannianFlow
 
 CHUNK_POINTS = 8192  # points per batched flow pass: small enough to stay in cache
+MAX_ROLLOUT_VALUES = 10**8
+"""The most tangent values (starts x (steps + 1) x dim) one `rollout` holds: 800 MB in each of its two paths."""
 
 
 @dataclass(frozen=True)
@@ -102,7 +104,7 @@ def rollout(
 
     Raises:
         RFlowError: bad start shapes, points off the manifold or NaN/inf; steps not a non-negative integer; xi or dt
-            not a finite number > 0.
+            not a finite number > 0; more than MAX_ROLLOUT_VALUES tangent values in all.
     """
     steps = _check_steps(steps)
     _check_xi(xi)
@@ -111,6 +113,9 @@ def rollout(
     net = model.inference
     b = arr.shape[0]
     dim = model.dim
+    if b * (steps + 1) * dim > MAX_ROLLOUT_VALUES:
+        raise RFlowError(f"rollout of {b} start(s) x {steps + 1} points x {dim} values exceeds {MAX_ROLLOUT_VALUES:.0e} "
+                         f"values (steps={steps}): roll out fewer starts or steps at a time")
     tangent0 = model.to_tangent(arr).reshape(b, dim)
     q_path = net.latent_path(net.inverse(model.normalise(tangent0)), steps, dt)
     tangent = np.empty((b, steps + 1, dim))

@@ -190,6 +190,7 @@ def test_a_hemisphere_that_is_no_quaternion_is_refused_not_read_past(hemisphere)
     ({"dt": "x"}, "dt='x'"),  # ValueError from float('x')
     ({"dt": [0.1]}, r"dt=\[0.1\]"),  # TypeError
     ({"dt": True}, "dt=True"),  # stepped 1 s
+    ({"steps": 10**12}, "steps=1000000000000"),  # a MemoryError (or the machine's swap) before
 ])
 def test_a_rollout_argument_that_is_no_valid_number_is_refused_by_name(model_and_demos, arguments, words):
     model, _ = model_and_demos
