@@ -83,6 +83,7 @@ from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
 from envs.rendering import MAX_FRAME_PX
 from envs.scene_config import SceneConfig
 from envs.task import Task
+from rflow.errors import shown
 from rflow.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
@@ -209,9 +210,7 @@ def _as_command_vector(value: Any, what: str, size: int) -> FloatArray:
     if objects and all(isinstance(v, numbers.Number) and not isinstance(v, complex) for v in raw.flat):
         raw = raw.astype(np.float64)
     if raw.dtype.kind not in "biuf":  # strings, complex numbers, None, other objects
-        shown = " ".join(repr(value).split())  # one line
-        shown = shown if len(shown) <= 80 else shown[:77] + "..."
-        raise EnvError(f"{ENV_ID}: {what} must be an array of {size} real numbers, got {shown}"
+        raise EnvError(f"{ENV_ID}: {what} must be an array of {size} real numbers, got {shown(value)}"
                        f"{'' if objects else f' (dtype {raw.dtype})'}")
     if raw.size != size or raw.ndim == 0 or max(raw.shape) != size:
         raise EnvError(f"{ENV_ID}: {what} has shape {raw.shape}, expected ({size},)")

@@ -186,11 +186,13 @@ def resample_trajectory(times: npt.ArrayLike, pos: npt.ArrayLike, quat: npt.Arra
         EnvError: inputs that are not numbers, mismatched shapes, NaN/inf, non-increasing times, or a quaternion
             whose norm is off 1 by more than QUAT_NORM_TOL (a zero one).
     """
-    try:
-        t, p, q, tn = (np.asarray(a, dtype=float) for a in (times, pos, quat, new_times))
-    except (TypeError, ValueError) as err:
-        raise EnvError(f"resample_trajectory: times, pos, quat and new_times must be arrays of numbers "
-                       f"({err})") from None
+    arrays = []
+    for name, value in (("times", times), ("pos", pos), ("quat", quat), ("new_times", new_times)):
+        try:
+            arrays.append(np.asarray(value, dtype=float))
+        except (TypeError, ValueError) as err:
+            raise EnvError(f"resample_trajectory: {name} must be an array of numbers ({err})") from None
+    t, p, q, tn = arrays
     if t.ndim != 1 or t.size < 2 or p.shape != (t.size, 3) or q.shape != (t.size, 4):
         raise EnvError(f"resample_trajectory: need times (K>=2,), pos (K, 3), quat (K, 4); got "
                        f"{t.shape}, {p.shape}, {q.shape}")

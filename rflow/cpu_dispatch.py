@@ -33,9 +33,12 @@ def pin_cpu_dispatch(environ: MutableMapping[str, str] = os.environ) -> None:
     """Set ``PINNED_ENVIRONMENT`` in ``environ`` where the user has not set the variable (spawned workers inherit it).
 
     Must run before torch runs its first kernel and before numpy is imported; `rflow` calls it on import, and
-    `pih` imports rflow first.
+    `pih`, `envs` and `controllers` import rflow first. A user's ``NPY_ENABLE_CPU_FEATURES`` is the user's choice of
+    numpy's loops too (numpy refuses to load with both variables set), so the numpy pin is then left out.
     """
     for key, value in PINNED_ENVIRONMENT.items():
+        if key == "NPY_DISABLE_CPU_FEATURES" and "NPY_ENABLE_CPU_FEATURES" in environ:
+            continue
         environ.setdefault(key, value)
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from rflow.errors import RFlowError
+from rflow.errors import RFlowError, shown
 from rflow.inference import check_dt
 from rflow.model import RiemannianFlow
 
@@ -65,7 +65,7 @@ def _check_steps(steps: object) -> int:
     except (TypeError, ValueError, OverflowError):  # not a number, or NaN / inf
         ok = False
     if not ok:
-        raise RFlowError(f"steps={steps!r} must be a non-negative integer")
+        raise RFlowError(f"steps={shown(steps)} must be a non-negative integer")
     return int(steps)  # type: ignore[call-overload]
 
 
@@ -77,10 +77,10 @@ def _check_xi(xi: object) -> None:
     """
     try:
         ok = not isinstance(xi, (bool, np.bool_)) and math.isfinite(xi) and xi > 0  # type: ignore[arg-type,operator]
-    except TypeError:
+    except (TypeError, OverflowError):  # not a real number, or an integer past a float
         ok = False
     if not ok:
-        raise RFlowError(f"stop threshold xi={xi!r} must be a finite number > 0")
+        raise RFlowError(f"stop threshold xi={shown(xi)} must be a finite number > 0")
 
 
 def rollout(
@@ -207,7 +207,7 @@ def lookahead_points(model: RiemannianFlow, points: npt.ArrayLike, dt: float | N
     """
     check_dt(dt)
     if isinstance(steps, bool) or not (isinstance(steps, (int, np.integer)) and steps >= 1):
-        raise RFlowError(f"lookahead steps {steps!r} must be an integer >= 1")
+        raise RFlowError(f"lookahead steps {shown(steps)} must be an integer >= 1")
     try:
         arr = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError) as err:

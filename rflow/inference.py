@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rflow import flow_kernel
-from rflow.errors import RFlowError
+from rflow.errors import RFlowError, shown
 from rflow.flow_kernel import PackedFlow
 from rflow.small_linalg import eigh_sym, expm, matmul, matvec
 
@@ -36,10 +36,10 @@ def check_dt(dt: object) -> None:
         return
     try:
         ok = not isinstance(dt, (bool, np.bool_)) and math.isfinite(dt) and dt > 0
-    except TypeError:  # not a real number: a string, a sequence, a complex number
+    except (TypeError, OverflowError):  # not a real number (a string, a sequence, a complex number), or past a float
         ok = False
     if not ok:
-        raise RFlowError(f"step dt={dt!r} must be a finite number of seconds > 0")
+        raise RFlowError(f"step dt={shown(dt)} must be a finite number of seconds > 0")
 
 
 class NumpyImitationFlow:
@@ -195,7 +195,7 @@ class NumpyImitationFlow:
         if q0.ndim != 2 or q0.shape[1] != self.dim:
             raise RFlowError(f"latent start has shape {q0.shape}, expected (N, {self.dim})")
         if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, (int, np.integer)) or steps < 0:
-            raise RFlowError(f"steps={steps!r} must be an integer >= 0")
+            raise RFlowError(f"steps={shown(steps)} must be an integer >= 0")
         out = np.empty((q0.shape[0], steps + 1, self.dim))
         out[:, 0] = q0
         power_t = self.step_matrix(self.dt if dt is None else dt)  # (Phi^n)^T

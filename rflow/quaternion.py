@@ -257,12 +257,14 @@ def slerp(q0: npt.ArrayLike, q1: npt.ArrayLike, s: npt.ArrayLike) -> FloatArray:
             finite, or shapes that do not broadcast.
     """
     q0, q1, t = _check_slerp_input(q0, q1, s)
-    try:
-        rel = quat_mul(quat_conj(q0), q1)
-        rel = np.where(rel[..., :1] < 0.0, -rel, rel)
-        return quat_mul(q0, quat_from_rotvec(t[..., None] * quat_to_rotvec(rel)))
-    except ValueError:  # numpy's broadcasting error
-        raise RFlowError(f"slerp: q0 {q0.shape}, q1 {q1.shape} and s {t.shape} do not broadcast") from None
+    if not (q0.shape == q1.shape == (4,) and t.ndim == 0):  # one rotation (the control loop's case) broadcasts
+        try:
+            np.broadcast_shapes(q0.shape[:-1], q1.shape[:-1], t.shape)
+        except ValueError:
+            raise RFlowError(f"slerp: q0 {q0.shape}, q1 {q1.shape} and s {t.shape} do not broadcast") from None
+    rel = quat_mul(quat_conj(q0), q1)
+    rel = np.where(rel[..., :1] < 0.0, -rel, rel)
+    return quat_mul(q0, quat_from_rotvec(t[..., None] * quat_to_rotvec(rel)))
 
 
 def rotate(quat: npt.ArrayLike, vec: npt.ArrayLike) -> FloatArray:

@@ -191,11 +191,15 @@ def test_a_hemisphere_that_is_no_quaternion_is_refused_not_read_past(hemisphere)
     ({"dt": [0.1]}, r"dt=\[0.1\]"),  # TypeError
     ({"dt": True}, "dt=True"),  # stepped 1 s
     ({"steps": 10**12}, "steps=1000000000000"),  # a MemoryError (or the machine's swap) before
+    ({"dt": 10**400}, "dt=1000"),  # OverflowError from math.isfinite
+    ({"xi": 10**400}, "xi=1000"),
+    ({"dt": np.full((2, 1), 0.01)}, r"dt=array\(\[\[0.01\], \[0.01\]\]\)"),  # an array's repr is two lines
 ])
 def test_a_rollout_argument_that_is_no_valid_number_is_refused_by_name(model_and_demos, arguments, words):
     model, _ = model_and_demos
-    with pytest.raises(RFlowError, match=words):
+    with pytest.raises(RFlowError, match=words) as caught:
         rollout(model, GOAL + 0.05, **{"steps": 5, **arguments})
+    assert "\n" not in str(caught.value) and len(str(caught.value)) < 160  # one line, the value cut short
 
 
 @pytest.mark.parametrize("dt", ["x", [0.1], 1j, True])

@@ -120,3 +120,16 @@ def test_slerp_refuses_what_is_no_unit_quaternion_or_finite_fraction_by_name(q0,
 def test_a_matrix_that_is_no_rotation_has_no_quaternion(matrix, words) -> None:
     with pytest.raises(RFlowError, match=words):
         mat_to_quat(matrix)
+
+
+def test_rotations_and_quaternions_rounded_to_float32_are_still_taken() -> None:
+    """The refusals above leave room for data stored in float32 (a recording, a dataset): 500 random rotations
+    rounded to float32 have a quaternion, and their float32 quaternions interpolate (the tolerances, 1e-5 on
+    ||R^T R - I|| and 1e-3 on ||q||, lie far above float32's 1e-7)."""
+    rotations = Rotation.random(500, random_state=7)
+    for matrix in rotations.as_matrix().astype(np.float32):
+        q = mat_to_quat(matrix)
+        assert abs(np.linalg.norm(q) - 1.0) < 1e-6
+    quats = rotations.as_quat(scalar_first=True).astype(np.float32)
+    out = slerp(quats[:-1], quats[1:], np.full(499, 0.3))
+    assert out.shape == (499, 4) and np.all(np.isfinite(out))
