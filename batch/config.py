@@ -38,6 +38,11 @@ class BatchConfig:
         isolate: process backend: run the units in a supervised worker process even when ``workers`` is 1, so
             that code which may crash the interpreter (a segfault, os._exit: a user's policy) loses one try of a
             unit, never the batch.
+        worker_environment: ray backend: names of environment variables every actor starts with, at the values
+            they have in this process (Ray's runtime_env; one this process has not set is not sent). A cluster's
+            nodes run with the environment they were started with, so settings read once when a process starts
+            (the CPU dispatch `rflow.cpu_dispatch` pins) would otherwise hold on this machine only; the process
+            backend's workers inherit this process's whole environment.
     """
 
     workers: int = 1
@@ -48,6 +53,7 @@ class BatchConfig:
     start_method: str = "spawn"
     start_timeout_s: float = 600.0
     isolate: bool = False
+    worker_environment: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
@@ -63,6 +69,9 @@ class BatchConfig:
             raise BatchError(f"start_timeout_s={self.start_timeout_s!r} must be a positive number of seconds")
         if self.start_method not in START_METHODS:
             raise BatchError(f"start_method={self.start_method!r} must be one of {', '.join(START_METHODS)}")
+        names = self.worker_environment
+        if not (isinstance(names, tuple) and all(isinstance(n, str) and n and "=" not in n for n in names)):
+            raise BatchError(f"worker_environment={names!r} must be a tuple of environment variable names")
         if self.ray_address is not None:
             host, _, port = self.ray_address.rpartition(":")
             if not host or not port.isdigit() or not 0 < int(port) < 65536:

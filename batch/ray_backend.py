@@ -202,7 +202,9 @@ class _Stream:
         self.schedule = schedule
         self.config = config
         self.head = _HeadWatch(ray.get_runtime_context().gcs_address)
-        self.actor_class = ray.remote(num_cpus=1, max_restarts=0, max_task_retries=0)(_UnitActor)
+        sent = {name: os.environ[name] for name in config.worker_environment if name in os.environ}
+        options: dict[str, Any] = {"runtime_env": {"env_vars": sent}} if sent else {}
+        self.actor_class = ray.remote(num_cpus=1, max_restarts=0, max_task_retries=0, **options)(_UnitActor)
         self.setup_ref = ray.put(setup)
         self.init, self.work = init, work
         self.starting: dict[Any, tuple[int, Any]] = {}  # ready() ref -> (slot, actor): no unit before init ran

@@ -27,6 +27,9 @@ from typing import Mapping, MutableMapping
 PINNED_ENVIRONMENT: dict[str, str] = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE",
                                       "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}
 """The dispatch settings every process of this project runs with (module docstring)."""
+DISPATCH_VARIABLES: tuple[str, ...] = (*PINNED_ENVIRONMENT, "NPY_ENABLE_CPU_FEATURES")
+"""Every variable that chooses these code paths, the user's own choice of numpy's loops included: what a batch sends
+to the workers of a cluster, whose nodes do not share this process's environment (`batch.BatchConfig`)."""
 
 
 def pin_cpu_dispatch(environ: MutableMapping[str, str] = os.environ) -> None:

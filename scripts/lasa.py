@@ -29,6 +29,7 @@ import numpy as np
 
 from envs.npz_file import open_npz
 from envs.output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
+from rflow.cpu_dispatch import DISPATCH_VARIABLES
 from rflow.errors import RFlowError
 from rflow.lasa import (
     BENCHMARK_MANIFOLDS,
@@ -266,7 +267,7 @@ def run_all(args: argparse.Namespace) -> int:
     config = train_config(args)
     try:
         batch_config = BatchConfig(workers=args.workers, unit_timeout_s=args.unit_timeout_s, backend=args.backend,
-                                   ray_address=args.ray_address)
+                                   ray_address=args.ray_address, worker_environment=DISPATCH_VARIABLES)
     except BatchError as err:
         raise RFlowError(str(err).replace("workers=", "--workers ").replace("unit_timeout_s=", "--unit-timeout-s ")
                          .replace("backend=", "--backend ").replace("ray_address=", "--ray-address ")) from None

@@ -1,7 +1,7 @@
 """Toy units for the batch tests: module-level functions that spawned workers and Ray actors can import.
 
 A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep" | "kill_first" | "meet" | "note_pid" |
-"await_pid"}; its record is computed from n and the worker context so that a correct batch gives the same
+"await_pid" | "environ"}; its record is computed from n and the worker context so that a correct batch gives the same
 records on any backend, and whatever worker it runs on. "kill_first" kills its worker on its first ``times``
 tries (counted in files beside ``counter``); "meet" returns once ``count`` such units run at the same time
 (each leaves a file in ``folder``); a setup with "kill_starts" and "counter" kills that many workers in
@@ -66,6 +66,8 @@ def work(context: dict[str, Any], unit: dict[str, Any]) -> dict[str, Any]:
         Path(unit["started"]).write_text(str(os.getpid()))
         return {"n": unit["n"], "value": _ended(Path(unit["pidfile"]), unit.get("seconds", 60.0)), "reason": "ok",
                 "tuple": (1, 2)}
+    elif action == "environ":  # what the worker's environment holds for a variable
+        return {"n": unit["n"], "value": os.environ.get(unit["name"]), "reason": "ok", "tuple": (1, 2)}
     return {"n": unit["n"], "value": unit["n"] ** 2 + context["offset"], "reason": "ok", "tuple": (1, 2)}
 
 

@@ -146,6 +146,18 @@ def test_a_unit_over_the_wall_time_limit_has_its_actor_killed(cluster):
     assert [r["reason"] for r in outcome.records.values()] == ["wall_timeout", "ok", "ok"]
 
 
+def test_the_named_environment_of_the_driver_reaches_every_actor(cluster, monkeypatch):
+    """The nodes were started before the driver set the variable: only BatchConfig.worker_environment brings it
+    to the actors (as it brings the CPU dispatch that rflow pins, which is read once when a process starts)."""
+    monkeypatch.setenv("PIH_TEST_FORWARDED", "42")
+    todo = units(2, {i: {"do": "environ", "name": "PIH_TEST_FORWARDED"} for i in range(2)})
+    plain = run_batch(todo, {"offset": 0}, init, work, failure, on_ray(cluster))
+    sent = run_batch(todo, {"offset": 0}, init, work, failure,
+                     on_ray(cluster, worker_environment=("PIH_TEST_FORWARDED", "PIH_TEST_UNSET")))
+    assert [r["value"] for r in plain.records.values()] == [None, None]
+    assert [r["value"] for r in sent.records.values()] == ["42", "42"]
+
+
 def test_a_failing_init_on_the_cluster_is_a_batch_error(cluster):
     from batch import BatchError
 

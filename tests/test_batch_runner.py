@@ -228,6 +228,16 @@ def test_ctrl_c_stops_workers_keeps_the_journal_and_prints_no_traceback(tmp_path
 def test_config_is_validated():
     for bad in ({"workers": 0}, {"unit_timeout_s": -1.0}, {"backend": "dask"},
                 {"backend": "ray", "ray_address": "nohost"}, {"ray_address": "127.0.0.1:6379"}, {"max_retries": -1},
-                {"start_method": "forkserver"}, {"start_timeout_s": 0.0}, {"start_timeout_s": float("inf")}):
+                {"start_method": "forkserver"}, {"start_timeout_s": 0.0}, {"start_timeout_s": float("inf")},
+                {"worker_environment": "MKL_CBWR"}, {"worker_environment": ("A=1",)}, {"worker_environment": ("",)}):
         with pytest.raises(BatchError):
             BatchConfig(**bad)
+
+
+def test_an_evaluation_sends_the_cpu_dispatch_to_a_clusters_workers():
+    """The settings rflow pins are read when a process starts: a cluster's actors get the driver's
+    (`batch.BatchConfig.worker_environment`), or their records would depend on how their node was started."""
+    from envs.execution.config import EvaluationConfig
+    from rflow.cpu_dispatch import DISPATCH_VARIABLES, PINNED_ENVIRONMENT
+
+    assert set(PINNED_ENVIRONMENT) < set(EvaluationConfig().batch_config().worker_environment) == set(DISPATCH_VARIABLES)

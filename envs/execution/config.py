@@ -14,6 +14,7 @@ from batch.errors import BatchError
 from batch.config import BatchConfig
 from envs.errors import EnvError
 from envs.task import Task, check_number
+from rflow.cpu_dispatch import DISPATCH_VARIABLES
 
 if TYPE_CHECKING:
     from envs.stiffness_schedule import StiffnessSchedule
@@ -202,7 +203,7 @@ class EvaluationConfig:
         """How the episodes run as a batch (workers, wall-time limit, backend); worker processes are forked, as
         every episode worker runs torch on one thread (`batch.BatchConfig.start_method`)."""
         return BatchConfig(workers=self.workers, unit_timeout_s=self.unit_timeout_s, backend=self.backend,
-                           ray_address=self.ray_address, start_method="fork")
+                           ray_address=self.ray_address, start_method="fork", worker_environment=DISPATCH_VARIABLES)
 
     def settings(self) -> dict[str, Any]:
         """Every field but the task, JSON-ready: a result's "config" (the task is recorded beside it)."""
