@@ -242,13 +242,9 @@ def _check_hemisphere(hemisphere: npt.ArrayLike, checked: bool) -> np.ndarray:
     except (TypeError, ValueError) as err:
         raise RFlowError(f"hemisphere is not an array of numbers: {err}") from None
     if checked:
-        if side.shape != (4,):
-            raise RFlowError(f"hemisphere {side.tolist()} must be a quaternion: 4 finite numbers")
-        w, x, y, z = side.tolist()
-        if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            raise RFlowError(f"hemisphere {side.tolist()} must be a quaternion: 4 finite numbers")
-        if w == x == y == z == 0.0:
-            raise RFlowError("hemisphere [0.0, 0.0, 0.0, 0.0] must be a quaternion: 4 finite numbers, not all zero")
+        values = side.tolist()
+        if side.shape != (4,) or not all(map(math.isfinite, values)) or not any(values):
+            raise RFlowError(f"hemisphere {shown(values)} must be a quaternion: 4 finite numbers, not all zero")
     return side
 
 

@@ -142,12 +142,7 @@ def test_overwrite_never_deletes_what_the_user_put_into_an_export(tmp_path: Path
     else:
         (out / "mine").mkdir()
         (out / "mine" / "f").write_text("x")
-    before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
-    capsys.readouterr()
-    assert main(args) == 2
-    err = capsys.readouterr().err
-    assert "did not write or that changed since" in err and len(err.strip().splitlines()) == 1
-    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before
+    _refused_leaving_it_as_it_was(args, out, capsys, "did not write or that changed since")
 
 
 @pytest.mark.parametrize("text", ["16x40000", "8x480", "641x480"])
@@ -166,9 +161,14 @@ def test_an_export_from_before_the_file_lists_is_refused_not_deleted(tmp_path: P
     args = ["export", "--demos", str(demo_file), "--format", "lerobot", "--out", str(out), "--overwrite"]
     assert main(args) == 0
     (out / ".pih-files.json").unlink()  # as exports were written before the lists
+    _refused_leaving_it_as_it_was(args, out, capsys, "from before exports listed their files")
+
+
+def _refused_leaving_it_as_it_was(args: list[str], out: Path, capsys: pytest.CaptureFixture[str], words: str) -> None:
+    """`pih export ARGS` exits 2 with one line saying ``words``, and every path under ``out`` is still there."""
     before = sorted(str(p.relative_to(out)) for p in out.rglob("*"))
     capsys.readouterr()
     assert main(args) == 2
     err = capsys.readouterr().err
-    assert "from before exports listed their files" in err and len(err.strip().splitlines()) == 1
+    assert words in err and len(err.strip().splitlines()) == 1
     assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == before
