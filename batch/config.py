@@ -41,7 +41,7 @@ class BatchConfig:
         worker_environment: ray backend: names of environment variables every actor starts with, at the values
             they have in this process (Ray's runtime_env; one this process has not set is not sent). A cluster's
             nodes run with the environment they were started with, so settings read once when a process starts
-            (the CPU dispatch `rflow.cpu_dispatch` pins) would otherwise hold on this machine only; the process
+            (the CPU dispatch `numerics.cpu_dispatch` pins) would otherwise hold on this machine only; the process
             backend's workers inherit this process's whole environment.
     """
 

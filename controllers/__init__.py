@@ -6,4 +6,7 @@ Modules: `protocol` (Controller: what the episode stepping needs of a controller
 Nothing else is imported here, so `controllers.errors` stays cheap to import.
 """
 
-import rflow  # noqa: F401  first: pins numpy's kernel choices as `pih` does (rflow.cpu_dispatch)
+from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch
+
+pin_cpu_dispatch()  # first, before numpy or torch load: numpy's, torch's and MKL's kernel choices as `pih` pins them
+check_numpy_dispatch()

@@ -36,7 +36,7 @@ from controllers import ik_kernel
 from controllers.errors import ControllerError
 from controllers.mujoco_c import FUNCTIONS
 from controllers.validation import as_unit_quaternion, as_vector, site_id, site_name
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 @dataclass(frozen=True)
 class IKConfig:

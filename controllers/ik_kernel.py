@@ -28,7 +28,7 @@ import numpy as np
 from controllers.impedance_kernel import cholesky_lower, mat_to_quat_into
 from controllers.mujoco_c import FN_COM_POS, FN_INTEGRATE_POS, FN_JAC_SITE, FN_KINEMATICS, call_integrate_pos, call_md, \
     call_mdppi
-from rflow.small_linalg import matmul_into
+from numerics.small_linalg import matmul_into
 
 _EPS = float(np.finfo(np.float64).eps)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -38,7 +38,7 @@ from controllers import impedance_kernel as kernel
 from controllers.errors import ControllerError
 from controllers.mujoco_c import FUNCTIONS
 from controllers.validation import as_unit_quaternion, as_vector, site_id
-from rflow.small_linalg import eigh_sym
+from numerics.small_linalg import eigh_sym
 
 PANDA_TORQUE_LIMITS_NM: tuple[float, ...] = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 PANDA_TORQUE_RATE_LIMIT_NM_PER_S: float = 1000.0

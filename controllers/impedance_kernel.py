@@ -25,8 +25,8 @@ import numba
 import numpy as np
 
 from controllers.mujoco_c import FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_jac, call_md, call_mdppi
-from rflow import quaternion
-from rflow.small_linalg import _solve_into, symmetric_eig
+from numerics import quaternion
+from numerics.small_linalg import _solve_into, symmetric_eig
 
 STATUS_OK = 0
 STATUS_NOT_POSITIVE_DEFINITE = 1
@@ -127,7 +127,7 @@ def pose_lead_into(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarray, 
     """delta = K^-1 P (2 zeta sqrt(max(w, 0)) (P^T xi) + P^T xi_dot) into ``out`` (6,): the pose lead of
     `CartesianImpedanceController.pose_lead` in one call, with the same arithmetic as its numpy steps (J and J M^-1
     by mj_jacSite and mj_solveM, `inertia_inverse_into`, `modal_factors_into`, row sums with k ascending, and
-    rflow.small_linalg's elimination for K^-1).
+    numerics.small_linalg's elimination for K^-1).
 
     Args:
         fns, m, d, site, jac, jac_minv: as in `impedance_substep`.
@@ -172,7 +172,7 @@ def pose_lead_into(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarray, 
     return LEAD_OK
 
 
-# The quaternion formulas are rflow.quaternion's, compiled here once: the same Python source as the array versions,
+# The quaternion formulas are numerics.quaternion's, compiled here once: the same Python source as the array versions,
 # so the same rounding (tests/test_numba_twins.py). ik_kernel, envs.observation_kernel and envs.execution's
 # closed-loop and feed-forward kernels use these too.
 hamilton = _jit(quaternion.hamilton)
@@ -185,7 +185,7 @@ quat_of_rotvec_components = _jit(quaternion.quat_of_rotvec_components)
 @_jit
 def mat_to_quat_into(mat: np.ndarray, quat: np.ndarray) -> None:
     """quat (4,) = the unit quaternion (w, x, y, z), w >= 0, of a row-major 3x3 rotation matrix mat (9,)
-    (`rflow.quaternion.matrix_to_quat_components`)."""
+    (`numerics.quaternion.matrix_to_quat_components`)."""
     quat[0], quat[1], quat[2], quat[3] = matrix_to_quat_components(mat[0], mat[1], mat[2], mat[3], mat[4], mat[5],
                                                                    mat[6], mat[7], mat[8])
 

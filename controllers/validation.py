@@ -8,7 +8,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controllers.errors import ControllerError
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 
 def as_vector(value: npt.ArrayLike, size: int, name: str) -> npt.NDArray[np.float64]:

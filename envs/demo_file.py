@@ -179,7 +179,7 @@ def anchored_at_goal(demos: DemoSet) -> tuple[FloatArray, FloatArray]:
     (unlike `envs.demo_import.snap_to_goal`, which bends its last part onto the goal). Demos that end at the goal are
     returned as they are.
     """
-    from rflow.quaternion import quat_conj, quat_mul, rotate
+    from numerics.quaternion import quat_conj, quat_mul, rotate
 
     pos, quat = np.asarray(demos.pos, dtype=np.float64), np.asarray(demos.quat, dtype=np.float64)
     if not demos.ends_apart:

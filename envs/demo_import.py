@@ -46,8 +46,8 @@ from envs.demo_file import GOAL_TOL_M, GOAL_TOL_RAD, STIFFNESS_REL_TOL, DemoSet
 from envs.errors import EnvError
 from envs.npz_file import open_npz
 from envs.poses import QUAT_NORM_TOL, Pose, make_continuous, mean_quat, minimum_jerk, resample_trajectory
-from rflow.quaternion import quat_angle_rad, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
-from rflow.small_linalg import norm
+from numerics.quaternion import quat_angle_rad, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
+from numerics.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -38,7 +38,7 @@ from envs.demo_file import DemoSet
 from envs.errors import EnvError
 from envs.poses import (make_continuous, mean_quat, minimum_jerk, quat_angle_rad, quat_from_rotvec, quat_mul,
                         resample_trajectory, rotate)
-from rflow.small_linalg import dot, norm
+from numerics.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
 

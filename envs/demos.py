@@ -68,7 +68,7 @@ from envs.poses import (
 from envs.scene_config import SceneConfig
 from envs.stiffness_schedule import expert_stiffness
 from envs.task import Task
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 from rflow.stiffness import log_euclidean_resample
 
 FloatArray = npt.NDArray[np.float64]

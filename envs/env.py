@@ -59,7 +59,7 @@ from envs.sensing import ContactStats, EpisodeSensing, JointTorqueSensors, PegCo
 from envs.shapes import PEG_LENGTH_M, peg_cross_section
 from envs.wrist_sensor import episode_generator
 from envs.success import Assessment, EpisodeHoles, PegFootprint, SuccessTracker
-from rflow.quaternion import quat_to_mat
+from numerics.quaternion import quat_to_mat
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -41,7 +41,7 @@ from envs.poses import (
     slerp,
 )
 from envs.stiffness_schedule import StiffnessSchedule
-from rflow.small_linalg import dot, norm
+from numerics.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
 

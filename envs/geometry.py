@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from rflow.quaternion import mat_to_quat, quat_to_mat  # noqa: F401 -- rflow's, re-exported for envs and tests
+from numerics.quaternion import mat_to_quat, quat_to_mat  # noqa: F401 -- rflow's, re-exported for envs and tests
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -47,7 +47,7 @@ def normalize_quat(quat: npt.ArrayLike, name: str = "quat") -> FloatArray:
     Raises:
         EnvError: if ``quat`` is not 4 finite numbers of non-negligible norm.
     """
-    from rflow.small_linalg import norm  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import norm  # here: the task configs import this module, --help must not load numba
 
     q = as_vector(quat, 4, name)
     length = norm(q)
@@ -64,7 +64,7 @@ def rot_z(angle_rad: float) -> FloatArray:
 
 def z_down_rotation(yaw_deg: float) -> FloatArray:
     """R = Rz(yaw) Rx(pi): the frame whose z axis points straight down and whose x axis has heading yaw."""
-    from rflow.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
 
     return matmul(rot_z(np.deg2rad(yaw_deg)), R_FLIP_X)
 
@@ -113,7 +113,7 @@ def look_at_xyaxes(position: npt.ArrayLike, target: npt.ArrayLike, up: npt.Array
     Raises:
         EnvError: if the camera sits on its target or ``up`` is parallel to the viewing direction.
     """
-    from rflow.small_linalg import norm  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import norm  # here: the task configs import this module, --help must not load numba
 
     forward = np.asarray(target, dtype=np.float64) - np.asarray(position, dtype=np.float64)
     if norm(forward) < 1e-9:
@@ -141,7 +141,7 @@ def regular_polygon(n_sides: int, inradius_m: float, first_vertex_deg: float = 0
 
 def polygon_area(vertices: npt.ArrayLike) -> float:
     """Signed area (positive for counter-clockwise) by the shoelace formula."""
-    from rflow.small_linalg import dot  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import dot  # here: the task configs import this module, --help must not load numba
 
     v = np.asarray(vertices, dtype=np.float64)
     x, y = v[:, 0], v[:, 1]
@@ -166,7 +166,7 @@ def offset_convex_polygon(vertices: npt.ArrayLike, distance_m: float) -> FloatAr
     The new vertex i is the intersection of the shifted lines of edges i-1 and i:
     n . p = d + distance for both.
     """
-    from rflow.small_linalg import solve  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import solve  # here: the task configs import this module, --help must not load numba
 
     normals, offsets = edge_lines(vertices)
     shifted = offsets + distance_m
@@ -185,7 +185,7 @@ def mirror_y(vertices: npt.ArrayLike) -> FloatArray:
 
 def clip_polygon(vertices: npt.ArrayLike, normal: npt.ArrayLike, offset: float) -> FloatArray:
     """Keep the part of a convex polygon with normal . p <= offset (Sutherland-Hodgman, one plane)."""
-    from rflow.small_linalg import dot  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import dot  # here: the task configs import this module, --help must not load numba
 
     v = np.asarray(vertices, dtype=np.float64)
     n = np.asarray(normal, dtype=np.float64)

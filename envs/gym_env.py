@@ -83,8 +83,8 @@ from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
 from envs.rendering import MAX_FRAME_PX
 from envs.scene_config import SceneConfig
 from envs.task import Task
-from rflow.errors import shown
-from rflow.small_linalg import norm
+from numerics.errors import shown
+from numerics.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -20,7 +20,7 @@ from envs.poses import Pose
 from envs.scene import SceneIds
 from envs.sensing import ContactStats, PegContacts, WristSensor
 from envs.success import Assessment, EpisodeHoles, InsertionState, SuccessTracker
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 FloatArray = npt.NDArray[np.float64]
 

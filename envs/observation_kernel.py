@@ -3,7 +3,7 @@
 Every control period the observation read three site poses (each a quaternion by mju_mat2Quat through the bindings),
 checked the peg tip's pose, turned its quaternion back into a rotation matrix for the success check and read its
 velocity (mj_objectVelocity): about 10 us of Python a period. Here it is one call to the same MuJoCo functions
-(controllers.mujoco_c) and the same rotation formula (`rflow.quaternion.matrix_components`, compiled from its
+(controllers.mujoco_c) and the same rotation formula (`numerics.quaternion.matrix_components`, compiled from its
 source), so the observation and the records are the same to the last bit (tests/test_observation_kernel.py).
 """
 
@@ -16,7 +16,7 @@ import numpy as np
 
 from controllers.impedance_kernel import matrix_components
 from controllers.mujoco_c import FN_MAT2QUAT, FN_OBJECT_VELOCITY, call_md, call_object_velocity
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 

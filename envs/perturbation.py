@@ -243,7 +243,7 @@ class Perturbation:
 
     def hole_transform(self) -> tuple[FloatArray, FloatArray]:
         """(t (3,), R_err (3, 3)) of T_err in the hole frame."""
-        from rflow.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
+        from numerics.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
         phi, tilt, yaw = np.deg2rad([self.hole_tilt_dir_deg, self.hole_tilt_deg, self.hole_yaw_deg])
         axis = np.array([np.cos(phi), np.sin(phi), 0.0])
         k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
@@ -332,8 +332,8 @@ def perturbed_frame(frame_pos: npt.ArrayLike, frame_quat: npt.ArrayLike, hole_po
     Returns:
         (position (3,), quaternion w, x, y, z (4,)).
     """
-    from rflow.quaternion import mat_to_quat, quat_to_mat
-    from rflow.small_linalg import matmul, matvec
+    from numerics.quaternion import mat_to_quat, quat_to_mat
+    from numerics.small_linalg import matmul, matvec
 
     r_h = quat_to_mat(hole_quat)
     p_h = np.asarray(hole_pos, dtype=np.float64)

@@ -2,7 +2,7 @@
 
 All quaternions are unit quaternions in (w, x, y, z) order, the MuJoCo convention. A pose is a
 position in metres and a quaternion mapping the body frame to the world frame. The quaternion algebra is
-`rflow.quaternion`'s (one definition for every layer); its functions are re-exported here for the
+`numerics.quaternion`'s (one definition for every layer); its functions are re-exported here for the
 modules of `envs` that import them with the poses.
 """
 
@@ -15,9 +15,9 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.geometry import all_finite
-from rflow.quaternion import (quat_angle_rad, quat_conj, quat_from_rotvec, quat_from_rotvec_one, quat_mul,
+from numerics.quaternion import (quat_angle_rad, quat_conj, quat_from_rotvec, quat_from_rotvec_one, quat_mul,
                               quat_mul_one, quat_to_rotvec, quat_to_rotvec_one, rotate, slerp)
-from rflow.small_linalg import matvec, norm
+from numerics.small_linalg import matvec, norm
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -241,7 +241,7 @@ def quintic_hermite(s: npt.ArrayLike, p0: float, v0: float, p1: float, v1: float
 __all__ = [
     "Pose", "QUAT_NORM_TOL", "StartRegion", "format_pose", "make_continuous", "mean_quat", "minimum_jerk",
     "nominal_start", "quintic_hermite", "resample_trajectory", "sample_start_poses", "validate_pose",
-    # rflow.quaternion's, re-exported for the envs modules that import them with the poses
+    # numerics.quaternion's, re-exported for the envs modules that import them with the poses
     "quat_angle_rad", "quat_conj", "quat_from_rotvec", "quat_from_rotvec_one", "quat_mul", "quat_mul_one",
     "quat_to_rotvec", "quat_to_rotvec_one", "rotate", "slerp",
 ]

@@ -44,8 +44,8 @@ from envs.scene_config import SceneConfig, goal_from_hole, hole_from_goal
 from envs.shapes import PEG_LENGTH_M, SHAPES, check_shape, grip_half_width_m, hole_inradius_m
 from envs.sorter import SorterLayout, build_sorter, sorter_layout, symmetry_order
 from envs.success import HoleSpec
-from rflow.quaternion import mat_to_quat, quat_to_mat
-from rflow.small_linalg import matmul, matvec, norm
+from numerics.quaternion import mat_to_quat, quat_to_mat
+from numerics.small_linalg import matmul, matvec, norm
 
 FINGER_JOINTS: tuple[str, ...] = ("finger_joint1", "finger_joint2")
 TABLE_MARGIN_M: float = 0.05

@@ -29,8 +29,8 @@ from envs.pads import check_pad_stiffness
 from envs.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
 from envs.shapes import check_shape
 from envs.sorter import check_chamfer, check_clearance, check_hole_depth
-from rflow.quaternion import mat_to_quat, quat_to_mat
-from rflow.small_linalg import matmul
+from numerics.quaternion import mat_to_quat, quat_to_mat
+from numerics.small_linalg import matmul
 
 if TYPE_CHECKING:
     from envs.task import Task

@@ -86,7 +86,7 @@ class WallBox:
 
     def corners(self) -> FloatArray:
         """The four corners (4, 2) in the sorter plane."""
-        from rflow.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
+        from numerics.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
 
         c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
         hx, hy = self.half_size_xy
@@ -162,7 +162,7 @@ def edge_box(piece: FloatArray, normal: FloatArray, offset: float) -> WallBox:
     It spans s = n . p - d in [0, max s] and u = t . p in [min u, max u] over the piece's vertices,
     t = (-n_y, n_x).
     """
-    from rflow.small_linalg import matvec  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import matvec  # here: the task configs import this module, --help must not load numba
 
     tangent = np.array([-normal[1], normal[0]])
     s = matvec(piece, normal) - offset
@@ -221,7 +221,7 @@ def chamfer_vertices(piece: FloatArray, normal: FloatArray, offset: float, chamf
     Raises:
         EnvError: if the bevel would cut the piece down to its outer boundary (chamfer too wide).
     """
-    from rflow.small_linalg import matvec  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import matvec  # here: the task configs import this module, --help must not load numba
 
     z0 = z_top - chamfer_m
     rise = np.minimum(matvec(piece, normal) - offset, chamfer_m)
@@ -305,7 +305,7 @@ def sorter_layout(clearance_m: float, hole_depth_m: float, chamfer_m: float = 0.
     Raises:
         EnvError: if the clearance or the depth is out of range.
     """
-    from rflow.small_linalg import dot  # here: the task configs import this module, --help must not load numba
+    from numerics.small_linalg import dot  # here: the task configs import this module, --help must not load numba
 
     check_clearance(clearance_m)
     check_hole_depth(hole_depth_m)

@@ -24,7 +24,7 @@ import numpy.typing as npt
 from controllers.impedance import ImpedanceConfig
 from envs.errors import EnvError
 from envs.poses import minimum_jerk
-from rflow.small_linalg import matmul, norm
+from numerics.small_linalg import matmul, norm
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -34,7 +34,7 @@ from envs.poses import rotate
 from envs.shapes import CrossSection
 from envs.success_kernel import NO_HOLE, NO_POLYGON, assess_tip, wall_penetration, wrap_symmetric
 from envs.task import SuccessConfig  # the tolerances are part of the task
-from rflow.quaternion import quat_to_mat
+from numerics.quaternion import quat_to_mat
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from rflow.errors import RFlowError, shown
+from numerics.errors import shown
+from rflow.errors import RFlowError
 from rflow.inference import check_dt
 from rflow.model import RiemannianFlow
 

@@ -18,9 +18,10 @@ import numpy as np
 import numpy.typing as npt
 
 from rflow import flow_kernel
-from rflow.errors import RFlowError, shown
+from numerics.errors import shown
+from rflow.errors import RFlowError
 from rflow.flow_kernel import PackedFlow
-from rflow.small_linalg import eigh_sym, expm, matmul, matvec
+from numerics.small_linalg import eigh_sym, expm, matmul, matvec
 
 
 def check_dt(dt: object) -> None:
@@ -249,7 +250,7 @@ class TangentChart:
     """
 
     def __init__(self, manifold, goal: np.ndarray):
-        from rflow.quaternion import quat_conj, quat_mul
+        from numerics.quaternion import quat_conj, quat_mul
 
         self.manifold = manifold
         self.goal = np.asarray(goal, dtype=np.float64)

@@ -46,7 +46,7 @@ from pihutil.manifest import folder_strangers, shown, write_manifest
 from rflow.errors import RFlowError
 from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
 from rflow.model import CONFIG_FILE, WEIGHTS_FILE, RiemannianFlow, read_json
-from rflow.small_linalg import eigh_sym
+from numerics.small_linalg import eigh_sym
 from rflow.stiffness import StiffnessBounds, clip_eigenvalues, log_euclidean_mean
 
 SKILL_FILE = "skill.json"

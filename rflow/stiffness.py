@@ -29,7 +29,7 @@ import numpy.typing as npt
 
 from rflow.errors import RFlowError
 from rflow.manifolds import spd
-from rflow.small_linalg import eigh_sym, matmul
+from numerics.small_linalg import eigh_sym, matmul
 
 FloatArray = npt.NDArray[np.float64]
 

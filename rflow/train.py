@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from pihutil.atomic import write_atomic
 from rflow.adam import FusedAdam
-from rflow.cpu_dispatch import check_torch_dispatch
+from numerics.cpu_dispatch import check_torch_dispatch
 from rflow.errors import RFlowError
 from rflow.manifolds import Manifold, get_manifold
 from rflow.model import ImitationFlow, ModelConfig, RiemannianFlow
@@ -329,7 +329,7 @@ def fit(
 
     if config.threads is not None:
         torch.set_num_threads(config.threads)
-    check_torch_dispatch()
+    check_torch_dispatch(torch.backends.cpu.get_cpu_capability())
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
     duration = dt * (m - 1)

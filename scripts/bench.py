@@ -398,12 +398,12 @@ def main(args: argparse.Namespace) -> int:
     check_output("--json", args.json, args.overwrite, suffix=".json", inputs=[model, DEFAULT_MODEL if model is None
                                                                               else None], estimate_bytes=MiB)
     if model is not None:
-        from rflow.errors import RFlowError
+        from numerics.errors import NumericsError
         from rflow.skill_io import load_skill
 
         try:
             load_skill(model)
-        except RFlowError as err:
+        except NumericsError as err:  # RFlowError too
             raise EnvError(f"--model {model}: {err}") from None
     elif DEFAULT_MODEL.is_dir():
         model = DEFAULT_MODEL

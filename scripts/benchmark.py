@@ -188,7 +188,7 @@ def main(args: argparse.Namespace) -> int:
     """Run or continue the protocol; print and write its summary."""
     from envs.execution.figures import plot_protocol
     from envs.output import write_json
-    from rflow.errors import RFlowError
+    from numerics.errors import NumericsError
 
     config = protocol_from_args(args)
     record = protocol_record(config)
@@ -198,7 +198,7 @@ def main(args: argparse.Namespace) -> int:
         try:
             outcomes.append(run_replicate(config, args.out / f"{REPLICATE_PREFIX}{demo_seed}", demo_seed, start_seed,
                                           args.workers, not args.quiet, lambda line: print(line, flush=True)))
-        except (EnvError, RFlowError) as err:
+        except (EnvError, NumericsError) as err:  # NumericsError: rflow's RFlowError too
             print(f"seed {demo_seed}: failed -- {err}", flush=True)
             outcomes.append(ReplicateOutcome(demo_seed, start_seed, error=str(err)))
     summary = {"protocol": record, **summarise(outcomes)}

@@ -17,12 +17,16 @@ import sys
 import threading
 from typing import NoReturn, Sequence
 
-import rflow  # noqa: F401  first: pins the CPU dispatch of torch, MKL and numpy (rflow.cpu_dispatch) before they load
-from batch.errors import BatchError
-from controllers.errors import ControllerError
-from envs.errors import EnvError
-from envs.rendering import use_headless_rendering
-from rflow.errors import RFlowError
+from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch
+
+pin_cpu_dispatch()  # first: the CPU dispatch of torch, MKL and numpy, before they load
+check_numpy_dispatch()
+
+from batch.errors import BatchError  # noqa: E402
+from controllers.errors import ControllerError  # noqa: E402
+from envs.errors import EnvError  # noqa: E402
+from envs.rendering import use_headless_rendering  # noqa: E402
+from numerics.errors import NumericsError  # noqa: E402
 
 DESCRIPTION = ("pih-rflow: a simulated Franka Panda learns peg-in-hole from demonstrations with RiemannianFlow and "
                "executes it under Cartesian impedance control. `pih run` records demos, trains and evaluates on the "
@@ -51,7 +55,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "warmup": ("scripts.warmup", "compile and cache the numba kernels once (setup.sh runs it)"),
 }
 
-USER_ERRORS = (EnvError, ControllerError, RFlowError, BatchError, FileNotFoundError)
+USER_ERRORS = (EnvError, ControllerError, NumericsError, BatchError, FileNotFoundError)
+"""The project's own exception types (NumericsError: rflow's RFlowError too, its subclass): a bad input, exit 2."""
 EXIT_USAGE = 2
 EXIT_OS_ERROR = 1
 EXIT_INTERRUPTED = 130

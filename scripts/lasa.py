@@ -29,7 +29,7 @@ import numpy as np
 
 from envs.npz_file import open_npz
 from envs.output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
-from rflow.cpu_dispatch import DISPATCH_VARIABLES
+from numerics.cpu_dispatch import DISPATCH_VARIABLES
 from rflow.errors import RFlowError
 from rflow.lasa import (
     BENCHMARK_MANIFOLDS,

@@ -11,7 +11,7 @@ import numpy.typing as npt
 from envs.execution.adaptation import ContactAdaptation
 from envs.poses import quat_conj, quat_from_rotvec_one, quat_mul, quat_mul_one, quat_to_rotvec_one, rotate
 from envs.execution.policy import on_goal_hemisphere, pose_twist
-from rflow.small_linalg import dot, norm
+from numerics.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -4,8 +4,12 @@ trained skill that the slow physics tests share."""
 
 import os
 
-import rflow  # noqa: F401  (first: pins numpy's, torch's and MKL's kernel choices as `pih` does, rflow.cpu_dispatch)
-import pytest
+from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch
+
+pin_cpu_dispatch()  # first, before any test module imports numpy or torch: the arithmetic `pih` runs
+check_numpy_dispatch()
+
+import pytest  # noqa: E402
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 

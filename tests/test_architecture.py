@@ -15,16 +15,17 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("pihutil", "batch", "rflow", "controllers", "assets", "envs", "scripts")
+PACKAGES = ("pihutil", "numerics", "batch", "rflow", "controllers", "assets", "envs", "scripts")
 
 ALLOWED: dict[str, set[str]] = {
     "pihutil": set(),
+    "numerics": set(),
     "assets": set(),
     "batch": {"pihutil"},
-    "rflow": {"batch", "pihutil"},
-    "controllers": {"rflow", "pihutil"},
-    "envs": {"assets", "batch", "controllers", "pihutil", "rflow"},
-    "scripts": {"assets", "batch", "controllers", "envs", "pihutil", "rflow"},
+    "rflow": {"batch", "numerics", "pihutil"},
+    "controllers": {"numerics", "pihutil"},
+    "envs": {"assets", "batch", "controllers", "numerics", "pihutil", "rflow"},
+    "scripts": {"assets", "batch", "controllers", "envs", "numerics", "pihutil", "rflow"},
 }
 """Which project packages each package may import (the layers below it; docs/architecture.md)."""
 
@@ -32,9 +33,10 @@ FORBIDDEN_LIBRARIES: dict[str, set[str]] = {
     "pihutil": {"numpy", "torch", "mujoco", "dm_control", "numba", "ray"},
     "batch": {"torch", "mujoco", "dm_control", "numba"},
     "rflow": {"mujoco", "dm_control", "gymnasium", "imageio", "mink"},
+    "numerics": {"torch", "scipy", "mujoco", "dm_control", "gymnasium", "imageio", "mink", "matplotlib", "ray"},
 }
 """Third-party libraries a package must not import: rflow learns from arrays without the simulator; batch runs
-any picklable unit; pihutil is the standard library only."""
+any picklable unit; pihutil is the standard library only; numerics is numpy, numba and the standard library."""
 
 
 def _module_name(path: Path) -> str:
@@ -188,12 +190,12 @@ def _definitions(name: str) -> list[str]:
 
 
 @pytest.mark.parametrize("name, owner", [
-    ("hamilton", "rflow.quaternion"),  # the quaternion product; quat_mul and quat_mul_one are it on arrays, floats
-    ("quat_mul", "rflow.quaternion"),
-    ("quat_conj", "rflow.quaternion"),
-    ("quat_to_mat", "rflow.quaternion"),
-    ("matrix_to_quat_components", "rflow.quaternion"),
-    ("mat_to_quat", "rflow.quaternion"),
+    ("hamilton", "numerics.quaternion"),  # the quaternion product; quat_mul and quat_mul_one are it on arrays, floats
+    ("quat_mul", "numerics.quaternion"),
+    ("quat_conj", "numerics.quaternion"),
+    ("quat_to_mat", "numerics.quaternion"),
+    ("matrix_to_quat_components", "numerics.quaternion"),
+    ("mat_to_quat", "numerics.quaternion"),
     ("AtomicFile", "pihutil.atomic"),
     ("wilson_interval", "envs.execution.statistics"),
     ("use_headless_rendering", "envs.rendering"),

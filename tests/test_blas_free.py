@@ -1,7 +1,7 @@
 """No BLAS or LAPACK call on the paths that feed an episode record or a demo file.
 
 OpenBLAS sums in the order of the kernel it picks for the CPU (or for OPENBLAS_CORETYPE, which a test must not
-change), and the contact physics amplifies a last-bit difference into other records; `rflow.small_linalg` has the
+change), and the contact physics amplifies a last-bit difference into other records; `numerics.small_linalg` has the
 BLAS-free replacements. This is a source check: it walks the modules of envs/, controllers/ and rflow/ (less the
 ones below that feed no record) and fails on ``@``, ``np.dot``-like calls, ``np.linalg.*`` (``norm`` only with an
 ``axis``: then it is a reduction, not a dot product), ``scipy.linalg`` and ``einsum(..., optimize=...)``. A line
@@ -22,8 +22,8 @@ NOT_ON_THE_RECORD_PATH: dict[str, str] = {
     "envs/execution/figures.py": "draws figures",
     "controllers/benchmark.py": "times the controller",
     "rflow/bench.py": "times the flow",
-    "rflow/dynamics.py": "torch only (its kernels pinned by rflow.cpu_dispatch)",
-    "rflow/flow.py": "torch only (its kernels pinned by rflow.cpu_dispatch)",
+    "rflow/dynamics.py": "torch only (its kernels pinned by numerics.cpu_dispatch)",
+    "rflow/flow.py": "torch only (its kernels pinned by numerics.cpu_dispatch)",
     "rflow/lasa.py": "Riemannian LASA benchmark",
     "rflow/rgmm.py": "LASA baseline",
     "rflow/fdm.py": "LASA baseline",
@@ -72,7 +72,7 @@ def record_path_modules() -> list[Path]:
 def test_no_blas_call_on_the_record_path():
     hits = [f"{p.relative_to(ROOT)}:{line}: {what}" for p in record_path_modules()
             for line, what in blas_calls(p.read_text())]
-    assert not hits, ("BLAS/LAPACK calls on the record path (use rflow.small_linalg, or mark a line that feeds no "
+    assert not hits, ("BLAS/LAPACK calls on the record path (use numerics.small_linalg, or mark a line that feeds no "
                       f"record with '{MARKER} <reason>'):\n" + "\n".join(hits))
 
 

@@ -16,7 +16,7 @@ from envs.poses import Pose
 from envs.scene import build_scene
 from envs.scene_config import SceneConfig
 from envs.poses import quat_conj, quat_mul, quat_to_rotvec
-from rflow.quaternion import quat_to_mat
+from numerics.quaternion import quat_to_mat
 
 GRAVITY_M_S2 = 9.81
 

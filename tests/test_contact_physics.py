@@ -6,7 +6,7 @@ import pytest
 
 from envs.contact import ContactConfig
 from envs.geometry import R_FLIP_X, rot_z
-from rflow.quaternion import mat_to_quat, quat_to_mat
+from numerics.quaternion import mat_to_quat, quat_to_mat
 from envs.scene import build_scene
 from envs.scene_config import SceneConfig
 from envs.shapes import PEG_LENGTH_M, SHAPES, peg_cross_section

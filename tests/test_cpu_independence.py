@@ -1,6 +1,6 @@
 """Records do not depend on the x86-64 CPU: the same training and evaluation with the CPU features restricted
 (numba compiled for a generic x86-64, numpy's AVX2 loops off, MKL and oneDNN held to SSE4) equal the unrestricted
-run field for field, and torch runs the pinned kernels (rflow.cpu_dispatch)."""
+run field for field, and torch runs the pinned kernels (numerics.cpu_dispatch)."""
 
 import json
 import os
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from rflow.cpu_dispatch import PINNED_ENVIRONMENT
+from numerics.cpu_dispatch import PINNED_ENVIRONMENT
 
 RESTRICTED = {"NUMBA_CPU_NAME": "generic", "NPY_DISABLE_CPU_FEATURES": "X86_V3",
               "MKL_ENABLE_INSTRUCTIONS": "SSE4_2", "ONEDNN_MAX_CPU_ISA": "SSE41"}
@@ -20,7 +20,7 @@ SCRIPT = """
 import json, sys
 from pathlib import Path
 sys.path.insert(0, {tests!r})
-import rflow  # first, as pih does: numpy then loads with the pinned loops
+import numerics  # first, as pih does: numpy then loads with the pinned loops
 from skill_fixtures import tiny_skill
 from rflow.skill_io import save_skill
 from envs.execution.evaluate import EvaluationConfig, evaluate
@@ -69,8 +69,9 @@ def test_numpy_runs_its_pinned_loops_here():
 
 
 def test_the_test_session_pins_numpy_before_a_test_module_imports_it():
-    """Most test modules import numpy before rflow, so the pin has to come from tests/conftest.py for the tests to run
-    the arithmetic the commands run: the check above, in a fresh session, after a module that imports numpy first."""
+    """Most test modules import numpy before any package of the project, so the pin has to come from tests/conftest.py
+    for the tests to run the arithmetic the commands run: the check above, in a fresh session, after a module that
+    imports numpy first."""
     tests = Path(__file__).parent
     done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
                            f"{tests / 'test_success.py'}::test_goal_pose_is_inserted",
@@ -95,11 +96,12 @@ print(seen[0])
 """
 
 
-@pytest.mark.parametrize("package", ["envs", "controllers", "envs.gym_env"])
+@pytest.mark.parametrize("package", ["envs", "controllers", "envs.gym_env", "numerics"])
 def test_importing_a_package_of_the_project_pins_numpy_before_numpy_loads(package):
-    """A script that starts with `import envs` (or the Gym module, or the controllers) runs numpy's loops as `pih`
-    does: each package imports rflow, which sets NPY_DISABLE_CPU_FEATURES, before anything imports numpy (what the
-    setting was when numpy was first imported is recorded, so the order is checked on any host)."""
+    """A script that starts with `import envs` (or the Gym module, the controllers, numerics) runs numpy's loops as
+    `pih` does: each package calls numerics.cpu_dispatch.pin_cpu_dispatch first, which sets NPY_DISABLE_CPU_FEATURES,
+    before anything imports numpy (what the setting was when numpy was first imported is recorded, so the order is
+    checked on any host)."""
     done = subprocess.run([sys.executable, "-W", "error::RuntimeWarning", "-c",
                            NUMPY_IMPORT_WATCH.format(package=package)], capture_output=True, text=True, timeout=300,
                           cwd=Path(__file__).parent.parent,
@@ -111,7 +113,7 @@ def test_importing_a_package_of_the_project_pins_numpy_before_numpy_loads(packag
 def test_a_users_own_numpy_feature_choice_is_left_as_it_is():
     """NPY_ENABLE_CPU_FEATURES is a choice of numpy's loops too, and numpy refuses to load with both variables set:
     the pin leaves numpy alone then (and still pins torch and MKL)."""
-    from rflow.cpu_dispatch import pin_cpu_dispatch
+    from numerics.cpu_dispatch import pin_cpu_dispatch
 
     environ = {"NPY_ENABLE_CPU_FEATURES": "AVX2"}
     pin_cpu_dispatch(environ)
@@ -126,7 +128,7 @@ def test_a_users_own_numpy_feature_choice_is_left_as_it_is():
 def test_numpy_imported_first_with_loops_the_pin_turns_off_is_warned_about():
     """numpy reads NPY_DISABLE_CPU_FEATURES only when it loads: loops it runs that the setting names are reported
     (a host without AVX-512 runs none, so the features are given here)."""
-    from rflow.cpu_dispatch import check_numpy_dispatch
+    from numerics.cpu_dispatch import check_numpy_dispatch
 
     pinned = {"NPY_DISABLE_CPU_FEATURES": PINNED_ENVIRONMENT["NPY_DISABLE_CPU_FEATURES"]}
     with pytest.warns(RuntimeWarning, match="runs its X86_V4 AVX512_ICL loops"):

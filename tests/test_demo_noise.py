@@ -18,7 +18,7 @@ from envs.demo_file import DemoSet, anchored_at_goal, load_demos, save_demos, va
 from envs.demo_noise import MOUTH_MARGIN_M, DemoNoise, _approach, add_demo_noise
 from envs.errors import EnvError
 from envs.poses import quat_angle_rad, quat_conj, quat_mul
-from rflow.quaternion import quat_to_mat
+from numerics.quaternion import quat_to_mat
 from skill_fixtures import synthetic_demos
 
 PIH = str(Path(sys.executable).with_name("pih"))

@@ -17,7 +17,7 @@ from envs.execution.feedforward import (MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2
 from envs.execution.policy_protocol import Action
 from env_states import wandering_states
 from envs.poses import Pose, quat_from_rotvec, quat_from_rotvec_one, quat_mul_one
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 
 def _reference_limit(twist, max_speed, max_spin):

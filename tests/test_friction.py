@@ -15,7 +15,7 @@ from envs.perturbation import Perturbation, PerturbationRanges, sample_perturbat
 from envs.poses import Pose
 from envs.scene import build_scene
 from envs.scene_config import SceneConfig
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 GRASP_FORCE_N = SceneConfig().grasp_force_n
 

@@ -16,7 +16,7 @@ from envs.geometry import (
     z_down_rotation,
     z_down_yaw_deg,
 )
-from rflow.quaternion import mat_to_quat, quat_to_mat
+from numerics.quaternion import mat_to_quat, quat_to_mat
 
 PAPER_QUAT = (0.022, 0.991, -0.125, 0.035)
 

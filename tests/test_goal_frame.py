@@ -13,7 +13,7 @@ from envs.execution.goal_frame import GoalFramePolicy, RigidMotion
 from envs.execution.policy import ClosedLoopPolicy
 from envs.execution.policy_protocol import Action, Observation, PrivilegedState
 from envs.poses import Pose, quat_from_rotvec, quat_mul, rotate
-from rflow.quaternion import quat_to_mat
+from numerics.quaternion import quat_to_mat
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 
 REFERENCE = Pose(GOAL_POS.copy(), GOAL_QUAT.copy())

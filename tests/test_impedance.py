@@ -328,9 +328,9 @@ def test_a_bad_tool_load_raises_controller_error(model, mass, depth):
 
 def _pose_lead_in_numpy(controller, data, twist, accel, stiffness):
     """The pose lead as it was computed before it was one compiled call: the bindings' mj_jacSite and mj_solveM,
-    the kernel's Lambda^-1 and modal factors, then matvec and solve of rflow.small_linalg."""
+    the kernel's Lambda^-1 and modal factors, then matvec and solve of numerics.small_linalg."""
     from controllers import impedance_kernel as kernel
-    from rflow.small_linalg import matvec, solve
+    from numerics.small_linalg import matvec, solve
 
     model = controller.model
     jac, jac_minv = np.zeros((6, model.nv)), np.zeros((6, model.nv))

@@ -1,7 +1,7 @@
 """Each compiled (numba) twin of a numpy or Python function against its reference, in one pattern.
 
 A twin is registered with the reference it must equal, a draw of inputs, and whether the equality is to the bit
-(one Python source compiled twice, e.g. rflow.quaternion's formulas in controllers.impedance_kernel) or to a
+(one Python source compiled twice, e.g. numerics.quaternion's formulas in controllers.impedance_kernel) or to a
 tolerance (another algorithm for the same quantity). Add a kernel's twin here when you write one.
 """
 
@@ -15,7 +15,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from controllers import impedance_kernel
-from rflow import quaternion
+from numerics import quaternion
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,7 @@ def _into(kernel: Callable[..., None], size: int) -> Callable[..., np.ndarray]:
 
 
 def _pose_error_reference(pos, quat, site_pos, site_mat):
-    """[p_d - p; rotvec(q_d conj(q))] with numpy and rflow.quaternion."""
+    """[p_d - p; rotvec(q_d conj(q))] with numpy and numerics.quaternion."""
     q = quaternion.mat_to_quat(site_mat.reshape(3, 3))
     rot = quaternion.quat_to_rotvec(quaternion.quat_mul(quat, quaternion.quat_conj(q)))
     return np.concatenate([pos - site_pos, rot])

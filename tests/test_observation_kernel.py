@@ -1,6 +1,6 @@
 """The compiled read of an observation (envs.observation_kernel) equals, bit for bit, the reads it replaced: the three
 site poses by mju_mat2Quat through the bindings (`envs.observation.site_pose`), the peg tip's rotation matrix by
-`rflow.quaternion.quat_to_mat` and its speed by mj_objectVelocity (`Observer.peg_speed_m_s`), over the states of
+`numerics.quaternion.quat_to_mat` and its speed by mj_objectVelocity (`Observer.peg_speed_m_s`), over the states of
 episodes moved by random commands; and it says so when the peg tip's pose is not finite."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from envs import observation_kernel as kernel
 from envs.env import PegInHoleEnv
 from envs.observation import site_pose
 from env_states import wandering_states
-from rflow.quaternion import quat_to_mat
+from numerics.quaternion import quat_to_mat
 
 
 @pytest.fixture(scope="module")

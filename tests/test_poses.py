@@ -19,7 +19,7 @@ from envs.poses import (
     sample_start_poses,
     validate_pose,
 )
-from rflow.quaternion import quat_angle_rad, quat_from_rotvec, quat_to_rotvec
+from numerics.quaternion import quat_angle_rad, quat_from_rotvec, quat_to_rotvec
 
 
 def test_make_continuous_removes_sign_flips_and_ends_on_reference() -> None:

@@ -1,4 +1,4 @@
-"""rflow.quaternion, the one definition of the quaternion algebra, against scipy's Rotation and its own identities."""
+"""numerics.quaternion, the one definition of the quaternion algebra, against scipy's Rotation and its own identities."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from rflow.errors import RFlowError
-from rflow.quaternion import (mat_to_quat, quat_angle_rad, quat_conj, quat_from_rotvec, quat_mul, quat_mul_one,
+from numerics.errors import NumericsError
+from numerics.quaternion import (mat_to_quat, quat_angle_rad, quat_conj, quat_from_rotvec, quat_mul, quat_mul_one,
                               quat_to_mat, quat_to_rotvec, rotate, slerp)
 
 rotvecs = st.lists(st.floats(-1.8, 1.8), min_size=3, max_size=3).map(np.array)
@@ -82,14 +82,14 @@ def test_one_product_for_arrays_tensors_and_python_floats() -> None:
 
 
 def test_a_zero_quaternion_has_no_matrix() -> None:
-    with pytest.raises(RFlowError, match="zero norm"):
+    with pytest.raises(NumericsError, match="zero norm"):
         quat_to_mat([0.0, 0.0, 0.0, 0.0])
 
 
 def test_a_matrix_must_be_three_by_three_and_finite() -> None:
-    with pytest.raises(RFlowError, match="3x3"):
+    with pytest.raises(NumericsError, match="3x3"):
         mat_to_quat(np.eye(4))
-    with pytest.raises(RFlowError, match="3x3"):
+    with pytest.raises(NumericsError, match="3x3"):
         mat_to_quat(np.full((3, 3), np.nan))
 
 
@@ -105,7 +105,7 @@ def test_a_matrix_must_be_three_by_three_and_finite() -> None:
     (np.tile([1.0, 0.0, 0.0, 0.0], (3, 1)), [1.0, 0.0, 0.0, 0.0], [0.1, 0.2], "do not broadcast"),
 ])
 def test_slerp_refuses_what_is_no_unit_quaternion_or_finite_fraction_by_name(q0, q1, s, words) -> None:
-    with pytest.raises(RFlowError, match=words):
+    with pytest.raises(NumericsError, match=words):
         slerp(q0, q1, s)
 
 
@@ -118,7 +118,7 @@ def test_slerp_refuses_what_is_no_unit_quaternion_or_finite_fraction_by_name(q0,
     ("abc", "3x3 numbers"),  # numpy's ValueError
 ])
 def test_a_matrix_that_is_no_rotation_has_no_quaternion(matrix, words) -> None:
-    with pytest.raises(RFlowError, match=words):
+    with pytest.raises(NumericsError, match=words):
         mat_to_quat(matrix)
 
 

@@ -6,7 +6,7 @@ import pytest
 
 from envs.errors import EnvError
 from envs.geometry import tilt_from_down_deg, z_down_yaw_deg
-from rflow.quaternion import mat_to_quat, quat_to_mat
+from numerics.quaternion import mat_to_quat, quat_to_mat
 from envs.scene import CAMERAS, build_scene
 from envs.scene_config import (PAPER_GOAL_POS_M, PAPER_GOAL_QUAT, SceneConfig, goal_from_hole, goal_pose_from_paper,
                                 hole_from_goal)

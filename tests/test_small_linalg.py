@@ -1,4 +1,4 @@
-"""rflow.small_linalg against numpy's BLAS/LAPACK and scipy on random inputs (equal to rounding)."""
+"""numerics.small_linalg against numpy's BLAS/LAPACK and scipy on random inputs (equal to rounding)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from rflow import small_linalg as sl
-from rflow.errors import RFlowError
+from numerics import small_linalg as sl
+from numerics.errors import NumericsError
 
 RTOL = 1e-13
 
@@ -49,7 +49,7 @@ def test_matmul_equals_numpy_matmul_with_its_shapes(shape_a, shape_b):
 
 
 def test_matmul_refuses_inner_dimensions_that_differ():
-    with pytest.raises(RFlowError, match="inner dimensions"):
+    with pytest.raises(NumericsError, match="inner dimensions"):
         sl.matmul(np.ones((2, 3)), np.ones((4, 2)))
 
 
@@ -65,7 +65,7 @@ def test_solve_equals_numpy_for_vectors_and_matrices(n):
 
 
 def test_solve_refuses_a_singular_matrix():
-    with pytest.raises(RFlowError, match="singular"):
+    with pytest.raises(NumericsError, match="singular"):
         sl.solve(np.array([[1.0, 2.0], [2.0, 4.0]]), np.ones(2))
 
 
@@ -106,7 +106,7 @@ def test_expm_of_a_stable_drift_equals_scipy():
 
 
 def test_expm_refuses_non_finite_and_non_square_input():
-    with pytest.raises(RFlowError, match="NaN"):
+    with pytest.raises(NumericsError, match="NaN"):
         sl.expm(np.full((2, 2), np.nan))
-    with pytest.raises(RFlowError, match="square"):
+    with pytest.raises(NumericsError, match="square"):
         sl.expm(np.ones((2, 3)))

@@ -9,7 +9,7 @@ from hypothesis.extra.numpy import arrays
 
 from rflow.errors import RFlowError
 from rflow.manifolds import sphere
-from rflow.quaternion import quat_conj, quat_mul
+from numerics.quaternion import quat_conj, quat_mul
 
 finite = st.floats(-1.0, 1.0, allow_nan=False)
 vec4 = arrays(np.float64, 4, elements=finite).filter(lambda v: np.linalg.norm(v) > 0.1)

@@ -5,7 +5,7 @@ import pytest
 
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, rot_z
-from rflow.quaternion import mat_to_quat, quat_to_mat
+from numerics.quaternion import mat_to_quat, quat_to_mat
 from envs.shapes import hole_inradius_m, hole_polygon, peg_cross_section
 from envs.success import (
     EpisodeHoles,

@@ -17,8 +17,8 @@ from envs.shapes import hole_inradius_m, hole_polygon, peg_cross_section
 from envs.success import (FLOOR_SLACK_M, MIN_ENTRY_DEPTH_M, Assessment, EpisodeHoles, HoleFrame, HoleSpec,
                           InsertionState, PegFootprint, SuccessConfig, assess_insertion, insertion_state,
                           wall_penetration_m, wrap_symmetric_deg)
-from rflow.quaternion import mat_to_quat, quat_to_mat
-from rflow.small_linalg import matmul, matvec
+from numerics.quaternion import mat_to_quat, quat_to_mat
+from numerics.small_linalg import matmul, matvec
 
 CONFIG = SuccessConfig()
 TARGET_DEPTH_M = 0.03

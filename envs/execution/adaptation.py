@@ -63,7 +63,7 @@ import numpy.typing as npt
 from envs.errors import EnvError
 from envs.execution import closed_loop_kernel as kernel
 from envs.poses import quat_from_rotvec_one
-from rflow.small_linalg import dot, norm
+from numerics.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -5,7 +5,7 @@ Each control period the closed loop ran ~40 small numpy and Python-float operati
 twists, the hemisphere flips, the adaptation's integrals, saturations and the stall search), about 45 us per
 period, as much as the compiled flow itself. Here they are two compiled calls on preallocated arrays; the
 equations are those of the two modules' docstrings, operation for operation as the Python version computed them
-(the same sums in the same order, numpy's own sin, cos and arctan2 on scalars, `rflow.quaternion`'s scalar
+(the same sums in the same order, numpy's own sin, cos and arctan2 on scalars, `numerics.quaternion`'s scalar
 formulas compiled from their source), so the records are the same to the last bit (tests/test_closed_loop_kernel.py
 runs the former Python as the reference).
 
@@ -22,7 +22,7 @@ import numba
 import numpy as np
 
 from controllers.impedance_kernel import hamilton, quat_of_rotvec_components, rotvec_components
-from rflow.small_linalg import dot, norm
+from numerics.small_linalg import dot, norm
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
@@ -191,7 +191,7 @@ def _twist_into(out: np.ndarray, p0: np.ndarray, q0: tuple, p1: np.ndarray, q1: 
 @_jit
 def _rotate(w: float, x: float, y: float, z: float, v0: float, v1: float,
             v2: float) -> tuple[float, float, float]:
-    """R(q) v as q (0, v) conj(q) (`rflow.quaternion.rotate` of one vector)."""
+    """R(q) v as q (0, v) conj(q) (`numerics.quaternion.rotate` of one vector)."""
     _, a, b, c = hamilton(*hamilton(w, x, y, z, 0.0, v0, v1, v2), w, -x, -y, -z)
     return a, b, c
 

@@ -14,7 +14,7 @@ from batch.errors import BatchError
 from batch.config import BatchConfig
 from envs.errors import EnvError
 from envs.task import Task, check_number
-from rflow.cpu_dispatch import DISPATCH_VARIABLES
+from numerics.cpu_dispatch import DISPATCH_VARIABLES
 
 if TYPE_CHECKING:
     from envs.stiffness_schedule import StiffnessSchedule

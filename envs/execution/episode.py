@@ -29,7 +29,7 @@ from envs.execution.feedforward import command_stiffness, led_pose, translationa
 from envs.execution.policy_protocol import Action, Policy, observe
 from envs.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
-from rflow.small_linalg import eigh_sym, norm
+from numerics.small_linalg import eigh_sym, norm
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -38,7 +38,7 @@ from envs.execution.policy import make_policy
 from envs.execution.starts import evaluation_starts, metadata_starts, sample_starts
 from envs.jsonable import to_jsonable
 from envs.poses import Pose, format_pose
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 if TYPE_CHECKING:  # the result (with scipy.stats, ~0.7 s to import) is built in the parent only, never in a worker
     from envs.execution.result import EvaluationResult

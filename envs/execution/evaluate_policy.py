@@ -43,7 +43,7 @@ from envs.execution.starts import evaluation_starts, metadata_starts
 from envs.execution.policy_protocol import Policy, PolicyTask, is_policy, policy_task
 from envs.jsonable import to_jsonable
 from envs.poses import Pose
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 FACTORY_SIGNATURE = "factory(task: PolicyTask, **options: str) -> Policy"
 _DOTTED = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")

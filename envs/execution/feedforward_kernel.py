@@ -9,7 +9,7 @@ rotation vector onto the anchor), about 20 us a period. Here they are one call:
     delta   = gain K^-1 (D(q) xi' + Lambda(q) a') + push         (controllers.impedance_kernel.pose_lead_into)
     x_cmd   = (p_anchor + delta_p,  normalised Exp(delta_r) q_anchor)
 
-operation for operation as the Python did it (the same sums in the same order, `rflow.quaternion`'s scalar formulas
+operation for operation as the Python did it (the same sums in the same order, `numerics.quaternion`'s scalar formulas
 compiled from their source), so the commanded poses and the records are the same to the last bit
 (tests/test_feedforward_kernel.py holds the former Python as the reference).
 """
@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from controllers.impedance_kernel import LEAD_OK, hamilton, pose_lead_into, quat_of_rotvec_components
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 

@@ -27,8 +27,8 @@ import numpy.typing as npt
 
 from envs.execution.policy_protocol import Action, Observation, PrivilegedState
 from envs.poses import Pose
-from rflow.quaternion import quat_conj, quat_mul, quat_to_mat
-from rflow.small_linalg import matmul, matvec
+from numerics.quaternion import quat_conj, quat_mul, quat_to_mat
+from numerics.small_linalg import matmul, matvec
 
 FloatArray = npt.NDArray[np.float64]
 

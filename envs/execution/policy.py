@@ -59,10 +59,10 @@ from envs.execution.policy_protocol import Action, Observation
 from envs.poses import (Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec,
                          quat_to_rotvec_one, rotate)
 from envs.stiffness_schedule import expert_stiffness
-from rflow.errors import RFlowError
+from numerics.errors import NumericsError
 from rflow.generate import lookahead_points, next_point, rollout
 from rflow.skill_io import PoseSkill
-from rflow.small_linalg import dot
+from numerics.small_linalg import dot
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -142,7 +142,7 @@ def skill_state_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, 
             return skill.split_point(next_point(skill.models["joint"], skill.joint_point(p, q, stiffness), horizon_s))
         return (next_point(skill.models["position"], p, horizon_s),
                 next_point(skill.models["orientation"], q, horizon_s), None)
-    except RFlowError as err:
+    except NumericsError as err:  # RFlowError too
         raise EnvError(f"cannot query the skill at pos {p.tolist()}, quat {q.tolist()}: {err}") from None
 
 
@@ -172,7 +172,7 @@ def skill_lookahead(skill: PoseSkill, pos: npt.ArrayLike, quat: Sequence[npt.Arr
     try:
         return (lookahead_points(skill.models["position"], p, horizon_s, 2),
                 lookahead_points(skill.models["orientation"], q, horizon_s, 2, hemisphere=goal), None)
-    except RFlowError as err:
+    except NumericsError as err:  # RFlowError too
         raise EnvError(f"cannot query the skill at a batch of {p.shape[0]} poses: {err}") from None
 
 
@@ -193,7 +193,7 @@ def stiffness_step(skill: PoseSkill, pos: npt.ArrayLike, quat: npt.ArrayLike, st
     p = np.asarray(pos, dtype=np.float64)
     try:
         x = next_point(skill.models["stiffness"], skill.stiffness_point(p, stiffness), horizon_s)
-    except RFlowError as err:
+    except NumericsError as err:  # RFlowError too
         raise EnvError(f"cannot query the stiffness model at pos {p.tolist()}: {err}") from None
     return x[3:].reshape(3, 3)
 
@@ -277,7 +277,7 @@ def generate_plan(skill: PoseSkill, start: Pose, duration_s: float, period_s: fl
                 x = rollout(skill.models["stiffness"], skill.stiffness_point(start.pos, k0)[None], steps, 1e-12,
                             period_s).points[0]
                 stiffness, clipped = skill.bound_stiffness(x[:, 3:].reshape(-1, 3, 3))
-    except RFlowError as err:
+    except NumericsError as err:  # RFlowError too
         raise EnvError(f"cannot generate a plan from pos {start.pos.tolist()}: {err}") from None
     quat = on_goal_hemisphere(quat, skill.goal_quat)
     return Plan(period_s, pos, quat, skill.to_tangent(pos, quat), stiffness, clipped)

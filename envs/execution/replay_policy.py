@@ -26,7 +26,7 @@ from envs.errors import EnvError
 from envs.execution.policy_protocol import Action, Observation
 from envs.poses import (Pose, make_continuous, minimum_jerk, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec,
                         resample_trajectory, validate_pose)
-from rflow.small_linalg import dot
+from numerics.small_linalg import dot
 from rflow.stiffness import log_euclidean_resample
 
 FloatArray = npt.NDArray[np.float64]

@@ -23,7 +23,7 @@ from envs.execution.episode import StartPose
 from envs.perturbation import PerturbationRanges, sample_perturbation
 from envs.poses import Pose, StartRegion, mean_quat, sample_start_poses
 from envs.task import StartRange
-from rflow.small_linalg import norm
+from numerics.small_linalg import norm
 
 
 def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike, num: int, seed: int,

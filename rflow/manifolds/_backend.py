@@ -1,5 +1,5 @@
 """Tiny numpy/torch dispatch used by the manifold maps: the same equation runs on either array type (the light
-part, `is_torch`, `xp`, `concat`, `stack`, lives in `rflow.arrays`; here the checks and the linear algebra)."""
+part, `is_torch`, `xp`, `concat`, `stack`, lives in `numerics.arrays`; here the checks and the linear algebra)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from rflow.arrays import Array, _torch, concat, is_torch, stack, xp
+from numerics.arrays import Array, _torch, concat, is_torch, stack, xp
 from rflow.errors import RFlowError
-from rflow.small_linalg import eigh_sym
-from rflow.small_linalg import matmul as small_matmul
+from numerics.small_linalg import eigh_sym
+from numerics.small_linalg import matmul as small_matmul
 
 
 def as_array(x: Any, name: str) -> Array:
@@ -56,12 +56,12 @@ def swap_last(x: Array) -> Array:
 
 
 def eigh(x: Array) -> tuple[Array, Array]:
-    """Symmetric eigendecomposition, batched over leading axes (numpy: `rflow.small_linalg.eigh_sym`, no LAPACK)."""
+    """Symmetric eigendecomposition, batched over leading axes (numpy: `numerics.small_linalg.eigh_sym`, no LAPACK)."""
     return _torch().linalg.eigh(x) if is_torch(x) else eigh_sym(x)
 
 
 def matmul(a: Array, b: Array) -> Array:
-    """a @ b, batched over leading axes (numpy: `rflow.small_linalg.matmul`, no BLAS)."""
+    """a @ b, batched over leading axes (numpy: `numerics.small_linalg.matmul`, no BLAS)."""
     return a @ b if is_torch(a) or is_torch(b) else small_matmul(a, b)  # blas-ok: torch (pinned), numpy in small_linalg
 
 

@@ -5,7 +5,7 @@ Convention (no factor 2): for q = w + u,
     Exp(v) = cos||v|| + sin||v|| v / ||v||   (1 when v = 0),
     Log_g(p) = Log(p * conj(g)),   Exp_g(v) = Exp(v) * g.
 Every function takes numpy arrays or torch tensors (batched over leading axes) and returns the same type.
-The product and conjugate are `rflow.quaternion`'s.
+The product and conjugate are `numerics.quaternion`'s.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 from rflow.errors import RFlowError
 from rflow.manifolds._backend import Array, as_array, check_last_dims, concat, is_torch, max_abs, norm, xp
-from rflow.quaternion import quat_conj, quat_mul
+from numerics.quaternion import quat_conj, quat_mul
 
 UNIT_TOLERANCE = 1e-6  # | ||q|| - 1 | allowed for an input quaternion
 _SMALL_ANGLE = 1e-4  # below this rotation angle the sinc / angle-over-sine series are used

@@ -1,7 +1,8 @@
-"""The numpy/torch dispatch of rflow's array maps: one equation runs on either array type.
+"""The numpy/torch dispatch of array maps (the quaternion algebra, rflow's manifolds): one equation runs on either
+array type.
 
 Light on purpose: it imports neither torch nor numba, so a numpy-only user (the simulator, the task configs
-that `pih evaluate --help` builds) can use the quaternion algebra (`rflow.quaternion`) without their import
+that `pih evaluate --help` builds) can use the quaternion algebra (`numerics.quaternion`) without their import
 time. `rflow.manifolds._backend` adds the checks and the linear algebra the manifold maps need.
 """
 

@@ -14,7 +14,7 @@ that every x86-64 CPU runs the same way, before torch is loaded (numpy: before i
 Set by the user, a variable is left as it is. The compiled kernels need no pin: numba code is built without
 fast-math (no fused multiply-add, no reassociation), so it rounds the same on every x86-64 CPU. OpenBLAS (numpy,
 scipy) is not pinned: ``OPENBLAS_CORETYPE`` is the host's own setting, so what feeds an episode record avoids BLAS
-(`rflow.small_linalg`).
+(`numerics.small_linalg`).
 """
 
 from __future__ import annotations
@@ -35,9 +35,10 @@ to the workers of a cluster, whose nodes do not share this process's environment
 def pin_cpu_dispatch(environ: MutableMapping[str, str] = os.environ) -> None:
     """Set ``PINNED_ENVIRONMENT`` in ``environ`` where the user has not set the variable (spawned workers inherit it).
 
-    Must run before torch runs its first kernel and before numpy is imported; `rflow` calls it on import, and
-    `pih`, `envs` and `controllers` import rflow first. A user's ``NPY_ENABLE_CPU_FEATURES`` is the user's choice of
-    numpy's loops too (numpy refuses to load with both variables set), so the numpy pin is then left out.
+    Must run before torch runs its first kernel and before numpy is imported; the `numerics`, `rflow`, `envs` and
+    `controllers` packages call it first thing on import, and so does `pih`. A user's ``NPY_ENABLE_CPU_FEATURES``
+    is the user's choice of numpy's loops too (numpy refuses to load with both variables set), so the numpy pin is
+    then left out.
     """
     for key, value in PINNED_ENVIRONMENT.items():
         if key == "NPY_DISABLE_CPU_FEATURES" and "NPY_ENABLE_CPU_FEATURES" in environ:
@@ -48,9 +49,9 @@ def pin_cpu_dispatch(environ: MutableMapping[str, str] = os.environ) -> None:
 def check_numpy_dispatch(features: Mapping[str, bool] | None = None,
                          environ: Mapping[str, str] = os.environ) -> None:
     """Warn (RuntimeWarning) when numpy runs loops that ``NPY_DISABLE_CPU_FEATURES`` turns off: numpy reads the
-    variable once, when it is imported, so a program that imported numpy before `rflow` (or `envs`, which import it
-    first) keeps the host's AVX-512 loops, whose exp, arctan2, ... round otherwise, and its episode records differ
-    from `pih`'s on this CPU and from other CPUs'.
+    variable once, when it is imported, so a program that imported numpy before `numerics` (or `envs`,
+    `controllers`, `rflow`, which pin first) keeps the host's AVX-512 loops, whose exp, arctan2, ... round
+    otherwise, and its episode records differ from `pih`'s on this CPU and from other CPUs'.
 
     Args:
         features: numpy's runtime CPU features (default: its own ``__cpu_features__``, when numpy is loaded).
@@ -65,19 +66,21 @@ def check_numpy_dispatch(features: Mapping[str, bool] | None = None,
             return
     running = [group for group in environ.get("NPY_DISABLE_CPU_FEATURES", "").split() if features.get(group)]
     if running:
-        warnings.warn(f"numpy was imported before rflow and runs its {' '.join(running)} loops: episode records will "
-                      f"differ from pih's and from other CPUs'; import rflow (or envs) before numpy, or start Python "
-                      f"with NPY_DISABLE_CPU_FEATURES={PINNED_ENVIRONMENT['NPY_DISABLE_CPU_FEATURES']!r}",
+        warnings.warn(f"numpy was imported before numerics and runs its {' '.join(running)} loops: episode records "
+                      f"will differ from pih's and from other CPUs'; import numerics (or envs) before numpy, or start "
+                      f"Python with NPY_DISABLE_CPU_FEATURES={PINNED_ENVIRONMENT['NPY_DISABLE_CPU_FEATURES']!r}",
                       RuntimeWarning, stacklevel=3)
 
 
-def check_torch_dispatch() -> None:
+def check_torch_dispatch(capability: str) -> None:
     """Warn (RuntimeWarning) when torch was started with another kernel choice than the pinned one, e.g. because
-    torch ran before `rflow` was imported: the weights then depend on this CPU."""
-    import torch
+    torch ran before `numerics` (or `rflow`) was imported: the weights then depend on this CPU.
 
-    capability = torch.backends.cpu.get_cpu_capability()
+    Args:
+        capability: the kernels torch runs, ``torch.backends.cpu.get_cpu_capability()`` (this package never imports
+            torch).
+    """
     wanted = os.environ.get("ATEN_CPU_CAPABILITY", PINNED_ENVIRONMENT["ATEN_CPU_CAPABILITY"])
     if capability.lower() != wanted.lower():
-        warnings.warn(f"torch runs its {capability} kernels, not {wanted!r}: import rflow before torch runs, or "
-                      f"trained weights will depend on this CPU", RuntimeWarning, stacklevel=2)
+        warnings.warn(f"torch runs its {capability} kernels, not {wanted!r}: import numerics (or rflow) before torch "
+                      f"runs, or trained weights will depend on this CPU", RuntimeWarning, stacklevel=2)

@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rflow.arrays import Array, as_float, concat, is_torch, stack
-from rflow.errors import RFlowError
+from numerics.arrays import Array, as_float, concat, is_torch, stack
+from numerics.errors import NumericsError
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -120,14 +120,14 @@ def quat_to_mat(quat: npt.ArrayLike) -> FloatArray:
              [2(xz - wy), 2(yz + wx), 1 - 2(x^2 + y^2)]].
 
     Raises:
-        RFlowError: not 4 finite numbers, or a norm below 1e-9 (no rotation).
+        NumericsError: not 4 finite numbers, or a norm below 1e-9 (no rotation).
     """
     q = np.asarray(quat, dtype=np.float64).reshape(-1)
     if q.shape != (4,) or not np.all(np.isfinite(q)):
-        raise RFlowError(f"quaternion {quat!r} must be 4 finite numbers (w, x, y, z)")
+        raise NumericsError(f"quaternion {quat!r} must be 4 finite numbers (w, x, y, z)")
     w, x, y, z = q.tolist()  # Python floats: the same arithmetic, without numpy scalars
     if math.sqrt(w * w + x * x + y * y + z * z) < 1e-9:
-        raise RFlowError(f"quaternion {quat!r} has zero norm and is no rotation")
+        raise NumericsError(f"quaternion {quat!r} has zero norm and is no rotation")
     return np.array(matrix_components(w, x, y, z)).reshape(3, 3)
 
 
@@ -149,14 +149,14 @@ def mat_to_quat(rot: npt.ArrayLike) -> FloatArray:
     scaled, sheared, reflecting or zero matrix has no quaternion, and Shepperd's method would return one anyway).
 
     Raises:
-        RFlowError: not numbers, not 3x3, NaN/inf, or not a rotation.
+        NumericsError: not numbers, not 3x3, NaN/inf, or not a rotation.
     """
     try:
         m = np.asarray(rot, dtype=np.float64)
     except (TypeError, ValueError) as err:
-        raise RFlowError(f"rotation matrix must be 3x3 numbers: {err}") from None
+        raise NumericsError(f"rotation matrix must be 3x3 numbers: {err}") from None
     if m.shape != (3, 3):
-        raise RFlowError(f"rotation matrix must be 3x3 and finite, got shape {m.shape}")
+        raise NumericsError(f"rotation matrix must be 3x3 and finite, got shape {m.shape}")
     values = m.reshape(9).tolist()
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = values
     a = m00 * m00 + m10 * m10 + m20 * m20 - 1.0  # R^T R - I: the columns' norms and dot products
@@ -169,8 +169,8 @@ def mat_to_quat(rot: npt.ArrayLike) -> FloatArray:
     det = m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20) + m02 * (m10 * m21 - m11 * m20)
     if not (off <= ROTATION_TOL * ROTATION_TOL and det > 0.0):  # NaN and inf fail both comparisons
         if not all(map(math.isfinite, values)):
-            raise RFlowError("rotation matrix must be 3x3 and finite, got NaN or inf")
-        raise RFlowError(f"rotation matrix {values} is no rotation: ||R^T R - I|| = {math.sqrt(off):.3g} (tolerance "
+            raise NumericsError("rotation matrix must be 3x3 and finite, got NaN or inf")
+        raise NumericsError(f"rotation matrix {values} is no rotation: ||R^T R - I|| = {math.sqrt(off):.3g} (tolerance "
                          f"{ROTATION_TOL:g}), det R = {det:.6g}")
     return np.array(matrix_to_quat_components(*values))
 
@@ -210,7 +210,7 @@ def _check_slerp_input(q0: Any, q1: Any, s: Any) -> tuple[FloatArray, FloatArray
     One quaternion (the control loop's case) is checked in Python floats (~0.3 us), a batch with one einsum.
 
     Raises:
-        RFlowError: naming the input: not numbers, not (..., 4), NaN/inf, a norm off 1 (a zero quaternion).
+        NumericsError: naming the input: not numbers, not (..., 4), NaN/inf, a norm off 1 (a zero quaternion).
     """
     lo, hi = _SLERP_NORM2_RANGE
     out = []
@@ -218,13 +218,13 @@ def _check_slerp_input(q0: Any, q1: Any, s: Any) -> tuple[FloatArray, FloatArray
         try:
             q = np.asarray(value, dtype=float)
         except (TypeError, ValueError) as err:
-            raise RFlowError(f"slerp: {name} is not an array of numbers: {err}") from None
+            raise NumericsError(f"slerp: {name} is not an array of numbers: {err}") from None
         if q.shape == (4,):
             w, x, y, z = q.tolist()
             n2 = w * w + x * x + y * y + z * z
             ok = lo <= n2 <= hi  # NaN fails, and so does inf
         elif q.shape[-1:] != (4,):
-            raise RFlowError(f"slerp: {name} has shape {q.shape}, expected quaternions (..., 4) (w, x, y, z)")
+            raise NumericsError(f"slerp: {name} has shape {q.shape}, expected quaternions (..., 4) (w, x, y, z)")
         else:
             n2 = np.einsum("...i,...i->...", q, q)
             ok = q.size == 0 or bool(n2.min() >= lo and n2.max() <= hi)  # NaN fails
@@ -233,16 +233,16 @@ def _check_slerp_input(q0: Any, q1: Any, s: Any) -> tuple[FloatArray, FloatArray
             bad = np.unravel_index(int(np.argmax(~((n2 >= lo) & (n2 <= hi)))), n2.shape) if n2.ndim else ()
             where = f" at {list(map(int, bad))}" if bad else ""
             if not np.all(np.isfinite(q)):
-                raise RFlowError(f"slerp: {name}{where} contains NaN or inf")
-            raise RFlowError(f"slerp: {name}{where} is not a unit quaternion: norm {math.sqrt(float(n2[bad])):.6g} "
+                raise NumericsError(f"slerp: {name}{where} contains NaN or inf")
+            raise NumericsError(f"slerp: {name}{where} is not a unit quaternion: norm {math.sqrt(float(n2[bad])):.6g} "
                              f"(tolerance {SLERP_UNIT_TOL:g})")
         out.append(q)
     try:
         t = np.asarray(s, dtype=float)
     except (TypeError, ValueError) as err:
-        raise RFlowError(f"slerp: s is not an array of numbers: {err}") from None
+        raise NumericsError(f"slerp: s is not an array of numbers: {err}") from None
     if not (math.isfinite(t.item()) if t.ndim == 0 else bool(np.isfinite(t).all())):
-        raise RFlowError(f"slerp: s contains NaN or inf: {t.tolist() if t.size <= 8 else 'of shape ' + str(t.shape)}")
+        raise NumericsError(f"slerp: s contains NaN or inf: {t.tolist() if t.size <= 8 else 'of shape ' + str(t.shape)}")
     return out[0], out[1], t
 
 
@@ -253,7 +253,7 @@ def slerp(q0: npt.ArrayLike, q1: npt.ArrayLike, s: npt.ArrayLike) -> FloatArray:
     from q0 to q1; s outside it extrapolates along the same arc (still a rotation). The result has the norm of q0.
 
     Raises:
-        RFlowError: q0 or q1 not quaternions (..., 4) of norm 1 within SLERP_UNIT_TOL (NaN, inf, zero), s not
+        NumericsError: q0 or q1 not quaternions (..., 4) of norm 1 within SLERP_UNIT_TOL (NaN, inf, zero), s not
             finite, or shapes that do not broadcast.
     """
     q0, q1, t = _check_slerp_input(q0, q1, s)
@@ -261,7 +261,7 @@ def slerp(q0: npt.ArrayLike, q1: npt.ArrayLike, s: npt.ArrayLike) -> FloatArray:
         try:
             np.broadcast_shapes(q0.shape[:-1], q1.shape[:-1], t.shape)
         except ValueError:
-            raise RFlowError(f"slerp: q0 {q0.shape}, q1 {q1.shape} and s {t.shape} do not broadcast") from None
+            raise NumericsError(f"slerp: q0 {q0.shape}, q1 {q1.shape} and s {t.shape} do not broadcast") from None
     rel = quat_mul(quat_conj(q0), q1)
     rel = np.where(rel[..., :1] < 0.0, -rel, rel)
     return quat_mul(q0, quat_from_rotvec(t[..., None] * quat_to_rotvec(rel)))

@@ -1,6 +1,6 @@
 """Small dense linear algebra without BLAS or LAPACK: every sum in a fixed order, so results do not depend on the CPU.
 
-This is the BLAS-free half of `rflow.cpu_dispatch`. numpy's ``@``, ``dot``, ``matmul``, ``inner``, ``linalg.norm`` of a
+This is the BLAS-free half of `numerics.cpu_dispatch`. numpy's ``@``, ``dot``, ``matmul``, ``inner``, ``linalg.norm`` of a
 whole vector, ``linalg.solve``/``eigh``/``inv`` and ``scipy.linalg.expm`` call OpenBLAS, which picks its kernels by the
 host CPU (or by ``OPENBLAS_CORETYPE``, the machine's own setting that a program must leave alone) and sums in the
 order of that kernel: the same product differs in the last bit between an AVX2 and an SSE3 kernel, and the contact
@@ -31,7 +31,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from rflow.errors import RFlowError
+from numerics.errors import NumericsError
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -115,20 +115,20 @@ def matmul(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:
     broadcast), each entry sum_k a_ik b_kj summed with k ascending.
 
     Raises:
-        RFlowError: a scalar operand or inner dimensions that differ.
+        NumericsError: a scalar operand or inner dimensions that differ.
     """
     x = np.asarray(a, dtype=np.float64)
     y = np.asarray(b, dtype=np.float64)
     if x.ndim == 2 and y.ndim == 2 and x.shape[1] == y.shape[0]:  # the common case, one compiled call
         return _matmul2(x, y)
     if x.ndim == 0 or y.ndim == 0:
-        raise RFlowError(f"matmul needs arrays of at least one axis, got shapes {x.shape} and {y.shape}")
+        raise NumericsError(f"matmul needs arrays of at least one axis, got shapes {x.shape} and {y.shape}")
     row, col = x.ndim == 1, y.ndim == 1
     x2 = x[None, :] if row else x
     y2 = y[:, None] if col else y
     (m, n), (n2, p) = x2.shape[-2:], y2.shape[-2:]
     if n != n2:
-        raise RFlowError(f"matmul: shapes {x.shape} and {y.shape} do not fit (inner dimensions {n} and {n2})")
+        raise NumericsError(f"matmul: shapes {x.shape} and {y.shape} do not fit (inner dimensions {n} and {n2})")
     if y2.ndim == 2:  # one right matrix: the left batch is one tall matrix
         out = np.empty((1, int(np.prod(x2.shape[:-1])), p))
         _matmul_batch(np.ascontiguousarray(x2).reshape(1, -1, n), np.ascontiguousarray(y2)[None], out)
@@ -185,15 +185,15 @@ def solve(a: npt.ArrayLike, b: npt.ArrayLike) -> FloatArray:
     """x = A^-1 b of a square matrix A (n, n) and b (n,) or (n, k), by Gaussian elimination with partial pivoting.
 
     Raises:
-        RFlowError: shapes that do not fit, or a singular A (a zero pivot).
+        NumericsError: shapes that do not fit, or a singular A (a zero pivot).
     """
     m = np.array(a, dtype=np.float64, order="C")
     rhs = np.asarray(b, dtype=np.float64)
     if m.ndim != 2 or m.shape[0] != m.shape[1] or rhs.ndim not in (1, 2) or rhs.shape[0] != m.shape[0]:
-        raise RFlowError(f"solve needs a square matrix (n, n) and b (n,) or (n, k), got {m.shape} and {rhs.shape}")
+        raise NumericsError(f"solve needs a square matrix (n, n) and b (n,) or (n, k), got {m.shape} and {rhs.shape}")
     x = np.array(rhs.reshape(m.shape[0], -1), order="C")
     if not _solve_into(m, x):
-        raise RFlowError(f"solve: the {m.shape[0]}x{m.shape[0]} matrix is singular (a zero pivot)")
+        raise NumericsError(f"solve: the {m.shape[0]}x{m.shape[0]} matrix is singular (a zero pivot)")
     return x.reshape(rhs.shape)
 
 
@@ -273,11 +273,11 @@ def eigh_sym(a: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
     (..., n, n): A = V diag(w) V^T, as np.linalg.eigh (the lower triangle is read), by cyclic Jacobi rotations.
 
     Raises:
-        RFlowError: not square matrices.
+        NumericsError: not square matrices.
     """
     m = np.asarray(a, dtype=np.float64)
     if m.ndim < 2 or m.shape[-1] != m.shape[-2]:
-        raise RFlowError(f"eigh_sym needs square matrices (..., n, n), got shape {m.shape}")
+        raise NumericsError(f"eigh_sym needs square matrices (..., n, n), got shape {m.shape}")
     n = m.shape[-1]
     flat = np.ascontiguousarray(m).reshape(-1, n, n)
     w, v = np.empty(flat.shape[:2]), np.empty(flat.shape)
@@ -335,13 +335,13 @@ def expm(a: npt.ArrayLike) -> FloatArray:
     (Higham, SIAM J. Matrix Anal. Appl. 26(4), 2005), products and the solve from this module.
 
     Raises:
-        RFlowError: not a square matrix, or non-finite entries.
+        NumericsError: not a square matrix, or non-finite entries.
     """
     m = np.array(a, dtype=np.float64, order="C")
     if m.ndim != 2 or m.shape[0] != m.shape[1]:
-        raise RFlowError(f"expm needs a square matrix (n, n), got shape {m.shape}")
+        raise NumericsError(f"expm needs a square matrix (n, n), got shape {m.shape}")
     if not np.all(np.isfinite(m)):
-        raise RFlowError("expm: the matrix has NaN or inf entries")
+        raise NumericsError("expm: the matrix has NaN or inf entries")
     return _expm(m, _PADE13, _THETA13)
 
 
