@@ -1,12 +1,14 @@
 """Torque-level Cartesian impedance control and inverse kinematics (mink's, and its compiled twin) for the Panda.
 
-Modules: `protocol` (Controller: what the episode stepping needs of a controller), `impedance`
-(CartesianImpedanceController, ImpedanceConfig), `ik` (solve_ik, NullspaceReference, IKConfig), `benchmark`
-(measure_control_rate, measure_ik_rate for `pih bench`), `validation` (input checks), `errors` (ControllerError).
-Nothing else is imported here, so `controllers.errors` stays cheap to import.
+Modules: `interface` (Controller: what the episode stepping needs of a controller), `impedance`
+(CartesianImpedanceController, ImpedanceConfig), `ik` (solve_ik, NullspaceReference, IKConfig), `timing`
+(measure_control_rate, measure_ik_rate: the speed `pih bench` reports), `validation` (input checks), `errors`
+(ControllerError). Nothing else is imported here, so `controllers.errors` stays cheap to import.
 """
 
 from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch
 
 pin_cpu_dispatch()  # first, before numpy or torch load: numpy's, torch's and MKL's kernel choices as `pih` pins them
 check_numpy_dispatch()
+
+__all__ = ["errors", "ik", "impedance", "interface", "timing", "validation"]

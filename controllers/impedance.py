@@ -209,7 +209,7 @@ def _is_descendant(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
 
 class CartesianImpedanceController:
     """Cartesian impedance controller of one site of a torque-actuated arm (see the module docstring); a
-    `controllers.protocol.Controller`, the one the episode environment uses by default.
+    `controllers.interface.Controller`, the one the episode environment uses by default.
 
     The arm is what the model's actuators drive: motor i (gear 1) on the i-th of a contiguous block of hinge or
     slide joints (`dof_slice`, `qpos_slice`). Other dofs are allowed on other kinematic trees (e.g. a free
@@ -359,7 +359,7 @@ class CartesianImpedanceController:
     def start(self, data: mujoco.MjData) -> None:
         """Start an episode at the state of ``data`` (after mj_forward, arm at rest): the last commanded torque, the
         reference of the torque-rate limit, becomes the bias torque c(q, 0) there (`reset` with
-        data.qfrc_bias[dof_slice]), so the first command holds the arm against gravity (controllers.protocol).
+        data.qfrc_bias[dof_slice]), so the first command holds the arm against gravity (controllers.interface).
 
         Raises:
             ControllerError: a non-finite bias torque.

@@ -2,7 +2,7 @@
 
 Each ``step`` holds one commanded pose of the ``tcp`` (the nominal peg_tip on the hand, see envs.scene) for one
 control period (default 10 ms = 10 physics steps at 1 kHz, i.e. commands at 100 Hz) while the controller runs
-at the physics rate (any controllers.protocol.Controller; by default the Cartesian impedance controller):
+at the physics rate (any controllers.interface.Controller; by default the Cartesian impedance controller):
 
     tau = J^T (K e - D v) + nullspace(q_ref) + c(q, qdot)      (controllers.impedance)
 
@@ -41,7 +41,7 @@ from controllers.errors import ControllerError
 from controllers.ik import NullspaceReference, solve_ik
 from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
 from controllers.impedance_kernel import STATUS_OK
-from controllers.protocol import Controller
+from controllers.interface import Controller
 from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.friction import EpisodeFriction
@@ -132,7 +132,7 @@ class PegInHoleEnv:
                 ``controller`` is given).
             episode_config: control period, time limit, success, force limit, perturbations.
             scene: an already built scene to reuse (its peg must be grasped or welded).
-            controller: the controller of the arm's tcp (controllers.protocol.Controller), built on
+            controller: the controller of the arm's tcp (controllers.interface.Controller), built on
                 ``scene.model``; default a CartesianImpedanceController with ``controller_config``.
 
         Raises:
@@ -140,7 +140,7 @@ class PegInHoleEnv:
                 that is not a Controller or comes without the scene it was built on.
         """
         if controller is not None and not isinstance(controller, Controller):
-            raise EnvError(f"controller must implement controllers.protocol.Controller (start, set_tool_load, "
+            raise EnvError(f"controller must implement controllers.interface.Controller (start, set_tool_load, "
                            f"checked_stiffness, step), got {type(controller).__name__}")
         if controller is not None and scene is None:
             raise EnvError("a controller is built on a model: pass the scene whose model it drives (scene=)")

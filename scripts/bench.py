@@ -34,7 +34,7 @@ from typing import Any, Callable
 import mujoco
 import numpy as np
 
-from controllers.benchmark import physics_state, replayed_step_rate
+from controllers.timing import physics_state, replayed_step_rate
 from envs.demos import demo_episode_config
 from envs.expert import ExpertConfig, plan_expert_path
 from envs.env import PegInHoleEnv
@@ -53,7 +53,7 @@ EXTRA_BENCHMARK_MODULES: tuple[str, ...] = ("rflow.bench",)
 
 def bench_control(quick: bool) -> dict[str, Any]:
     """Impedance loop (mj_step1 + controller + mj_step2) on the held-peg scene vs bare mj_step, same run."""
-    from controllers.benchmark import measure_control_rate
+    from controllers.timing import measure_control_rate
 
     scene = build_scene(SceneConfig())
     rates = measure_control_rate(scene.model, site=scene.ids.tcp_site, n_steps=1000 if quick else 2000,
@@ -154,7 +154,7 @@ def law_floor_ratios(law_floor: dict[str, float], compiled: dict[str, float]) ->
 
 def episode_physics_rate(env: PegInHoleEnv, states: list[np.ndarray]) -> float:
     """Bare mj_step steps/s over an episode's own states (one per control step, grasp and wall contacts as they
-    were; `controllers.benchmark.replayed_step_rate` with ``env.n_substeps`` steps from each). This is the physics
+    were; `controllers.timing.replayed_step_rate` with ``env.n_substeps`` steps from each). This is the physics
     an episode cannot avoid, so its steps/s times the timestep is the ceiling of ``realtime_factor``."""
     return replayed_step_rate(env.model, states, env.n_substeps)
 
@@ -275,7 +275,7 @@ def bench_render(quick: bool) -> dict[str, Any]:
 def bench_ik(quick: bool) -> dict[str, Any]:
     """IK solves (`solve_ik`) of the tcp on the arm model (from the home posture) per second, and the nullspace
     reference's per-control-step update."""
-    from controllers.benchmark import measure_ik_rate, measure_nullspace_update
+    from controllers.timing import measure_ik_rate, measure_nullspace_update
 
     scene = build_scene(SceneConfig())
     figures = measure_ik_rate(scene.arm_model, site="tcp", n_solves=10 if quick else 30)

@@ -203,7 +203,7 @@ def _definitions(name: str) -> list[str]:
     ("SuccessConfig", "envs.task"),
     ("StartRange", "envs.task"),
     ("check_force_limit", "envs.task"),
-    ("Controller", "controllers.protocol"),  # what the episode stepping needs of a controller
+    ("Controller", "controllers.interface"),  # what the episode stepping needs of a controller
     ("EpisodeConfig", "envs.episode_config"),
     ("SceneConfig", "envs.scene_config"),
     ("EpisodeSensing", "envs.sensing"),

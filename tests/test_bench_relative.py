@@ -9,7 +9,7 @@ import pytest
 
 import numpy as np
 
-from controllers.benchmark import physics_state
+from controllers.timing import physics_state
 from scripts.bench import episode_physics_rate, physics_bounds, relative_to_bare
 from scripts.cli import main
 

@@ -4,7 +4,7 @@ import mujoco
 import pytest
 
 from assets import PANDA_XML
-from controllers.benchmark import measure_control_rate, measure_ik_rate
+from controllers.timing import measure_control_rate, measure_ik_rate
 from controllers.errors import ControllerError
 
 

@@ -20,7 +20,7 @@ PACKAGES = ("envs", "controllers", "rflow")
 NOT_ON_THE_RECORD_PATH: dict[str, str] = {
     "envs/video.py": "renders frames",
     "envs/execution/figures.py": "draws figures",
-    "controllers/benchmark.py": "times the controller",
+    "controllers/timing.py": "times the controller",
     "rflow/bench.py": "times the flow",
     "rflow/dynamics.py": "torch only (its kernels pinned by numerics.cpu_dispatch)",
     "rflow/flow.py": "torch only (its kernels pinned by numerics.cpu_dispatch)",

@@ -1,4 +1,4 @@
-"""controllers.protocol: the episode stepping runs any Controller, and the impedance controller is one."""
+"""controllers.interface: the episode stepping runs any Controller, and the impedance controller is one."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy.typing as npt
 import pytest
 
 from controllers.impedance import CartesianImpedanceController
-from controllers.protocol import Controller
+from controllers.interface import Controller
 from envs.env import PegInHoleEnv
 from envs.episode_config import EpisodeConfig
 from envs.errors import EnvError
@@ -87,7 +87,7 @@ def test_the_env_steps_a_controller_of_the_test_through_the_protocol(scene, monk
 
 
 def test_the_env_refuses_what_is_no_controller_or_has_no_scene(scene) -> None:
-    with pytest.raises(EnvError, match="must implement controllers.protocol.Controller"):
+    with pytest.raises(EnvError, match="must implement controllers.interface.Controller"):
         PegInHoleEnv(scene=scene, controller=object())  # type: ignore[arg-type]
     with pytest.raises(EnvError, match="pass the scene"):
         PegInHoleEnv(controller=JointHold(scene.model))

@@ -1,4 +1,4 @@
-"""Throughput of the controllers for `pih bench`: closed-loop physics steps/s, IK solves/s and the nullspace
+"""Throughput of the controllers, the speed `pih bench` reports: closed-loop physics steps/s, IK solves/s and the nullspace
 reference's update per control step.
 
 Timings are medians over repeats on one core; run them on an otherwise idle machine for comparable figures.
