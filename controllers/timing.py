@@ -1,5 +1,5 @@
-"""Throughput of the controllers, the speed `pih bench` reports: closed-loop physics steps/s, IK solves/s and the nullspace
-reference's update per control step.
+"""Throughput of the controllers, the speed `pih bench` reports: closed-loop physics steps/s, IK solves/s and the
+nullspace reference's update per control step.
 
 Timings are medians over repeats on one core; run them on an otherwise idle machine for comparable figures.
 """
