@@ -6,9 +6,8 @@ Modules: `interface` (Controller: what the episode stepping needs of a controlle
 (ControllerError). Nothing else is imported here, so `controllers.errors` stays cheap to import.
 """
 
-from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch
+from numerics.cpu_dispatch import pin_cpu_dispatch
 
 pin_cpu_dispatch()  # first, before numpy or torch load: numpy's, torch's and MKL's kernel choices as `pih` pins them
-check_numpy_dispatch()
 
 __all__ = ["errors", "ik", "impedance", "interface", "timing", "validation"]

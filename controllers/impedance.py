@@ -409,7 +409,7 @@ class CartesianImpedanceController:
         """What `impedance_kernel.pose_lead_into` needs of this controller for ``data`` and a stiffness (validated
         here, the config's when None): (fns, m, d, site, J and J M^-1 buffers, K, regularisation, 2 zeta, its
         scratch buffers), for `pose_lead` and for a compiled caller that adds the lead to a pose
-        (envs.execution.feedforward_kernel).
+        (envs.policies.feedforward_kernel).
 
         Raises:
             ControllerError: a bad stiffness.
@@ -497,7 +497,7 @@ class CartesianImpedanceController:
                           stiffness: npt.ArrayLike | None = None, q_nullspace: npt.ArrayLike | None = None) -> tuple:
         """The arguments of ``impedance_kernel.impedance_substep`` for ``data`` toward this command (validated and
         stored in the kernel's buffers), for `step` and for a compiled loop that runs several substeps in one call
-        (envs.period_kernel).
+        (envs.sim.period_kernel).
 
         Raises:
             ControllerError: bad inputs (as `compute_torque`).

@@ -1,4 +1,4 @@
-"""What the episode stepping (envs.env.PegInHoleEnv) needs of a controller: the `Controller` protocol.
+"""What the episode stepping (envs.sim.env.PegInHoleEnv) needs of a controller: the `Controller` protocol.
 
 A controller is bound to one MuJoCo model (it knows the arm's joints and the site it controls) and owns the
 physics steps of a control period: the environment hands it the command of the period and the simulator state, and
@@ -16,7 +16,7 @@ accepted too): the environment records it as an instability and ends the episode
 
 `controllers.impedance.CartesianImpedanceController` is the one the environment builds by default. Skill execution
 reads more of it than this protocol (its gains for the default stiffness, `pose_lead` for the feed-forward,
-envs.execution.feedforward), so evaluating a policy needs that controller; the environment itself needs only this.
+envs.policies.feedforward), so evaluating a policy needs that controller; the environment itself needs only this.
 """
 
 from __future__ import annotations

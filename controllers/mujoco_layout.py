@@ -1,6 +1,6 @@
 """Where mjData keeps its contacts, so a compiled loop can read them after each mj_step2 without Python.
 
-A numba kernel that runs a whole control period (envs.period_kernel) must read the contacts of every physics step
+A numba kernel that runs a whole control period (envs.sim.period_kernel) must read the contacts of every physics step
 (ncon, the mjContact array, efc_force) from the mjData pointer itself: the Python bindings' views of them
 (``data.contact.geom``, ``data.efc_force``) are rebuilt by Python after each step. The byte offsets of those fields
 come from the C struct definitions that the ``mujoco`` package ships (``mujoco.introspect``, generated from the

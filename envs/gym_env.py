@@ -1,4 +1,4 @@
-"""Gymnasium environment ``pih/PegInHole-v0``: a thin wrapper around :class:`envs.env.PegInHoleEnv`.
+"""Gymnasium environment ``pih/PegInHole-v0``: a thin wrapper around :class:`envs.sim.env.PegInHoleEnv`.
 
     import gymnasium
     env = gymnasium.make("envs.gym_env:pih/PegInHole-v0", shape="square", clearance_mm=0.2)
@@ -7,7 +7,7 @@
 Gymnasium 1.x has no plugin entry points (they were removed in 1.0); ``gymnasium.make`` registers a
 third-party environment by importing the module named before the ':' of the id, as above.
 
-Options (keyword arguments of ``gymnasium.make``): ``task`` (an envs.task.Task, e.g. ``preset("factory")`` or
+Options (keyword arguments of ``gymnasium.make``): ``task`` (an envs.task.task.Task, e.g. ``preset("factory")`` or
 ``Task.from_toml("my_task.toml")``: its scene, perturbations, force and time limits and success tolerances; its
 start range, which is around demos' starts, does not apply: starts come from EpisodeConfig.start_region), then any
 field of SceneConfig, EpisodeConfig or
@@ -36,7 +36,7 @@ An action that is not real numbers, has n entries in another shape than (n,) (ax
 or inf is an EnvError naming it, in one line; so is ``step`` before ``reset`` or after the episode ended.
 
 Observation (Dict; every value float32): what a real cell measures, as the Policy protocol's observation
-(envs.execution.policy_protocol):
+(envs.policies.interface):
     tcp_pos (3,) m, tcp_quat (4,) (w, x, y, z): the nominal peg_tip from the arm's kinematics, positions within
         +-WORKSPACE_HALF_WIDTH_M;
     qpos, qvel (7,): arm joint positions (bounded by the joint ranges widened by JOINT_RANGE_MARGIN) and velocities;
@@ -75,14 +75,14 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 from controllers.impedance import ImpedanceConfig
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
-from envs.observation import REASON_TIME_LIMIT, Observation
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
+from envs.sim.observation import REASON_TIME_LIMIT, SimulatorState
 from envs.errors import EnvError
 from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
-from envs.rendering import MAX_FRAME_PX
-from envs.scene_config import SceneConfig
-from envs.task import Task
+from envs.media.rendering import MAX_FRAME_PX
+from envs.cell.scene_config import SceneConfig
+from envs.task.task import Task
 from numerics.errors import shown
 from numerics.small_linalg import norm
 
@@ -135,8 +135,8 @@ def configs_from_kwargs(options: dict[str, Any],
             (the config's own check).
     """
     if task is not None and not isinstance(task, Task):
-        raise EnvError(f"{ENV_ID}: task={task!r} must be an envs.task.Task")
-    configs: dict[str, Any] = {"scene": SceneConfig() if task is None else SceneConfig.from_task(task),
+        raise EnvError(f"{ENV_ID}: task={task!r} must be an envs.task.task.Task")
+    configs: dict[str, Any] = {"scene": SceneConfig() if task is None else task.scene_config(),
                                "controller": ImpedanceConfig(),
                                "episode": EpisodeConfig() if task is None else EpisodeConfig.from_task(task)}
     owners: dict[str, list[tuple[str, str | None]]] = {}
@@ -302,7 +302,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         centre, half = 0.5 * (self.physical_high + self.physical_low), 0.5 * (self.physical_high - self.physical_low)
         return ((u - centre) / half).astype(np.float32)
 
-    def _observation_space(self, first: Observation) -> spaces.Dict:
+    def _observation_space(self, first: SimulatorState) -> spaces.Dict:
         nq, nv = np.asarray(first.qpos).size, np.asarray(first.qvel).size
         q_low, q_high = joint_position_bounds(self.sim.model, nq)
         workspace = (np.full(3, -WORKSPACE_HALF_WIDTH_M), np.full(3, WORKSPACE_HALF_WIDTH_M))
@@ -328,7 +328,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
             })
         return spaces.Dict(measured)
 
-    def _observe(self, obs: Observation) -> dict[str, Any]:
+    def _observe(self, obs: SimulatorState) -> dict[str, Any]:
         """The observation dict: the measured keys, and the truth's with ``privileged``."""
         hole = self.sim.believed_hole  # where the cell believes the hole is (with the task's observation error)
         values: dict[str, Any] = {
@@ -348,7 +348,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         return out
 
     @staticmethod
-    def _truth(obs: Observation) -> dict[str, Any]:
+    def _truth(obs: SimulatorState) -> dict[str, Any]:
         """The simulator's truth (PRIVILEGED_KEYS): float32 arrays, in_hole and inserted as int."""
         ins = obs.insertion
         return {
@@ -376,7 +376,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
             return pose, None
         return pose, np.diag(np.concatenate([a[6:9], np.full(3, self._rot_stiffness)]))
 
-    def reward(self, obs: Observation) -> float:
+    def reward(self, obs: SimulatorState) -> float:
         """-(w_d |p - g_p| + w_r angle(q, g_q)) + bonus on success, g the true goal (module docstring)."""
         cfg = self.reward_config
         goal = self.sim.goal
@@ -424,7 +424,7 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
-            from envs.video import OffscreenRenderer
+            from envs.media.video import OffscreenRenderer
 
             self._renderer = OffscreenRenderer(self.sim.model, *self._size)
             self._renderer.set_camera(self._camera)

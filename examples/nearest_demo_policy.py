@@ -14,9 +14,9 @@ one row per frame with ``episode_index``, ``frame_index``, ``observation.state``
 qw, qx, qy, qz], metres, world frame) and ``action.stiffness`` (the 3x3 translational stiffness the expert
 commanded, row-major, N/m); meta/info.json gives ``fps``. At each episode's start the policy picks the demo whose
 first pose is nearest the measured start (position distance + 0.1 m per radian of rotation) and replays it with
-the start offset faded out over ``blend_s`` (envs.execution.replay_policy.ReplayPolicy); within 35 mm of the nominal
+the start offset faded out over ``blend_s`` (envs.policies.replay.ReplayPolicy); within 35 mm of the nominal
 goal it lowers the rotational stiffness and aims 5 mm past the goal (a gentle push, as the skill's contact
-adaptation does). It sees what a real cell sees (envs.execution.policy_protocol.Observation) and
+adaptation does). It sees what a real cell sees (envs.policies.interface.Observation) and
 never the hole-pose error, so it seats the peg only where the chamfer catches it.
 """
 
@@ -30,8 +30,8 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from envs.errors import EnvError
-from envs.execution.policy_protocol import Action, Observation, PolicyTask
-from envs.execution.replay_policy import ReplayPolicy
+from envs.policies.interface import Action, Observation, PolicyTask
+from envs.policies.replay import ReplayPolicy
 from envs.poses import rotate
 
 ROT_WEIGHT_M_PER_RAD = 0.1

@@ -3,7 +3,9 @@
 imports torch (`arrays`), the pin of numpy's, torch's and MKL's CPU-dependent code paths (`cpu_dispatch`) and the
 package's exception (`errors`). `controllers`, `envs` and `rflow` take these from here.
 
-The pin is set here, before anything of this package imports numpy: `cpu_dispatch` imports the standard library only.
+The pin is set here, before anything of this package imports numpy (`cpu_dispatch` imports the standard library only),
+and checked once: a numpy loaded earlier with the loops the pin turns off is warned about. The packages above call
+`pin_cpu_dispatch` first thing too, so none of them depends on another's import for it.
 """
 
 from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch

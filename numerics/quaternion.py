@@ -12,7 +12,7 @@ q = (cos(|r|/2), sin(|r|/2) r/|r|). (The RiemannianFlow maps of S^3, without the
 Each formula is written once, over scalar components, in `hamilton`, `matrix_to_quat_components`,
 `rotvec_components` and `quat_of_rotvec_components`; the same Python function serves numpy arrays and torch tensors
 (`quat_mul`), one quaternion in Python floats (`quat_mul_one`) and, compiled with ``numba.njit``, the kernels
-(`controllers.impedance_kernel` at 1 kHz, `envs.execution.closed_loop_kernel` once per control period). One source
+(`controllers.impedance_kernel` at 1 kHz, `envs.policies.closed_loop_kernel` once per control period). One source
 means one rounding: a kernel's quaternion equals the array version's to the bit (tests/test_numba_twins.py). scipy's `Rotation` is the reference these are tested
 against (tests/test_quaternion.py); it is not used here because it rounds differently, and what feeds an
 episode record must not change with a library's internals.
@@ -134,7 +134,7 @@ def quat_to_mat(quat: npt.ArrayLike) -> FloatArray:
 def matrix_components(w: float, x: float, y: float, z: float) -> tuple[float, float, float, float, float, float,
                                                                         float, float, float]:
     """`quat_to_mat` of one quaternion of non-zero norm over its components, the matrix row by row (Python floats, or
-    numba scalars compiled: envs.observation_kernel)."""
+    numba scalars compiled: envs.sim.observation_kernel)."""
     length = math.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / length, x / length, y / length, z / length
     return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),

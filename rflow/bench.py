@@ -7,7 +7,7 @@ samples, then the medians of
     models (``epochs`` epochs each; the paper: 61 min per shape on an RTX 2060, 100 epochs);
   - flow_step_ms: one step of one model: state through the inverse flow, one exact latent step, back
     through the flow (rflow.generate.next_point);
-  - closed_loop_step_ms: the flow work of one closed-loop control step (envs.execution.policy.ClosedLoopPolicy: two
+  - closed_loop_step_ms: the flow work of one closed-loop control step (envs.policies.flow_skill.ClosedLoopPolicy: two
     lookahead steps x -> x_1 -> x_2 of both models, for the twist and acceleration), done every 10 ms;
   - rollout_1000_ms: one 1000-step rollout of the position model; rollouts_100x1000_ms: 100 at once
     (the paper: 20 s per 1000 samples, about 50 Hz).

@@ -9,7 +9,7 @@ Layout (extra top-level keys, such as "source" naming the study that found it, a
 Fields left out of "train_config" (or "model") take the `TrainConfig` / `ModelConfig` defaults; an unknown
 field is an error, so a misspelt hyperparameter never goes unnoticed, and so is a value of the wrong type (a
 float where the field is an integer, a bool for a number, NaN or infinity) or out of the config's range.
-`train_config_record` builds the record; the caller writes it (`pih search`: envs.output.write_json, which
+`train_config_record` builds the record; the caller writes it (`pih search`: envs.io.owned_output.write_json, which
 adds pih's marker), as rflow writes no command outputs of its own.
 """
 

@@ -143,7 +143,7 @@ def chart_flow_steps(points, out, chart, goal, right_conj_goal, right_goal, mean
     one point: TangentChart.log, (v - mean) / std, `flow_step`, x std + mean, TangentChart.exp), operation for
     operation, so each row equals that path to the last bit. A quaternion step from out[s-1] first puts it on the
     hemisphere of ``hemisphere`` (4,) and divides it by its norm, as a caller querying the next point would
-    (envs.execution.policy: ``_unit(on_goal_hemisphere(q, goal))``); out[s-1] itself is left as it came.
+    (envs.policies.flow_skill: ``_unit(on_goal_hemisphere(q, goal))``); out[s-1] itself is left as it came.
 
     Returns:
         -1, or the first row the chart rejects (not finite; a quaternion with |q|^2 off 1 by more than 2e-6), where

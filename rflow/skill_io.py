@@ -223,7 +223,7 @@ def is_checkpoint(path: str | os.PathLike[str]) -> bool:
 
 LEGACY_EXTRAS: tuple[str, ...] = ("demos.npz", "loss.png", ".pih-outputs.json")
 """Files `pih train` wrote beside skill.json and the model folders before checkpoints listed their files (the
-last: the registry of the loss figure, envs.output)."""
+last: the registry of the loss figure, envs.io.owned_output)."""
 
 
 def checkpoint_strangers(path: str | os.PathLike[str]) -> list[str]:

@@ -35,14 +35,14 @@ import mujoco
 import numpy as np
 
 from controllers.timing import physics_state, replayed_step_rate
-from envs.demos import demo_episode_config
-from envs.expert import ExpertConfig, plan_expert_path
-from envs.env import PegInHoleEnv
+from envs.demos.record import demo_episode_config
+from envs.policies.expert_plan import ExpertConfig, plan_expert_path
+from envs.sim.env import PegInHoleEnv
 from envs.errors import EnvError
-from envs.output import MiB, check_output, write_json
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
-from envs.video import EpisodeVideo, VideoConfig
+from envs.io.owned_output import MiB, check_output, write_json
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
+from envs.media.video import EpisodeVideo, VideoConfig
 
 Benchmark = tuple[str, Callable[[bool], dict[str, Any]]]
 
@@ -72,7 +72,7 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
 
     With a skill: closed-loop episodes from the evaluation's perturbed starts (flow query, feed-forward, nullspace
     IK, 10 controlled physics steps, observation and success check per step), timed from reset to the end; then
-    the same episodes again split per control period into their parts (envs.execution.profile, "period_us", with
+    the same episodes again split per control period into their parts (envs.evaluation.profile, "period_us", with
     "physics" the bare mj_steps of a period over the episodes' own states). "ratio_ceiling_without_python" is that
     bare physics over the compiled period alone (`env.run_period`: physics, control law and sensing in one compiled
     call, with the few us of the call itself): the ratio the loop would reach if nothing else ran per period.
@@ -99,10 +99,10 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         substeps = env.n_substeps
         extra: dict[str, Any] = {"flow_in_loop": False}
     else:
-        from envs.execution.episode import run_episode
-        from envs.execution.evaluate import EvaluationConfig, build_setup
-        from envs.execution.starts import evaluation_starts
-        from envs.execution.profile import law_floor_periods, profile_periods
+        from envs.rollout.episode import run_episode
+        from envs.evaluation.evaluate import EvaluationConfig, build_setup
+        from envs.evaluation.starts import evaluation_starts
+        from envs.evaluation.profile import law_floor_periods, profile_periods
 
         config = EvaluationConfig(episodes=2 if quick else 5)
         skill, env, policy = build_setup(model, config)
@@ -164,7 +164,7 @@ def bench_evaluation(quick: bool, model: Path | None = None) -> dict[str, Any]:
     default lockstep batches and again one episode at a time (``lockstep=1``; same records)."""
     if model is None:
         return {"skipped": "no trained skill (--model)"}
-    from envs.execution.evaluate import EvaluationConfig, evaluate
+    from envs.evaluation.evaluate import EvaluationConfig, evaluate
 
     config = EvaluationConfig(episodes=10 if quick else EVALUATION_EPISODES, workers=os.cpu_count() or 1)
     start = time.perf_counter()
@@ -188,7 +188,7 @@ LOCKSTEP_SLOTS: tuple[int, ...] = (1, 8, 32, 128)
 
 
 def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
-    """Episodes in lockstep (envs.execution.lockstep) against their own bare physics, one core.
+    """Episodes in lockstep (envs.rollout.lockstep) against their own bare physics, one core.
 
     The same evaluation starts (128; 16 with --quick) run one at a time (`run_episode`, today's loop) and in lockstep
     with K = LOCKSTEP_SLOTS slots on one thread, and with K = 32 (8 with --quick) on two threads. Their physics is
@@ -198,10 +198,10 @@ def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
     The records of every variant equal the one-at-a-time ones ("records_equal")."""
     if model is None:
         return {"skipped": "no trained skill (--model)"}
-    from envs.execution.episode import run_episode
-    from envs.execution.evaluate import EvaluationConfig, build_slots
-    from envs.execution.lockstep import run_lockstep
-    from envs.execution.starts import evaluation_starts
+    from envs.rollout.episode import run_episode
+    from envs.evaluation.evaluate import EvaluationConfig, build_slots
+    from envs.rollout.lockstep import run_lockstep
+    from envs.evaluation.starts import evaluation_starts
 
     sizes = LOCKSTEP_SLOTS[:2] if quick else LOCKSTEP_SLOTS
     config = EvaluationConfig(episodes=16 if quick else max(sizes))

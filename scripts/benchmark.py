@@ -1,5 +1,5 @@
 """`pih benchmark`: the success-rate protocol -- demos, training and evaluation per demo seed, then the rate as a
-distribution over demo seeds (envs/execution/protocol.py says what is randomised and which intervals it reports).
+distribution over demo seeds (envs/evaluation/benchmark.py says what is randomised and which intervals it reports).
 
     pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/ [--shape square] [--task NAME|FILE.toml]
         [task options] [--workers 2] [--no-contact-adaptation | --adaptation-off PARTS] [--follow-observed-hole]
@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from envs.errors import EnvError
-from envs.execution.protocol import (
+from envs.evaluation.benchmark import (
     PROTOCOL_FILE,
     REPLICATE_PREFIX,
     RESULT_FILE,
@@ -67,7 +67,7 @@ def protocol_from_args(args: argparse.Namespace) -> ProtocolConfig:
     Raises:
         EnvError: naming the offending option.
     """
-    from envs.execution.evaluate import EvaluationConfig
+    from envs.evaluation.evaluate import EvaluationConfig
 
     task = task_from_args(args)
     seeds = parse_seeds(args.demo_seeds)
@@ -88,8 +88,8 @@ def protocol_from_args(args: argparse.Namespace) -> ProtocolConfig:
 
 def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
     """What protocol.json holds: everything that decides the results (not the number of workers): the task
-    (versioned, envs.task) and the other evaluation settings."""
-    from envs.jsonable import to_jsonable
+    (versioned, envs.task.task) and the other evaluation settings."""
+    from envs.io.jsonable import to_jsonable
 
     evaluation = {k: v for k, v in config.evaluation.settings().items()
                   if k not in ("seed", "workers", "unit_timeout_s", "backend", "ray_address", "lockstep")}
@@ -105,7 +105,7 @@ def prepare_folder(out: Path, record: dict[str, Any]) -> None:
     Raises:
         EnvError: ``out`` is a file, a folder with other contents, or a protocol with other settings.
     """
-    from envs.output import MARKER_KEY, check_output_folder, write_json
+    from envs.io.owned_output import MARKER_KEY, check_output_folder, write_json
 
     check_output_folder("--out", out, estimate_bytes=REPLICATE_BYTES * len(record["demo_seeds"]))
     if out.is_dir():
@@ -137,21 +137,20 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
         KeyboardInterrupt: Ctrl-C during the evaluation (its journal keeps the finished episodes).
     """
     from batch import Journal
-    from envs.demo_file import save_demos
-    from envs.demos import collect_demos
-    from envs.execution.episode import record_from_dict
-    from envs.execution.evaluate import evaluate, journal_run
-    from envs.scene_config import SceneConfig
+    from envs.demos.file import save_demos
+    from envs.demos.record import collect_demos
+    from envs.rollout.episode import record_from_dict
+    from envs.evaluation.evaluate import evaluate, journal_run
     from scripts.train import skill_train_config, train_skill
 
     folder.mkdir(exist_ok=True)
     demos_path, model_dir, eval_path = folder / "demos.npz", folder / "model", folder / "eval.json"
     if not demos_path.exists():
         report(f"seed {demo_seed}: recording {config.num_demos} {config.task.shape} demos")
-        collection = collect_demos(config.num_demos, demo_seed, SceneConfig.from_task(config.task), task=config.task)
+        collection = collect_demos(config.num_demos, demo_seed, config.task.scene_config(), task=config.task)
         demos = collection.demos
         if config.demo_noise is not None:
-            from envs.demo_noise import DemoNoise, add_demo_noise
+            from envs.demos.noise import DemoNoise, add_demo_noise
 
             demos = add_demo_noise(demos, DemoNoise.parse(config.demo_noise), demo_seed)
             report(f"seed {demo_seed}: demos with noise {config.demo_noise!r}, ends "
@@ -186,8 +185,8 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
 
 def main(args: argparse.Namespace) -> int:
     """Run or continue the protocol; print and write its summary."""
-    from envs.execution.figures import plot_protocol
-    from envs.output import write_json
+    from envs.media.figures import plot_protocol
+    from envs.io.owned_output import write_json
     from numerics.errors import NumericsError
 
     config = protocol_from_args(args)

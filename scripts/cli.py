@@ -17,15 +17,14 @@ import sys
 import threading
 from typing import NoReturn, Sequence
 
-from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch
+from numerics.cpu_dispatch import pin_cpu_dispatch
 
 pin_cpu_dispatch()  # first: the CPU dispatch of torch, MKL and numpy, before they load
-check_numpy_dispatch()
 
 from batch.errors import BatchError  # noqa: E402
 from controllers.errors import ControllerError  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.rendering import use_headless_rendering  # noqa: E402
+from envs.media.rendering import use_headless_rendering  # noqa: E402
 from numerics.errors import NumericsError  # noqa: E402
 
 DESCRIPTION = ("pih-rflow: a simulated Franka Panda learns peg-in-hole from demonstrations with RiemannianFlow and "
@@ -132,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog = f"pih {command}" if command in SUBCOMMANDS else err.prog  # words left over are the command's
         print(f"{prog}: error: {str(err).replace('`pih --help`', f'`{prog} --help`')}", file=sys.stderr)
         return EXIT_USAGE
-    from envs.output import set_command
+    from envs.io.owned_output import set_command
 
     set_command(args.command)
     try:

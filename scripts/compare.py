@@ -9,7 +9,7 @@ start / task options; refused, one line naming the first differing episode, othe
 rates with Wilson intervals, the paired counts, the difference with Newcombe's paired interval, McNemar's exact
 p, Barnard's unpaired p for reference, the finer paired metrics (progress, time to seat, held force) and the
 decision: "regression" when the one-sided (1 - alpha) upper bound of p_cand - p_base lies below -margin
-(envs/execution/statistics.py, sequential.py, pairing.py, comparison.py).
+(envs/statistics/fixed_sample.py, sequential.py, pairing.py, comparison.py).
 
 Sequential mode runs the episodes itself: it draws the starts once from the base model's demo starts, runs both
 models on the same starts, --chunk episodes at a time, feeds the pairs in episode order to anytime-valid
@@ -32,11 +32,11 @@ from typing import Any, Sequence
 
 import scripts.evaluate as evaluate_cli
 from envs.errors import EnvError
-from envs.output import write_json
-from envs.execution.comparison import compare_evaluations, load_evaluation, sequential_differences
-from envs.execution.pairing import pair_records
-from envs.execution.sequential import SequentialComparison
-from envs.execution.statistics import DECISIONS
+from envs.io.owned_output import write_json
+from envs.statistics.comparison import compare_evaluations, load_evaluation, sequential_differences
+from envs.statistics.pairing import pair_records
+from envs.statistics.sequential import SequentialComparison
+from envs.statistics.fixed_sample import DECISIONS
 from scripts.options import MAX_EPISODES, count, refuse_unused
 
 KIND = "pih compare"
@@ -78,12 +78,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check_json_output(path: Path | None, overwrite: bool, inputs: list[Path]) -> None:
     """--json: a .json in an existing folder, none of the inputs, new, or with --overwrite an earlier output of
-    `pih compare` (envs.output's policy, and the record's kind).
+    `pih compare` (envs.io.owned_output's policy, and the record's kind).
 
     Raises:
         EnvError: naming the option and the problem.
     """
-    from envs.output import check_output
+    from envs.io.owned_output import check_output
 
     check_output("--json", path, overwrite, suffix=".json", inputs=inputs)
     if path is None or not path.exists():
@@ -144,7 +144,7 @@ def main(args: argparse.Namespace) -> int:
 
 def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
     """One EvaluationResult of the first ``pairs`` episodes of consecutive chunk results of one model."""
-    from envs.execution.result import EvaluationResult
+    from envs.evaluation.result import EvaluationResult
 
     records = [r for result in results for r in result.records][:pairs]
     first = results[0]
@@ -156,8 +156,8 @@ def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
 
 def run_sequential(args: argparse.Namespace) -> int:
     """Sequential mode (module docstring)."""
-    from envs.execution.evaluate import evaluate
-    from envs.execution.starts import evaluation_starts
+    from envs.evaluation.evaluate import evaluate
+    from envs.evaluation.starts import evaluation_starts
     from rflow.skill_io import load_skill
 
     config = evaluate_cli.checked_config(args)

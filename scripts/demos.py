@@ -1,8 +1,8 @@
 """`pih demos`: record scripted peg-in-hole demonstrations in physics (or check the expert's success rate).
 
-The expert commands and records its translational stiffness schedule (envs/demos.py, envs/stiffness_schedule.py):
+The expert commands and records its translational stiffness schedule (envs/demos/record.py, envs/policies/stiffness_schedule.py):
 the demo file's ``stiffness``, learned with `pih train --stiffness expert`. The scene is the task's (--task and the
-task options, envs/task.py); the demo file records the task, and `pih train` copies it into the checkpoint.
+task options, envs/task/task.py); the demo file records the task, and `pih train` copies it into the checkpoint.
 
     pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--task NAME|FILE.toml] [--video runs/demos.mp4]
     pih demos --num 7 --seed 0 --noise realistic --out runs/noisy.npz   # as a real cell records them
@@ -20,21 +20,21 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from envs.errors import EnvError  # noqa: E402
-from envs.output import MiB, check_distinct, check_output  # noqa: E402
+from envs.io.owned_output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.demos_import import add_import_arguments, run_import  # noqa: E402
 from scripts.options import (MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera, count, number,  # noqa: E402
                              refuse_unused, seed)
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator loads in main(), never for --help
-    from envs.demos import DemoAttempt
-    from envs.expert import ExpertConfig
-    from envs.scene_config import SceneConfig
+    from envs.demos.record import DemoAttempt
+    from envs.policies.expert_plan import ExpertConfig
+    from envs.cell.scene_config import SceneConfig
 
 
 def expert_stiffness(text: str) -> Any:
     """The `StiffnessSchedule` of --expert-stiffness (argparse type: a bad value is a one-line usage error)."""
-    from envs.stiffness_schedule import StiffnessSchedule
+    from envs.policies.stiffness_schedule import StiffnessSchedule
 
     try:
         return StiffnessSchedule.parse(text)
@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     demos.add_argument("--entry-speed-mm-s", type=number(above=0.0), default=10.0,
                        help="speed at which the peg enters the hole, mm/s (default 10; 5 for a 0.2 mm clearance)")
     demos.add_argument("--noise", metavar="SPEC",
-                       help="record the demos as a real cell would (envs/demo_noise.py): 'realistic' (3 mm / 3 deg "
+                       help="record the demos as a real cell would (envs/demos/noise.py): 'realistic' (3 mm / 3 deg "
                             "end scatter, timing jitter, approach curvature, sensor noise) and/or FIELD=VALUE pairs, "
                             "e.g. 'realistic,final_pos_scatter_m=0.004'; the file's demos then end apart")
     demos.add_argument("--expert-stiffness", type=expert_stiffness, metavar="FREE/LATERAL/AXIAL",
@@ -74,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def check_outputs(args: argparse.Namespace, inputs: list[Path | None], demos: int, samples: int) -> None:
-    """--out (and --video) may be written: envs.output.check_output, with a generous size estimate
+    """--out (and --video) may be written: envs.io.owned_output.check_output, with a generous size estimate
     (pos, quat and stiffness of every sample in float64, and 20 MiB of video per attempt, two per demo).
 
     Raises:
@@ -97,7 +97,7 @@ def _describe(index: int, attempt: DemoAttempt) -> str:
 
 
 def _check(args: argparse.Namespace, scene: SceneConfig, expert: ExpertConfig) -> int:
-    from envs.demos import expert_success_rate
+    from envs.demos.record import expert_success_rate
 
     start = time.perf_counter()
     result = expert_success_rate(args.check, args.seed, scene, expert,
@@ -124,20 +124,19 @@ def main(args: argparse.Namespace) -> int:
                       "not with --check (it runs --check N starts and records nothing)")
     if args.video is None:
         refuse_unused(args, add_arguments, ["camera"], "applies to --video only")
-    from envs.demos import collect_demos, demo_episode_config
-    from envs.expert import ExpertConfig
-    from envs.env import PegInHoleEnv
-    from envs.scene_config import SceneConfig
+    from envs.demos.record import collect_demos, demo_episode_config
+    from envs.policies.expert_plan import ExpertConfig
+    from envs.sim.env import PegInHoleEnv
 
     task = task_from_args(args)
-    scene = SceneConfig.from_task(task, shape=task.shape or "square")
+    scene = task.scene_config(shape=task.shape or "square")
     schedule = {} if args.expert_stiffness is None else {"stiffness": args.expert_stiffness}
     expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed_mm_s * 1e-3, **schedule)
     if args.check is not None:
         return _check(args, scene, expert)
     noise = None
     if args.noise is not None:
-        from envs.demo_noise import DemoNoise
+        from envs.demos.noise import DemoNoise
 
         noise = DemoNoise.parse(args.noise)
     check_outputs(args, [], args.num, args.samples)
@@ -146,7 +145,7 @@ def main(args: argparse.Namespace) -> int:
     env = PegInHoleEnv(scene, episode_config=demo_episode_config(expert))
     video = None
     if args.video is not None:
-        from envs.video import EpisodeVideo, VideoConfig
+        from envs.media.video import EpisodeVideo, VideoConfig
 
         video = EpisodeVideo(env.model, args.video, VideoConfig(camera=args.camera), goal=env.goal)
     try:
@@ -168,11 +167,11 @@ def main(args: argparse.Namespace) -> int:
         raise
     if video is not None:
         print(f"wrote {video.close()} ({video.frames} frames)")
-    from envs.demo_file import save_demos
+    from envs.demos.file import save_demos
 
     demos = collection.demos
     if noise is not None:
-        from envs.demo_noise import add_demo_noise
+        from envs.demos.noise import add_demo_noise
 
         demos = add_demo_noise(demos, noise, args.seed)
     path = save_demos(args.out, demos)
@@ -190,7 +189,7 @@ def main(args: argparse.Namespace) -> int:
               f"{max(demos.residual_rot_deg):.4f} deg")
     if demos.stiffness is not None:
         lam = np.linalg.eigvalsh(demos.stiffness)
-        print(f"stiffness commanded and recorded (envs/stiffness_schedule.py): eigenvalues {lam.min():.0f} to "
+        print(f"stiffness commanded and recorded (envs/policies/stiffness_schedule.py): eigenvalues {lam.min():.0f} to "
               f"{lam.max():.0f} N/m, every demo ending at the goal stiffness with eigenvalues "
               f"{', '.join(f'{v:.0f}' for v in np.linalg.eigvalsh(demos.goal_stiffness))} N/m")
     return 0

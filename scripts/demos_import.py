@@ -4,7 +4,7 @@
     pih demos --import recorded.npz --tool-offset 0,0,0.1034,0.92388,0,0,-0.38268 --out demos.npz
     pih demos --import datasets/demos-lerobot --format lerobot --out demos.npz     # an export of `pih export`
 
-The file format and the conversion are documented in envs/demo_import.py, the LeRobot and robomimic layouts in
+The file format and the conversion are documented in envs/demos/importing.py, the LeRobot and robomimic layouts in
 envs/datasets/ (the tcp poses observation.state / obs/tcp_pose and the stiffness action.stiffness /
 action_stiffness; an export of `pih export` names its frame, dt, shape and clearance, so --tool-offset and --dt-s
 are not needed).
@@ -19,14 +19,14 @@ import numpy as np
 
 from envs.datasets import LAYOUTS
 from envs.errors import EnvError
-from envs.output import check_free_space, check_output
+from envs.io.owned_output import check_free_space, check_output
 from scripts.options import number
 from scripts.task_options import task_from_args
 
 
 def add_import_arguments(parser: argparse.ArgumentParser) -> None:
     """The import options of `pih demos` (--out, --shape, --clearance-mm and --samples are shared)."""
-    group = parser.add_argument_group("importing demos recorded elsewhere (see envs/demo_import.py)")
+    group = parser.add_argument_group("importing demos recorded elsewhere (see envs/demos/importing.py)")
     group.add_argument("--import", dest="import_file", type=Path, metavar="FILE",
                        help="convert recorded tool-frame poses: pos (N, M, 3) + quat (N, M, 4) (w, x, y, z), or "
                             "pos_0, quat_0, pos_1, ... for demos of different lengths; optional dt, shape, "
@@ -52,10 +52,10 @@ def add_import_arguments(parser: argparse.ArgumentParser) -> None:
 def run_import(args: argparse.Namespace) -> int:
     """Validate every option, convert, write the demo file, print the per-demo goal jumps; exit status."""
     from envs.datasets import read_dataset
-    from envs.demo_file import save_demos
-    from envs.demo_import import ImportConfig, import_demos, load_recorded_demos, parse_tool_offset, resolve_dt
+    from envs.demos.file import save_demos
+    from envs.demos.importing import ImportConfig, import_demos, load_recorded_demos, parse_tool_offset, resolve_dt
     from envs.poses import Pose
-    from envs.scene import nominal_flange_to_peg_tip
+    from envs.cell.scene import nominal_flange_to_peg_tip
 
     if args.check is not None:
         raise EnvError("--import and --check cannot be combined")

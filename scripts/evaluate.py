@@ -6,12 +6,12 @@
     pih evaluate --policy mypkg.mymodule:make --demos demos.npz [--policy-option KEY=VALUE ...] [--privileged] \\
         --episodes 100 --seed 0 --json runs/mine.json
 
---policy scores a user policy (envs/execution/policy_protocol.py; the factory is called as
-factory(task, **options), envs/execution/evaluate_policy.py) in the demos' scene, from the starts and
+--policy scores a user policy (envs/policies/interface.py; the factory is called as
+factory(task, **options), envs/evaluation/evaluate_policy.py) in the demos' scene, from the starts and
 perturbations the skill trained on those demos meets, with the same success check (scripts/evaluate_policy.py).
 
 Starts: the mean demo start (or, with --around demo, a random demo's start) perturbed by +-pos-range-mm (box)
-and +-rot-range-deg (ball) -- see envs/execution/starts.py. Success is the physics check on the measured
+and +-rot-range-deg (ball) -- see envs/evaluation/starts.py. Success is the physics check on the measured
 peg_tip pose. Prints a summary table.
 
 Long runs: each finished episode is appended to a journal (--journal, default <json>.journal.jsonl), so
@@ -21,7 +21,7 @@ again on another one; only when all its tries are lost is it an infrastructure e
 apart, and run again by --resume. Infrastructure events go to stderr and the JSON. Exit status: 0 when every
 episode has a record (failed episodes are results), 3 when the batch is incomplete (infrastructure errors),
 1 when a fault stopped it (the Ray head lost), 130 when interrupted, 2 on bad input (all options and
-outputs are checked before any episode, envs/output.py), 1 also on an operating-system error while writing.
+outputs are checked before any episode, envs/io/owned_output.py), 1 also on an operating-system error while writing.
 """
 
 from __future__ import annotations
@@ -35,15 +35,16 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.execution.config import DEFAULT_LOOKAHEAD_S, MAX_LOCKSTEP, MAX_SPEED, MODES, EvaluationConfig  # noqa: E402
-from envs.output import MiB, check_distinct, check_output  # noqa: E402
+from envs.evaluation.config import MAX_LOCKSTEP, MAX_SPEED, EvaluationConfig  # noqa: E402
+from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
+from envs.io.owned_output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, refuse_unused, seed  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
 from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
-    from envs.execution.evaluate import StartPose
-    from envs.execution.result import EvaluationResult
+    from envs.evaluation.evaluate import StartPose
+    from envs.evaluation.result import EvaluationResult
 
 GOAL_MISMATCH_WARN_MM = 5.0
 EXIT_FAULT = 1
@@ -138,7 +139,7 @@ def add_adaptation_options(skill: Any) -> None:
     ablation = skill.add_mutually_exclusive_group()  # all parts off, or some: not both
     ablation.add_argument("--no-contact-adaptation", action="store_true",
                           help="closed loop: run the bare learned flow, without the axial push, frame shift and "
-                               "rotational compliance near the hole (envs/execution/adaptation.py; the ablation)")
+                               "rotational compliance near the hole (envs/policies/adaptation.py; the ablation)")
     ablation.add_argument("--adaptation-off", metavar="PARTS",
                           help="closed loop: turn these parts of the contact adaptation off, comma-separated, of push, "
                                "frame, compliance, search, seat (the ablation of each; default: none)")
@@ -148,12 +149,12 @@ def add_adaptation_options(skill: Any) -> None:
 
 
 def adaptation_parts(text: str | None) -> tuple[str, ...]:
-    """The parts of --adaptation-off ("push,frame"), checked by `envs.execution.adaptation.adaptation_parts`.
+    """The parts of --adaptation-off ("push,frame"), checked by `envs.policies.adaptation.adaptation_parts`.
 
     Raises:
         EnvError: an unknown or repeated part (one line naming the option).
     """
-    from envs.execution.adaptation import adaptation_parts as checked
+    from envs.policies.adaptation import adaptation_parts as checked
 
     if text is None:
         return ()
@@ -219,7 +220,7 @@ def load_preview(model_dir: Path) -> dict[str, Any] | None:
 
     import numpy as np
 
-    from envs.npz_file import open_npz
+    from envs.io.npz import open_npz
 
     path = model_dir / "demos.npz"
     if not path.is_file():
@@ -241,7 +242,7 @@ def load_preview(model_dir: Path) -> dict[str, Any] | None:
 
 
 def check_args(args: argparse.Namespace) -> EvaluationConfig:
-    """Every option, before any work: the config, the outputs (envs.output.check_output), the journal, the
+    """Every option, before any work: the config, the outputs (envs.io.owned_output.check_output), the journal, the
     video and figure options and the checkpoint's demo preview the figures read.
 
     Raises:
@@ -310,10 +311,10 @@ def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> Evalua
     """`evaluate` with the run's journal (opened here; a new journal with no episode in it is removed again
     when the evaluation fails before its first episode, so a bad input leaves nothing behind)."""
     from batch import Journal
-    from envs.execution.evaluate import evaluate, journal_run
+    from envs.evaluation.evaluate import evaluate, journal_run
 
     if args.policy is not None:
-        from envs.execution.evaluate_policy import demo_metadata, evaluate_policy, policy_journal_run
+        from envs.evaluation.evaluate_policy import demo_metadata, evaluate_policy, policy_journal_run
 
         spec, metadata = policy_spec(args), demo_metadata(args.demos)
         run = policy_journal_run(spec, metadata, config)
@@ -376,10 +377,10 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         {"video": path or None, "figure": path or None, "stiffness_figure": path or None, "replayed": [...]}
         for the summary.
     """
-    from envs.execution.evaluate import replay_episodes
-    from envs.execution.starts import evaluation_starts
-    from envs.execution.policy import generate_plan
-    from envs.video import EpisodeVideo, VideoConfig
+    from envs.evaluation.evaluate import replay_episodes
+    from envs.evaluation.starts import evaluation_starts
+    from envs.policies.flow_skill import generate_plan
+    from envs.media.video import EpisodeVideo, VideoConfig
     from rflow.skill_io import load_skill
 
     out: dict[str, Any] = {"video": None, "figure": None, "stiffness_figure": None, "force_figure": None,
@@ -429,7 +430,7 @@ def plot_episode_forces(replays: Sequence[Any], starts: Sequence[StartPose], pat
     """The force figure: the wrist force |F| of each replayed episode against time, with the force limit."""
     import numpy as np
 
-    from envs.execution.figures import plot_force_traces
+    from envs.media.figures import plot_force_traces
 
     traces = [(f"episode {start.index}: {record.reason.split(' (')[0]}", record.success, trace.times_s,
                np.sqrt((trace.wrist_wrench[:, :3] ** 2).sum(axis=1)))
@@ -443,7 +444,7 @@ def plot_episode_stiffness(model_dir: Path, replays: Sequence[Any], starts: Sequ
     skill) beside the stiffness commanded in the replayed episodes."""
     import numpy as np
 
-    from envs.execution.figures import StiffnessCurve, plot_stiffness
+    from envs.media.figures import StiffnessCurve, plot_stiffness
 
     demos = []
     preview = load_preview(model_dir)
@@ -460,8 +461,8 @@ def plot_episodes(model_dir: Path, skill: Any, replays: Sequence[Any], starts: S
     """The paper-style figure: demos (from the checkpoint's demos.npz), plans from the starts, executions."""
     import numpy as np
 
-    from envs.execution.figures import PoseCurve, plot_skill
-    from envs.execution.policy import generate_plan, on_goal_hemisphere
+    from envs.media.figures import PoseCurve, plot_skill
+    from envs.policies.flow_skill import generate_plan, on_goal_hemisphere
 
     demos = []
     preview = load_preview(model_dir)

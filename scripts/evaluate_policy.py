@@ -1,4 +1,4 @@
-"""The `--policy` options of `pih evaluate`: score any policy in the demos' scene (envs/execution/evaluate_policy.py).
+"""The `--policy` options of `pih evaluate`: score any policy in the demos' scene (envs/evaluation/evaluate_policy.py).
 
     pih evaluate --policy mypkg.mymodule:make --demos demos.npz [--policy-option dataset=ds/] [--privileged] ...
 
@@ -16,10 +16,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from envs.errors import EnvError
-from envs.execution.config import DEFAULT_LOOKAHEAD_S, EvaluationConfig
+from envs.evaluation.config import EvaluationConfig
+from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S
 
 if TYPE_CHECKING:  # the simulator loads when the command runs, never for --help
-    from envs.execution.evaluate_policy import PolicySpec
+    from envs.evaluation.evaluate_policy import PolicySpec
 
 SKILL_ONLY: tuple[str, ...] = ("--mode", "--lookahead-s", "--speed", "--stiffness", "--no-contact-adaptation",
                                "--adaptation-off", "--model", "--video", "--figure", "--stiffness-figure",
@@ -32,7 +33,7 @@ def add_policy_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("policy (instead of --model)")
     group.add_argument("--policy", metavar="MODULE:FACTORY",
                        help="score your own policy: package.module:factory, called as factory(task, **options) -> "
-                            "Policy (envs/execution/policy_protocol.py); imported with the current folder first on "
+                            "Policy (envs/policies/interface.py); imported with the current folder first on "
                             "the path")
     group.add_argument("--demos", type=Path, metavar="FILE.npz",
                        help="with --policy: the demo file whose scene and start poses the episodes use (the skill "
@@ -42,7 +43,7 @@ def add_policy_arguments(parser: argparse.ArgumentParser) -> None:
                             "none)")
     group.add_argument("--privileged", action="store_true",
                        help="with --policy: the observations carry the true hole (a teacher such as "
-                            "envs.execution.expert_policy:make), recorded in the JSON")
+                            "envs.policies.expert:make), recorded in the JSON")
 
 
 def policy_spec(args: argparse.Namespace) -> PolicySpec:
@@ -51,7 +52,7 @@ def policy_spec(args: argparse.Namespace) -> PolicySpec:
     Raises:
         EnvError: a malformed spec or option.
     """
-    from envs.execution.evaluate_policy import PolicySpec, parse_policy_options
+    from envs.evaluation.evaluate_policy import PolicySpec, parse_policy_options
 
     return PolicySpec(args.policy, parse_policy_options(args.policy_option), bool(args.privileged), os.getcwd())
 
@@ -63,7 +64,7 @@ def check_policy_args(args: argparse.Namespace) -> None:
     Raises:
         EnvError: naming the offending option.
     """
-    from envs.execution.evaluate_policy import demo_metadata, load_factory
+    from envs.evaluation.evaluate_policy import demo_metadata, load_factory
 
     d = EvaluationConfig()
     given = {"--mode": args.mode != d.mode, "--lookahead-s": args.lookahead_s != DEFAULT_LOOKAHEAD_S,

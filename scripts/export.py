@@ -18,9 +18,9 @@ from pathlib import Path
 
 from envs.datasets import LAYOUTS, require_layout
 from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demos
-from envs.datasets.output import check_export_folder, staged_folder
+from envs.datasets.export_folder import check_export_folder, staged_folder
 from envs.errors import EnvError
-from envs.output import MiB, check_output_folder
+from envs.io.owned_output import MiB, check_output_folder
 from scripts.options import refuse_unused
 
 DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x128"}
@@ -58,7 +58,7 @@ def parse_size(text: str) -> tuple[int, int]:
         width, height = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise EnvError(f"--video-size {text!r} must be WIDTHxHEIGHT, e.g. 640x480") from None
-    from envs.rendering import MAX_FRAME_PX
+    from envs.media.rendering import MAX_FRAME_PX
 
     if not (16 <= width <= MAX_FRAME_PX and 16 <= height <= MAX_FRAME_PX) or width % 8 or height % 8:
         raise EnvError(f"--video-size {text!r}: width and height must be multiples of 8 in [16, {MAX_FRAME_PX}] "
@@ -105,7 +105,7 @@ def _write_all(root: Path, layout: str, meta: ExportMeta, episodes: list[ExportE
 def export_episodes(args: argparse.Namespace, root: Path) -> tuple[int, dict[int, str]]:
     """Replay the evaluation's episodes into ``root``; (episodes written, {skipped index: reason})."""
     from envs.datasets.episode_export import EpisodeExport
-    from envs.execution.replay import load_evaluation, replay_evaluation
+    from envs.evaluation.replay import load_evaluation, replay_evaluation
 
     evaluation = load_evaluation(args.episodes, args.model)
     size = parse_size(args.video_size or DEFAULT_VIDEO_SIZE[args.format])
@@ -137,7 +137,7 @@ def main(args: argparse.Namespace) -> int:
         refuse_unused(args, add_arguments, ["camera"], "applies to --video only")
     parse_select(args.select)
     if args.video and args.format == "lerobot":
-        from envs.video import VideoConfig
+        from envs.media.video import VideoConfig
 
         width, height = parse_size(args.video_size or DEFAULT_VIDEO_SIZE[args.format])
         VideoConfig(width=width, height=height, camera=args.camera)  # H.264 needs multiples of 8
@@ -146,7 +146,7 @@ def main(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     with staged_folder(args.out, args.overwrite) as root:
         if args.demos is not None:
-            from envs.demo_file import load_demos
+            from envs.demos.file import load_demos
 
             meta, episodes = episodes_from_demos(load_demos(args.demos), str(args.demos))
             _write_all(root, args.format, meta, episodes)

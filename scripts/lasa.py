@@ -27,8 +27,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from envs.npz_file import open_npz
-from envs.output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
+from envs.io.npz import open_npz
+from envs.io.owned_output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
 from numerics.cpu_dispatch import DISPATCH_VARIABLES
 from rflow.errors import RFlowError
 from rflow.lasa import (
@@ -155,13 +155,13 @@ def summary_line(result: ShapeResult) -> str:
             f"generate {result.generate_time_s:.2f} s")
 
 
-# ---- output (envs.output: atomic, marked) ---------------------------------------------------------------
+# ---- output (envs.io.owned_output: atomic, marked) ---------------------------------------------------------------
 FIGURE_DPI = 90
 
 
 def save_figure(path: Path, figure: Any) -> Path:
-    """Write a matplotlib figure as PNG (envs.output.save_figure; the argument order of lasa_report's ``save``)."""
-    from envs.output import save_figure as save_png
+    """Write a matplotlib figure as PNG (envs.io.owned_output.save_figure; the argument order of lasa_report's ``save``)."""
+    from envs.io.owned_output import save_figure as save_png
 
     return save_png(figure, path, dpi=FIGURE_DPI)
 
@@ -198,7 +198,7 @@ def init_worker(setup: BatchSetup) -> BatchSetup:
     marked as `pih lasa`'s."""
     import torch
 
-    from envs.output import set_command
+    from envs.io.owned_output import set_command
 
     set_command("lasa")
     torch.set_num_threads(1)

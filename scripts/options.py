@@ -79,7 +79,7 @@ def check_camera(camera: str) -> None:
         EnvError: naming the camera and the available ones.
     """
     from envs.errors import EnvError
-    from envs.scene import CAMERAS
+    from envs.cell.scene import CAMERAS
 
     if camera not in CAMERAS:
         raise EnvError(f"--camera {camera!r} is not a camera of the scene (available: {', '.join(CAMERAS)})")

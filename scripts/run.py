@@ -9,7 +9,7 @@ demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png), eval.js
 perturbed starts), skill.png (demos / generated / executed, as the paper's peg-in-hole figure), outcomes.png (outcomes by reason over the hole-pose error and where each episode
 ended), forces.png (wrist force of the video's episodes, with the limit), episodes.mp4 (three successes and the first
 failure, if any) and summary.json (timings and the success rate). Prints a summary. Running it again on the
-same folder needs --overwrite, and replaces only what an earlier `pih run` wrote (envs/output.py).
+same folder needs --overwrite, and replaces only what an earlier `pih run` wrote (envs/io/owned_output.py).
 """
 
 from __future__ import annotations
@@ -21,13 +21,13 @@ from pathlib import Path
 from typing import Any
 
 from envs.errors import EnvError
-from envs.output import MiB, check_output, check_output_folder, write_json
+from envs.io.owned_output import MiB, check_output, check_output_folder, write_json
 from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "forces.png", "episodes.mp4",
                "summary.json")
-"""What `pih run` writes into runs/<name>/ (an earlier run's are replaced only with --overwrite, envs/output.py)."""
+"""What `pih run` writes into runs/<name>/ (an earlier run's are replaced only with --overwrite, envs/io/owned_output.py)."""
 RUN_BYTES = 200 * MiB
 """Generous size of a run folder (a checkpoint, the demos, the record and a video of four episodes)."""
 
@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def check_run_folder(out: Path, overwrite: bool, video: bool) -> None:
-    """runs/<name> may be written: the folder (envs.output.check_output_folder) and each output `pih run`
+    """runs/<name> may be written: the folder (envs.io.owned_output.check_output_folder) and each output `pih run`
     writes that is there already (an earlier run's, replaced only with ``overwrite``; never anything else).
     Other files in the folder are left alone.
 
@@ -82,12 +82,11 @@ def main(args: argparse.Namespace) -> int:
     """Run the whole job; returns the exit status."""
     from tqdm import tqdm
 
-    from envs.demo_file import save_demos
-    from envs.demos import collect_demos
-    from envs.expert import ExpertConfig
-    from envs.execution.evaluate import EvaluationConfig, evaluate
-    from envs.execution.figures import plot_outcomes
-    from envs.scene_config import SceneConfig
+    from envs.demos.file import save_demos
+    from envs.demos.record import collect_demos
+    from envs.policies.expert_plan import ExpertConfig
+    from envs.evaluation.evaluate import EvaluationConfig, evaluate
+    from envs.media.figures import plot_outcomes
     from scripts.evaluate import choose_episodes, render_and_plot
     from scripts.train import skill_train_config, train_skill
 
@@ -115,7 +114,7 @@ def main(args: argparse.Namespace) -> int:
             else:
                 tqdm.write(f"  failed attempt: {attempt.reason}")
 
-        collection = collect_demos(args.demos, args.demo_seed, SceneConfig.from_task(task), on_attempt=on_attempt,
+        collection = collect_demos(args.demos, args.demo_seed, task.scene_config(), on_attempt=on_attempt,
                                    task=task)
     demo_path = save_demos(out / "demos.npz", collection.demos)
     timings["demos_s"] = time.perf_counter() - t0

@@ -106,7 +106,7 @@ def _trial_record(trial: Any) -> dict[str, Any]:
 
 def main(args: argparse.Namespace) -> int:
     """Run `pih search`; returns the exit status."""
-    from envs.output import check_output, check_output_folder, write_json
+    from envs.io.owned_output import check_output, check_output_folder, write_json
     from rflow.config_file import train_config_record
     from rflow.search import SearchConfig, best_config, run_search
 

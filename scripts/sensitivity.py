@@ -4,7 +4,7 @@
         [--workers 2] [--only friction payload ...] [--task contact]
 
 Runs the skill on the task (default the contact preset: the ideal cell), then on it with each imperfection of
-envs/execution/sensitivity.py alone and with all of them (the "realistic" preset's magnitudes), every variant on the
+envs/evaluation/sensitivity.py alone and with all of them (the "realistic" preset's magnitudes), every variant on the
 same --seed and --episodes, so each pairs with the ideal cell episode for episode. Writes into --out:
 sensitivity.md (the table), sensitivity.json (every row with its paired comparison) and sensitivity.png (the
 figure), and prints the table and the imperfection that costs most. Exit status: 0, or 2 on bad input (checked
@@ -19,13 +19,13 @@ import sys
 from pathlib import Path
 
 from envs.errors import EnvError
-from envs.output import MiB, check_output, check_output_folder
+from envs.io.owned_output import MiB, check_output, check_output_folder
 from scripts.options import MAX_EPISODES, MAX_WORKERS, count, seed
 from scripts.task_options import add_task_file_arguments, task_from_args
 
 IMPERFECTION_NAMES = ("friction", "compliant_pads", "in_hand_pose", "grasp_offset", "payload", "joint_friction",
                       "torque_noise", "hole_observation", "joint_torque_sensing", "wrist_sensor")
-"""The names of envs.execution.sensitivity.IMPERFECTIONS, then ALTERNATIVES (spelled here so --help does not load the
+"""The names of envs.evaluation.sensitivity.IMPERFECTIONS, then ALTERNATIVES (spelled here so --help does not load the
 simulator)."""
 OUTPUTS = {"table": "sensitivity.md", "json": "sensitivity.json", "figure": "sensitivity.png"}
 
@@ -45,9 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run the variants and write the outputs; returns 0."""
-    from envs.execution.config import EvaluationConfig
-    from envs.execution.sensitivity import costliest, plot_sensitivity, run_sensitivity, sensitivity_table
-    from envs.output import write_json, write_text
+    from envs.evaluation.config import EvaluationConfig
+    from envs.evaluation.sensitivity import costliest, plot_sensitivity, run_sensitivity, sensitivity_table
+    from envs.io.owned_output import write_json, write_text
 
     if not args.model.is_dir():
         raise EnvError(f"--model {args.model}: no such checkpoint folder")

@@ -5,12 +5,12 @@
         [--stiffness learned,constant:500,constant:1500,constant:4000] \\
         [--workers 2] [--backend ray --ray-address HOST:PORT] [--resume | --overwrite]
 
-Every cell (the product of the axes) runs the same K seeded starts (envs/execution/sweep.py). Writes, in --out:
+Every cell (the product of the axes) runs the same K seeded starts (envs/evaluation/sweep.py). Writes, in --out:
 sweep.json (per cell: rate, Wilson interval, median time, peak forces, contact rate; every episode),
 sweep.png (heat map: clearance x hole error, or the first two axes) and journal.jsonl (finished episodes,
 for --resume). Settings not swept come from --task (a preset or a task file; default the contact preset) and the
 task options, and the scene from the demos (but for the task's with --task, and the options given).
-Outputs follow envs/output.py: an earlier sweep's files are replaced only with --overwrite, others never.
+Outputs follow envs/io/owned_output.py: an earlier sweep's files are replaced only with --overwrite, others never.
 """
 
 from __future__ import annotations
@@ -23,8 +23,9 @@ import time
 from pathlib import Path
 
 from envs.errors import EnvError
-from envs.execution.config import MODES, EvaluationConfig
-from envs.output import MiB, check_output, check_output_folder, write_json
+from envs.evaluation.config import EvaluationConfig
+from envs.policies.skill_settings import MODES
+from envs.io.owned_output import MiB, check_output, check_output_folder, write_json
 from scripts.options import MAX_EPISODES, MAX_WORKERS, count, number, seed
 from scripts.task_options import add_task_file_arguments, check_option_value, scene_from_task, task_from_args
 
@@ -104,7 +105,7 @@ def parse_values(option: str, text: str | None, scale: float) -> tuple[float, ..
 def parse_stiffness(text: str | None) -> tuple[str, ...]:
     """Comma-separated stiffness settings ("learned", "constant:K", "schedule[:F/L/A]"). Raises EnvError naming the
     option."""
-    from envs.execution.policy import StiffnessSetting
+    from envs.policies.skill_settings import StiffnessSetting
 
     if text is None:
         return ()
@@ -130,9 +131,9 @@ def base_config(args: argparse.Namespace) -> EvaluationConfig:
 def main(args: argparse.Namespace) -> int:
     """Run the sweep; exit 0 when complete, 3 when incomplete, 1 when a fault stopped it, 130 when interrupted."""
     from batch import Journal, describe_event
-    from envs.execution.evaluate import journal_run
-    from envs.execution.figures import plot_success_map
-    from envs.execution.sweep import SweepAxes, sweep, sweep_cells, sweep_run
+    from envs.evaluation.evaluate import journal_run
+    from envs.media.figures import plot_success_map
+    from envs.evaluation.sweep import SweepAxes, sweep, sweep_cells, sweep_run
 
     axes = SweepAxes(**{name: parse_values(option, getattr(args, option[2:].replace("-", "_")), scale)
                         for name, (option, scale) in AXIS_OPTIONS.items()}, stiffness=parse_stiffness(args.stiffness))

@@ -6,7 +6,7 @@
     and, where episodes run, --time-limit-s T  --pos-range-mm P  --rot-range-deg A  --around mean|demo
 
 The task is --task's (a preset of envs/tasks/ or a TOML file; default: the contact preset) with each single option
-given replacing its field (envs.task.Task.override validates them, one line naming the field). Every option
+given replacing its field (envs.task.task.Task.override validates them, one line naming the field). Every option
 defaults to None ("not given"), so a command can tell an explicit choice from the task's value.
 """
 
@@ -16,8 +16,8 @@ import argparse
 from typing import Any
 
 from envs.errors import EnvError
-from envs.perturbation import HOLE_OBSERVATIONS
-from envs.task import AROUND, DEFAULT_PRESET, PRESET_NAMES, Task, load_task
+from envs.task.perturbation import HOLE_OBSERVATIONS
+from envs.task.task import AROUND, DEFAULT_PRESET, PRESET_NAMES, Task, load_task
 from scripts.options import number
 
 OPTION_FIELDS: dict[str, tuple[str, float | None]] = {
@@ -39,7 +39,7 @@ OPTION_FIELDS: dict[str, tuple[str, float | None]] = {
     "rot_range_deg": ("rot_range_deg", 1.0),
     "around": ("around", None),
 }
-"""Option (argparse dest) -> the task field it sets (envs.task.Task.override) and the scale to the field's unit."""
+"""Option (argparse dest) -> the task field it sets (envs.task.task.Task.override) and the scale to the field's unit."""
 
 
 def add_task_file_arguments(group: Any) -> None:
@@ -153,9 +153,9 @@ def check_option_value(task: Task, option: str, given: Any, name: str, value: An
 
 
 def scene_from_task(args: argparse.Namespace) -> tuple[str, ...]:
-    """The scene fields (envs.execution.config.SCENE_FROM_TASK) an evaluation takes from the task instead of the
+    """The scene fields (envs.evaluation.config.SCENE_FROM_TASK) an evaluation takes from the task instead of the
     demos: all of them when --task or --preset names the task, else those whose option was given."""
-    from envs.execution.config import SCENE_FROM_TASK
+    from envs.evaluation.config import SCENE_FROM_TASK
 
     if getattr(args, "task", None) is not None or getattr(args, "preset", None) is not None:
         return SCENE_FROM_TASK

@@ -2,7 +2,7 @@
 
 Writes a checkpoint directory (rflow.skill_io): the models (weights.pt, loaded with weights_only=True, and
 model.json with normalisation and goal), skill.json (demo metadata: shape, clearance, SHA-256 of the demo
-file, demo start poses, the demos' task (envs/task.py, versioned: the one the demo file records, else the default
+file, demo start poses, the demos' task (envs/task/task.py, versioned: the one the demo file records, else the default
 task, with the demos' scene), training config and loss history), demos.npz (a subsampled copy of the demos for
 figures, with the demos' stiffness for a stiffness skill) and loss.png. Built in DIR.tmp-XXXX and renamed into place.
 """
@@ -170,7 +170,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     demo's (rflow.skill_io.stiffness_reproduction). With ``workers`` >= 2 the separate models train in
     parallel processes (`rflow.fit_processes`), to the same weights. Demos that end apart (a demo file with
     ``ends_apart``, e.g. from `pih demos --noise` or `--import --ends-apart`) are learned each relative to its own end
-    (`envs.demo_file.anchored_at_goal`), the skill's goal being their mean end.
+    (`envs.demos.file.anchored_at_goal`), the skill's goal being their mean end.
 
     Returns:
         The checkpoint directory.
@@ -181,8 +181,8 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
         RFlowError: ``out`` holds something other than a checkpoint, or a checkpoint without ``overwrite``
             (checked before training); training failures, bad subsampling, stiffness outside ``bounds``.
     """
-    from envs.demo_file import anchored_at_goal, load_demos
-    from envs.execution.figures import plot_loss
+    from envs.demos.file import anchored_at_goal, load_demos
+    from envs.media.figures import plot_loss
     from rflow.skill_io import check_checkpoint_target, file_sha256, fit_pose_skill, save_skill, stiffness_reproduction, subsample as take_every
     cfg = skill_train_config() if config is None else config
     check_checkpoint_target(out, overwrite)
@@ -240,9 +240,9 @@ def demos_task(demos: Any, demos_path: str | Path) -> Any:
             recorded task, ...).
     """
     from envs.errors import EnvError
-    from envs.execution.evaluate import EvaluationConfig, scene_config_for
+    from envs.evaluation.evaluate import EvaluationConfig, scene_config_for
     from envs.poses import Pose
-    from envs.task import Task
+    from envs.task.task import Task
 
     scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None
     metadata = {"shape": demos.shape, "clearance_m": demos.clearance_m, "scene": scene}
@@ -257,7 +257,7 @@ def demos_task(demos: Any, demos_path: str | Path) -> Any:
 
 def main(args: argparse.Namespace) -> int:
     """Run `pih train`."""
-    from envs.output import check_output
+    from envs.io.owned_output import check_output
 
     wall = time.perf_counter()
     bounds = StiffnessBounds(args.k_min_n_m, args.k_max_n_m)

@@ -1,5 +1,5 @@
 """The closed loop's per-period arithmetic as Python computed it before it was compiled
-(envs.execution.closed_loop_kernel): the reference that tests/test_closed_loop_kernel.py holds the kernels to, bit for
+(envs.policies.closed_loop_kernel): the reference that tests/test_closed_loop_kernel.py holds the kernels to, bit for
 bit. `ReferenceAdapter` is the former `ContactAdapter`; `reference_query` and `reference_action` are the former
 `ClosedLoopPolicy._query` and the pose, twist and acceleration part of `ClosedLoopPolicy._complete`."""
 
@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from envs.execution.adaptation import ContactAdaptation
+from envs.policies.adaptation import ContactAdaptation
 from envs.poses import quat_conj, quat_from_rotvec_one, quat_mul, quat_mul_one, quat_to_rotvec_one, rotate
-from envs.execution.policy import on_goal_hemisphere, pose_twist
+from envs.policies.flow_skill import on_goal_hemisphere, pose_twist
 from numerics.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]

@@ -4,10 +4,9 @@ trained skill that the slow physics tests share."""
 
 import os
 
-from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch
+from numerics.cpu_dispatch import pin_cpu_dispatch
 
 pin_cpu_dispatch()  # first, before any test module imports numpy or torch: the arithmetic `pih` runs
-check_numpy_dispatch()
 
 import pytest  # noqa: E402
 
@@ -19,15 +18,14 @@ def paper_checkpoint(tmp_path_factory):
     """A small RiemannianFlow skill in the paper's setting (the "paper" preset: grasped peg, 1 mm clearance, the
     hole where the demos ended), trained once per session: 7 scripted demos of 400 samples, 40 epochs. It seats
     20 of 20 closed-loop starts of seed 1 (tests/test_end_to_end.py)."""
-    from envs.demo_file import save_demos
-    from envs.demos import collect_demos
-    from envs.expert import ExpertConfig
-    from envs.scene_config import SceneConfig
-    from envs.task import preset
+    from envs.demos.file import save_demos
+    from envs.demos.record import collect_demos
+    from envs.policies.expert_plan import ExpertConfig
+    from envs.task.task import preset
     from scripts.train import skill_train_config, train_skill
 
     folder = tmp_path_factory.mktemp("paper_skill")
-    demos = collect_demos(7, seed=0, scene_config=SceneConfig.from_task(preset("paper")),
+    demos = collect_demos(7, seed=0, scene_config=preset("paper").scene_config(),
                           expert=ExpertConfig(num_samples=400)).demos
     path = save_demos(folder / "demos.npz", demos)
     return train_skill(path, folder / "model", skill_train_config(epochs=40), subsample=1, progress=False)

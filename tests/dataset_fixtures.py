@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from envs.datasets.features import episodes_from_demos
-from envs.demo_file import DemoSet
-from envs.demo_import import RecordedDemos
+from envs.demos.file import DemoSet
+from envs.demos.importing import RecordedDemos
 from stiffness_fixtures import stiffness_demos
 
 

@@ -6,7 +6,7 @@ from typing import Iterator
 
 import numpy as np
 
-from envs.env import PegInHoleEnv
+from envs.sim.env import PegInHoleEnv
 from envs.poses import Pose
 
 

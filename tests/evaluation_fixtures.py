@@ -6,8 +6,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from envs.execution.episode import EpisodeRecord
-from envs.perturbation import PerturbationRanges, sample_perturbation
+from envs.rollout.episode import EpisodeRecord
+from envs.task.perturbation import PerturbationRanges, sample_perturbation
 
 TIME_LIMIT_S = 20.0
 TARGET_DEPTH_M = 0.03

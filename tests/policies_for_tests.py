@@ -1,5 +1,5 @@
 """Small policies written for the tests of `pih evaluate --policy` (tests/test_evaluate_policy.py): factories called as
-``factory(task, **options)`` (envs.execution.evaluate_policy), and factories that break each rule once."""
+``factory(task, **options)`` (envs.evaluation.evaluate_policy), and factories that break each rule once."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from envs.execution.policy_protocol import Action, Observation, PolicyTask
+from envs.policies.interface import Action, Observation, PolicyTask
 from envs.geometry import quat_to_mat
 from envs.poses import Pose, slerp
 

@@ -38,7 +38,7 @@ def trace_sha256(trace: Any) -> str:
 
 def skill_fingerprint(skill: Any) -> list[float]:
     """Where the tiny skill's flow takes one fixed pose 50 ms ahead: equal only if it trained to the same weights."""
-    from envs.execution.policy import skill_step
+    from envs.policies.flow_skill import skill_step
     from skill_fixtures import GOAL_POS, GOAL_QUAT
 
     pos, quat = skill_step(skill, GOAL_POS + np.array([0.01, -0.02, 0.1]), GOAL_QUAT, 0.05)
@@ -47,11 +47,11 @@ def skill_fingerprint(skill: Any) -> list[float]:
 
 def record_cases() -> dict[str, Any]:
     """{"fingerprint": ..., "episodes": [{"mode", "stiffness", "record" (without wall_s), "trace_sha256"}, ...]}."""
-    from envs.env import EpisodeConfig, PegInHoleEnv
-    from envs.execution.episode import run_episode
-    from envs.execution.evaluate import sample_starts
-    from envs.execution.policy import StiffnessSetting, make_policy
-    from envs.perturbation import PerturbationRanges
+    from envs.sim.env import EpisodeConfig, PegInHoleEnv
+    from envs.rollout.episode import run_episode
+    from envs.evaluation.evaluate import sample_starts
+    from envs.policies.flow_skill import StiffnessSetting, make_policy
+    from envs.task.perturbation import PerturbationRanges
     from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 
     skill = tiny_skill()

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.demo_file import DemoSet, save_demos
+from envs.demos.file import DemoSet, save_demos
 from envs.poses import quat_from_rotvec, quat_mul, slerp
 from rflow.skill_io import PoseSkill, fit_pose_skill
 from rflow.model import ModelConfig

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.demo_file import DemoSet, save_demos
-from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
+from envs.demos.file import DemoSet, save_demos
+from envs.policies.stiffness_schedule import StiffnessSchedule, expert_stiffness
 from rflow.model import ModelConfig
 from rflow.skill_io import PoseSkill, fit_pose_skill
 from rflow.train import TrainConfig

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from controllers.errors import ControllerError
-from envs.env import PegInHoleEnv
+from envs.sim.env import PegInHoleEnv
 from envs.errors import EnvError
-from envs.execution.episode import StartPose, run_episode
-from envs.execution.policy_protocol import Action
+from envs.rollout.episode import StartPose, run_episode
+from envs.policies.interface import Action
 from envs.gym_env import ENV_ID
-from envs.instability import InstabilityCheck
+from envs.sim.instability import InstabilityCheck
 from envs.poses import Pose
 
 

@@ -237,7 +237,7 @@ def test_config_is_validated():
 def test_an_evaluation_sends_the_cpu_dispatch_to_a_clusters_workers():
     """The settings rflow pins are read when a process starts: a cluster's actors get the driver's
     (`batch.BatchConfig.worker_environment`), or their records would depend on how their node was started."""
-    from envs.execution.config import EvaluationConfig
+    from envs.evaluation.config import EvaluationConfig
     from numerics.cpu_dispatch import DISPATCH_VARIABLES, PINNED_ENVIRONMENT
 
     assert set(PINNED_ENVIRONMENT) < set(EvaluationConfig().batch_config().worker_environment) == set(DISPATCH_VARIABLES)

@@ -59,7 +59,7 @@ def test_the_physics_bound_is_the_evaluations_steps_over_its_workers_physics_rat
 
 
 def test_timing_the_episode_physics_leaves_the_episode_alone() -> None:
-    from envs.env import PegInHoleEnv
+    from envs.sim.env import PegInHoleEnv
 
     env = PegInHoleEnv()
     env.reset(seed=0)

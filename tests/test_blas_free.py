@@ -18,8 +18,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("envs", "controllers", "rflow")
 NOT_ON_THE_RECORD_PATH: dict[str, str] = {
-    "envs/video.py": "renders frames",
-    "envs/execution/figures.py": "draws figures",
+    "envs/media/video.py": "renders frames",
+    "envs/media/figures.py": "draws figures",
     "controllers/timing.py": "times the controller",
     "rflow/bench.py": "times the flow",
     "rflow/dynamics.py": "torch only (its kernels pinned by numerics.cpu_dispatch)",

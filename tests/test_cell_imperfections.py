@@ -1,4 +1,4 @@
-"""The imperfections of the cell (envs.perturbation, envs.model_error, the in-hand pose of envs.env) have the physical
+"""The imperfections of the cell (envs.task.perturbation, envs.sim.model_error, the in-hand pose of envs.sim.env) have the physical
 effect they model: an in-hand offset and tilt stay in the grasp, a payload error sags the arm by e m g / K and shows
 on the zeroed wrist sensor, joint friction stops a compliant arm short of its target."""
 
@@ -9,12 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
-from envs.perturbation import Perturbation
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
+from envs.task.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
 from envs.poses import quat_conj, quat_mul, quat_to_rotvec
 from numerics.quaternion import quat_to_mat
 
@@ -166,19 +166,19 @@ def test_torque_noise_is_delivered_by_the_joints_and_jitters_a_held_arm(env) -> 
 
 
 def test_the_realistic_preset_is_the_contact_task_with_every_imperfection() -> None:
-    from envs.execution.sensitivity import IMPERFECTIONS, realistic
-    from envs.task import Task, preset
+    from envs.evaluation.sensitivity import IMPERFECTIONS, realistic
+    from envs.task.task import Task, preset
 
     assert preset("realistic") == realistic(preset("contact"))
     assert preset("contact") == Task()
     for name in IMPERFECTIONS:  # each imperfection changes the task (none is a no-op at its magnitude)
-        from envs.execution.sensitivity import with_imperfection
+        from envs.evaluation.sensitivity import with_imperfection
         assert with_imperfection(Task(), name) != Task()
 
 
 def test_the_policy_sees_the_hole_where_the_cell_believes_it(env) -> None:
     """An observation error moves what the policy is told (nominal_hole, nominal_goal), not the real hole."""
-    from envs.execution.policy_protocol import observe
+    from envs.policies.interface import observe
 
     start = _above(env)
     env.reset(start_pose=start, perturbation=Perturbation(hole_dx_m=0.0005))
@@ -199,8 +199,8 @@ def test_a_measured_hole_observation_is_the_true_hole_moved_by_the_sensor_error(
     "nominal" tells it the nominal hole, whatever the true one."""
     from dataclasses import replace
 
-    from envs.execution.policy_protocol import observe
-    from envs.perturbation import PerturbationRanges
+    from envs.policies.interface import observe
+    from envs.task.perturbation import PerturbationRanges
 
     measured = PegInHoleEnv(scene=build_scene(SceneConfig()), episode_config=EpisodeConfig(
         time_limit_s=5.0, perturbations=PerturbationRanges(hole_observation="measured")))
@@ -224,7 +224,7 @@ def test_a_measured_hole_observation_is_the_true_hole_moved_by_the_sensor_error(
 
 
 def test_the_observation_tilt_is_drawn_within_its_bound_and_only_with_an_observation_error() -> None:
-    from envs.perturbation import PerturbationRanges, sample_perturbation
+    from envs.task.perturbation import PerturbationRanges, sample_perturbation
 
     rng = np.random.default_rng(3)
     draws = [sample_perturbation(PerturbationRanges(hole_observation_error_m=0.001, hole_observation_error_deg=0.3,
@@ -245,7 +245,7 @@ def test_the_observation_tilt_leaves_the_episode_noise_as_it_was() -> None:
     the noise it read before; the other fields still tell episodes apart."""
     from dataclasses import replace
 
-    from envs.wrist_sensor import episode_generator
+    from envs.sim.sensor_reading import episode_generator
 
     episode = Perturbation(hole_dx_m=0.0004, observed_hole_yaw_deg=0.3, actuator_noise_nm=0.05)
     first = episode_generator(episode).random(4)
@@ -259,7 +259,7 @@ def test_a_payload_error_updates_the_constants_mujoco_derives_from_the_masses(en
     10 of 300 realistic episodes blew up on the peg's free joint), and the nominal mass restores the compiled ones."""
     import mujoco
 
-    from envs.model_error import MASS_CONSTANTS
+    from envs.sim.model_error import MASS_CONSTANTS
 
     model, peg = env.model, env.scene.ids.peg_body
     env.model_error.apply(Perturbation())
@@ -279,10 +279,10 @@ def test_a_payload_error_updates_the_constants_mujoco_derives_from_the_masses(en
 
 def test_every_imperfection_a_record_writes_is_one_a_paired_comparison_may_add() -> None:
     """A record writes an imperfection's key only where it is set (Perturbation.to_dict), so pairing one side with
-    an imperfection against one without must allow exactly those keys (envs.execution.pairing.IMPERFECTION_KEYS)."""
+    an imperfection against one without must allow exactly those keys (envs.statistics.pairing.IMPERFECTION_KEYS)."""
     from dataclasses import fields
 
-    from envs.execution.pairing import IMPERFECTION_KEYS
+    from envs.statistics.pairing import IMPERFECTION_KEYS
 
     plain = Perturbation(hole_dx_m=0.001, hole_yaw_deg=0.5, hole_tilt_deg=0.2, hole_tilt_dir_deg=10.0,
                          grasp_offset_m=0.001)

@@ -1,6 +1,6 @@
 """Every `pih` command refuses bad input and unsafe outputs before any work, with one line and exit 2, touching
 nothing; an operating-system error while writing (a full disk, a read-only folder) is one line and exit 1
-and leaves no half-written output (envs/output.py on pihutil/atomic.py, scripts/options.py).
+and leaves no half-written output (envs/io/owned_output.py on pihutil/atomic.py, scripts/options.py).
 
 Each case: the command line (``{tmp}`` is the case's folder, which holds a checkpoint ``model/``, a demo
 file ``demos.npz`` and whatever the case prepares), the files to prepare, the exit status and a fragment of

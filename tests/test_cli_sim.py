@@ -9,9 +9,9 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from envs.demo_file import DemoSet, load_demos, save_demos
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
+from envs.demos.file import DemoSet, load_demos, save_demos
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
 from scripts.cli import main
 
 

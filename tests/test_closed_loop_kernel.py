@@ -1,4 +1,4 @@
-"""The compiled closed-loop arithmetic (envs.execution.closed_loop_kernel) equals, bit for bit, the Python it
+"""The compiled closed-loop arithmetic (envs.policies.closed_loop_kernel) equals, bit for bit, the Python it
 replaced (tests/closed_loop_reference.py): the contact adaptation's state along random episodes near the hole (push,
 seat push, stall search, frame shift and turn, sensing), and the query and action of the closed loop from random
 flow poses, turned and not, at speeds other than 1."""
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from closed_loop_reference import ReferenceAdapter, reference_action, reference_query
-from envs.execution import closed_loop_kernel as kernel
-from envs.execution.adaptation import ContactAdaptation, ContactAdapter
+from envs.policies import closed_loop_kernel as kernel
+from envs.policies.adaptation import ContactAdaptation, ContactAdapter
 from envs.poses import quat_from_rotvec, quat_mul, rotate
 
 GOAL = np.array([0.5, 0.02, 0.18])

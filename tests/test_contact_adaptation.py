@@ -1,4 +1,4 @@
-"""The closed-loop contact adaptation (envs.execution.adaptation): the axial push builds up while the peg is
+"""The closed-loop contact adaptation (envs.policies.adaptation): the axial push builds up while the peg is
 held and leaks away, the frame yields to a sideways motion or a rotation the walls refuse only near the goal, all
 are bounded, and the policy queries the flow in the shifted and turned frame."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.adaptation import ContactAdaptation, ContactAdapter
-from envs.execution.policy import ClosedLoopPolicy, skill_step
+from envs.policies.adaptation import ContactAdaptation, ContactAdapter
+from envs.policies.flow_skill import ClosedLoopPolicy, skill_step
 from envs.poses import Pose, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 

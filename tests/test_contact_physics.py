@@ -4,13 +4,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.contact import ContactConfig
+from envs.cell.contact import ContactConfig
 from envs.geometry import R_FLIP_X, rot_z
 from numerics.quaternion import mat_to_quat, quat_to_mat
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
-from envs.shapes import PEG_LENGTH_M, SHAPES, peg_cross_section
-from envs.success import SuccessConfig, assess_insertion
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
+from envs.cell.shapes import PEG_LENGTH_M, SHAPES, peg_cross_section
+from envs.task.success import SuccessConfig, assess_insertion
 
 PUSH_N = 30.0
 MAX_PENETRATION_M = 1e-4  # the task asks < 1 mm; these contacts do far better (~1e-7 m measured)
@@ -136,7 +136,7 @@ def test_dropped_peg_is_scored_in_its_hole(sim):
 
 def _grasp_drift_mm(shape: str, noslip_iterations: int, periods: int = 150) -> float:
     """|peg_tip - tcp| change (mm) of a grasped peg while the arm holds its start pose for ``periods`` x 10 ms."""
-    from envs.env import PegInHoleEnv
+    from envs.sim.env import PegInHoleEnv
 
     env = PegInHoleEnv(SceneConfig(shape=shape, contact=ContactConfig(noslip_iterations=noslip_iterations)))
     obs = env.reset(start_pose=env.sample_start(np.random.default_rng(0)))

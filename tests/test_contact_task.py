@@ -7,14 +7,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
-from envs.observation import REASON_FORCE_LIMIT
-from envs.perturbation import Perturbation
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
+from envs.sim.observation import REASON_FORCE_LIMIT
+from envs.task.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
-from envs.shapes import PEG_LENGTH_M
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
+from envs.cell.shapes import PEG_LENGTH_M
 
 
 @pytest.fixture(scope="module")

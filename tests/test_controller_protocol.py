@@ -11,11 +11,11 @@ import pytest
 
 from controllers.impedance import CartesianImpedanceController
 from controllers.interface import Controller
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
 
 
 class JointHold:

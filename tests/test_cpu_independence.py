@@ -23,8 +23,8 @@ sys.path.insert(0, {tests!r})
 import numerics  # first, as pih does: numpy then loads with the pinned loops
 from skill_fixtures import tiny_skill
 from rflow.skill_io import save_skill
-from envs.execution.evaluate import EvaluationConfig, evaluate
-from envs.task import Task
+from envs.evaluation.evaluate import EvaluationConfig, evaluate
+from envs.task.task import Task
 import torch
 out = Path(sys.argv[1])
 save_skill(out / "model", tiny_skill())

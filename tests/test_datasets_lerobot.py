@@ -18,7 +18,7 @@ from envs.datasets.features import ExportEpisode, FEATURES, evaluation_meta
 from envs.datasets.frame_sample import FrameSample
 from envs.datasets.lerobot import LeRobotVideo, read_lerobot, video_file, video_key, write_lerobot
 from envs.errors import EnvError
-from envs.video import Mp4Writer
+from envs.media.video import Mp4Writer
 
 
 def export_demos(root: Path) -> tuple[Any, dict[str, Any]]:

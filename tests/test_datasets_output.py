@@ -1,4 +1,4 @@
-"""envs.datasets.output: the export folder is staged and renamed; only an export of ours is replaced."""
+"""envs.datasets.export_folder: the export folder is staged and renamed; only an export of ours is replaced."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from envs.datasets.features import MARKER_FILE
-from envs.datasets.output import staged_folder
+from envs.datasets.export_folder import staged_folder
 from envs.errors import EnvError
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from envs.demo_file import DemoSet, load_demos, save_demos
+from envs.demos.file import DemoSet, load_demos, save_demos
 from envs.errors import EnvError
 from envs.poses import quat_from_rotvec, quat_mul, slerp
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from envs.demo_file import GOAL_TOL_M, load_demos
-from envs.demo_import import FRANKA_TCP, parse_tool_offset
+from envs.demos.file import GOAL_TOL_M, load_demos
+from envs.demos.importing import FRANKA_TCP, parse_tool_offset
 from envs.errors import EnvError
 from envs.poses import quat_angle_rad, quat_from_rotvec, quat_mul, slerp
-from envs.scene import nominal_flange_to_peg_tip
+from envs.cell.scene import nominal_flange_to_peg_tip
 from scripts.cli import main
 
 GOAL_POS = np.array([0.675, -0.051, 0.203])
@@ -332,7 +332,7 @@ def test_parse_tool_offset_takes_a_unit_quaternion_and_refuses_others() -> None:
 def recorded_with_stiffness(end_scale: float = 1.0) -> tuple[object, object]:
     """Stiffness demos as import input in the tcp frame; demo 1's stiffness scaled by ``end_scale`` over its last
     quarter (so that it ends off the common goal stiffness unless end_scale == 1)."""
-    from envs.demo_import import RecordedDemos
+    from envs.demos.importing import RecordedDemos
     from stiffness_fixtures import stiffness_demos
 
     demos = stiffness_demos(n=3, m=40)
@@ -343,7 +343,7 @@ def recorded_with_stiffness(end_scale: float = 1.0) -> tuple[object, object]:
 
 
 def import_tcp(recorded: object, snap: bool = False) -> object:
-    from envs.demo_import import ImportConfig, import_demos
+    from envs.demos.importing import ImportConfig, import_demos
     from envs.poses import Pose
 
     grasp = Pose(*nominal_flange_to_peg_tip("square"))
@@ -359,7 +359,7 @@ def test_stiffness_is_carried_through_an_import() -> None:
 
 
 def test_stiffness_off_the_common_goal_fails_unless_snapped(tmp_path: Path) -> None:
-    from envs.demo_file import save_demos
+    from envs.demos.file import save_demos
 
     _, recorded = recorded_with_stiffness(end_scale=1.1)
     with pytest.raises(EnvError, match="demo 1: 0.000 mm / 0.000 deg / stiffness 0.065 relative"):

@@ -1,4 +1,4 @@
-"""envs.demo_noise and demos that end apart: the final-pose scatter has exactly the asked root-mean-square and is a
+"""envs.demos.noise and demos that end apart: the final-pose scatter has exactly the asked root-mean-square and is a
 rigid move of each demo's target on its approach (so anchoring each demo at its own end gives one clean approach
 back); the bow, the jitter and the sensor noise have their sizes; the goal is the mean end; the file keeps it all;
 `pih train` learns such demos relative to their own ends; bad specifications are one-line errors."""
@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from envs.demo_file import DemoSet, anchored_at_goal, load_demos, save_demos, validate_demos
-from envs.demo_noise import MOUTH_MARGIN_M, DemoNoise, _approach, add_demo_noise
+from envs.demos.file import DemoSet, anchored_at_goal, load_demos, save_demos, validate_demos
+from envs.demos.noise import MOUTH_MARGIN_M, DemoNoise, _approach, add_demo_noise
 from envs.errors import EnvError
 from envs.poses import quat_angle_rad, quat_conj, quat_mul
 from numerics.quaternion import quat_to_mat

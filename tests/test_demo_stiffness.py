@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from envs.demo_file import load_demos, save_demos
+from envs.demos.file import load_demos, save_demos
 from envs.errors import EnvError
 from scripts.cli import main
 from stiffness_fixtures import stiffness_demos
@@ -79,7 +79,7 @@ def test_loading_a_demo_file_runs_no_compiled_kernel(tmp_path):
             "def refuse(self, *args, **kwargs):\n"
             "    raise AssertionError(f'numba kernel {self.py_func.__qualname__} ran')\n"
             "dispatcher.Dispatcher._compile_for_args = refuse\n"
-            "from envs.demo_file import load_demos\n"
+            "from envs.demos.file import load_demos\n"
             f"print(load_demos({str(path)!r}).num_demos)\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]

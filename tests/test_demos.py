@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import envs.demos as demos_module
-from envs.demo_file import load_demos, save_demos
-from envs.demos import (
+import envs.demos.record as demos_module
+from envs.demos.file import load_demos, save_demos
+from envs.demos.record import (
     DemoAttempt,
     collect_demos,
     demo_episode_config,
@@ -17,12 +17,12 @@ from envs.demos import (
     finalize_demo,
     scene_config_from_demos,
 )
-from envs.expert import ExpertConfig, plan_expert_path
-from envs.env import PegInHoleEnv
+from envs.policies.expert_plan import ExpertConfig, plan_expert_path
+from envs.sim.env import PegInHoleEnv
 from envs.errors import EnvError
 from controllers.impedance import full_stiffness
 from envs.poses import Pose, StartRegion, quat_angle_rad, quat_from_rotvec, quat_mul, rotate
-from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
+from envs.policies.stiffness_schedule import StiffnessSchedule, expert_stiffness
 
 OPENING = np.array([0.6, 0.0, 0.2])
 AXIS = np.array([0.0, 0.0, 1.0])

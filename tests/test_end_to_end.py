@@ -15,8 +15,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from envs.execution.evaluate import EvaluationConfig, evaluate
-from envs.task import preset
+from envs.evaluation.evaluate import EvaluationConfig, evaluate
+from envs.task.task import preset
 from rflow.skill_io import load_skill, save_skill
 
 pytestmark = pytest.mark.slow  # trains a model (the paper_checkpoint fixture of conftest.py) and runs physics episodes
@@ -50,8 +50,8 @@ def test_goal_shifted_skill_is_scored_as_failing(paper_checkpoint, tmp_path):
 def test_a_skill_that_follows_the_measured_hole_seats_where_the_bare_flow_misses(paper_checkpoint):
     """The hole 3-4 mm and up to 1 deg off the demos' (1 mm clearance, no chamfer), the contact adaptation off: the
     bare flow lands beside it; run in the frame of the hole a sensor measured (without error), it seats."""
-    from envs.execution.starts import evaluation_starts
-    from envs.perturbation import Perturbation
+    from envs.evaluation.starts import evaluation_starts
+    from envs.task.perturbation import Perturbation
 
     task = PAPER.override(hole_observation="measured", pos_range_m=0.02, rot_range_deg=5.0, time_limit_s=15.0)
     config = EvaluationConfig(episodes=4, seed=1, workers=2, task=task, contact_adaptation=False)

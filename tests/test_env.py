@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
-from envs.observation import REASON_INSTABILITY, REASON_TIME_LIMIT
-from envs.trajectory import replay_trajectory
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
+from envs.sim.observation import REASON_INSTABILITY, REASON_TIME_LIMIT
+from envs.sim.trajectory import replay_trajectory
 from envs.errors import EnvError
 from envs.poses import Pose, quat_from_rotvec, quat_mul
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""envs.execution.evaluate: start sampling, episode records and the batch runner (tiny skills)."""
+"""envs.evaluation.evaluate: start sampling, episode records and the batch runner (tiny skills)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.execution.evaluate import (
+from envs.evaluation.evaluate import (
     EpisodeRecord,
     EvaluationConfig,
     StartPose,
@@ -19,13 +19,13 @@ from envs.execution.evaluate import (
     run_episode,
     scene_config_for,
 )
-from envs.execution.result import EvaluationResult
-from envs.execution.starts import sample_starts
-from envs.execution.statistics import wilson_interval
-from envs.perturbation import Perturbation
+from envs.evaluation.result import EvaluationResult
+from envs.evaluation.starts import sample_starts
+from envs.statistics.fixed_sample import wilson_interval
+from envs.task.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
-from envs.task import Task
-from envs.execution.policy import ClosedLoopPolicy, StiffnessSetting
+from envs.task.task import Task
+from envs.policies.flow_skill import ClosedLoopPolicy, StiffnessSetting
 from rflow.skill_io import save_skill
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 

@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 
 from batch import Journal
-from envs.execution.evaluate import EvaluationConfig, evaluate, journal_run
-from envs.task import Task, preset
+from envs.evaluation.evaluate import EvaluationConfig, evaluate, journal_run
+from envs.task.task import Task, preset
 from rflow.skill_io import save_skill
 from scripts.cli import main as pih
 from batch_units import worker_processes
@@ -152,7 +152,7 @@ def test_sigkill_of_a_worker_changes_no_episode_and_is_listed(model, tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, stderr
     data = without_wall_times(json.loads(out.read_text()))
-    assert data.pop("pih")["command"] == "evaluate"  # the file's marker (envs/output.py), not in to_dict
+    assert data.pop("pih")["command"] == "evaluate"  # the file's marker (envs/io/owned_output.py), not in to_dict
     undisturbed = without_wall_times(evaluate(model, EvaluationConfig(episodes=8, task=Task(time_limit_s=1.0),
                                                                       workers=2), progress=False).to_dict())
     (event,) = data.pop("infrastructure_events")
@@ -215,8 +215,8 @@ def test_a_resumed_evaluation_counts_the_wall_time_of_the_earlier_part(model, tm
 def test_a_fault_is_one_error_line_with_the_resume_command_and_exit_1(model, tmp_path, capsys, monkeypatch):
     """A batch stopped by a fault (the Ray head lost) ends `pih evaluate` with exit 1, the fault on one line
     and how to resume; the summary counts the workers that ran, not the --workers asked for."""
-    import envs.execution.evaluate as evaluate_module
-    from envs.execution.result import EvaluationResult
+    import envs.evaluation.evaluate as evaluate_module
+    from envs.evaluation.result import EvaluationResult
 
     def lost_head(model_dir, config, progress=True, journal=None):
         return EvaluationResult(config, [], 1.0, str(model_dir), complete=False, workers=2,
@@ -257,8 +257,8 @@ def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(
     """`--adaptation-off` turns off the named parts (ContactAdaptation.without); all five are --no-contact-adaptation
     to the last bit of every record; an unknown part is a one-line error, exit 2, nothing written."""
     from envs.errors import EnvError
-    from envs.execution.adaptation import ADAPTATION_PARTS, ContactAdaptation
-    from envs.execution.evaluate import _policy_for
+    from envs.policies.adaptation import ADAPTATION_PARTS, ContactAdaptation
+    from envs.evaluation.evaluate import _policy_for
     from rflow.skill_io import load_skill
 
     full = ContactAdaptation()
@@ -298,7 +298,7 @@ def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(
 def test_forked_workers_run_on_the_context_built_before_the_fork(model, monkeypatch):
     """Forked evaluation workers take their copy of the environment and policy the evaluation built in this process
     (they do not build the scene and load the skill again), and their records are those of one process."""
-    from envs.execution import evaluate as evaluate_module
+    from envs.evaluation import evaluate as evaluate_module
 
     task = dataclasses.replace(preset("realistic"), time_limit_s=0.2)
     here = evaluate(model, EvaluationConfig(episodes=4, task=task, workers=1), progress=False)

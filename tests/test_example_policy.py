@@ -17,9 +17,9 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory) -> tuple[Path, Path]:
     """Two scripted demos (400 samples) and their LeRobot export."""
-    from envs.demo_file import save_demos
-    from envs.demos import collect_demos
-    from envs.expert import ExpertConfig
+    from envs.demos.file import save_demos
+    from envs.demos.record import collect_demos
+    from envs.policies.expert_plan import ExpertConfig
 
     folder = tmp_path_factory.mktemp("example")
     demos = save_demos(folder / "demos.npz", collect_demos(2, seed=0, expert=ExpertConfig(num_samples=400)).demos)
@@ -28,7 +28,7 @@ def exported(tmp_path_factory) -> tuple[Path, Path]:
 
 
 def test_the_example_reads_the_demos_back_from_the_parquet(exported, monkeypatch) -> None:
-    from envs.demo_file import load_demos
+    from envs.demos.file import load_demos
 
     monkeypatch.syspath_prepend(str(REPO))  # examples/ is not installed with the package
     from examples.nearest_demo_policy import read_demos

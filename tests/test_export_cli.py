@@ -9,7 +9,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from envs.demo_file import load_demos, save_demos
+from envs.demos.file import load_demos, save_demos
 from scripts.cli import main
 from stiffness_fixtures import stiffness_demos
 
@@ -90,9 +90,9 @@ def test_evaluation_episodes_are_exported_from_their_replay(tmp_path: Path) -> N
     an unreachable start is skipped; the video has a frame per row."""
     import json
 
-    from envs.execution.evaluate import EvaluationConfig, evaluate, replay_episodes
-    from envs.execution.starts import evaluation_starts
-    from envs.task import Task
+    from envs.evaluation.evaluate import EvaluationConfig, evaluate, replay_episodes
+    from envs.evaluation.starts import evaluation_starts
+    from envs.task.task import Task
     from rflow.skill_io import save_skill
     from skill_fixtures import tiny_skill
 

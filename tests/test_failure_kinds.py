@@ -1,4 +1,4 @@
-"""envs.execution.failure: a failed episode's record says what the peg did (jammed, free space, left the grasp, ...),
+"""envs.rollout.failure: a failed episode's record says what the peg did (jammed, free space, left the grasp, ...),
 judged from the simulated peg, with the thresholds of FailureCriteria."""
 
 from __future__ import annotations
@@ -6,16 +6,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
-from envs.execution.episode import StartPose, run_episode
-from envs.execution.failure import FailureCriteria, ProgressWindow
-from envs.execution.policy_protocol import Action, Observation
-from envs.execution.result import failure_kinds
-from envs.perturbation import Perturbation
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
+from envs.rollout.episode import StartPose, run_episode
+from envs.rollout.failure import FailureCriteria, ProgressWindow
+from envs.policies.interface import Action, Observation
+from envs.evaluation.result import failure_kinds
+from envs.task.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
 
 
 class HoldPose:
@@ -91,7 +91,7 @@ def test_the_window_tells_the_kinds_apart() -> None:
 
 
 def test_failures_are_counted_by_kind() -> None:
-    from envs.execution.episode import EpisodeRecord
+    from envs.rollout.episode import EpisodeRecord
 
     records = [EpisodeRecord(0, -1, [0.0] * 3, [1.0, 0, 0, 0], reason="time_limit (depth 0.9 mm)", failure="jammed"),
                EpisodeRecord(1, -1, [0.0] * 3, [1.0, 0, 0, 0], reason="wall_timeout"),

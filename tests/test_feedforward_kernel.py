@@ -1,4 +1,4 @@
-"""The compiled feed-forward lead (envs.execution.feedforward_kernel, behind `feedforward.led_pose`) equals, bit for
+"""The compiled feed-forward lead (envs.policies.feedforward_kernel, behind `feedforward.led_pose`) equals, bit for
 bit, the Python it replaced (`_reference_led_pose` below, the former `led_pose`: limits, `pose_lead`, push, the
 rotation vector onto the anchor), over random arm states, twists (under and over the limits, zero), accelerations,
 pushes, anchors, stiffnesses and gains."""
@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from controllers.errors import ControllerError
-from envs.env import PegInHoleEnv
+from envs.sim.env import PegInHoleEnv
 from envs.errors import EnvError
-from envs.execution import feedforward_kernel
-from envs.execution.feedforward import (MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_SPEED_RAD_S,
+from envs.policies import feedforward_kernel
+from envs.policies.feedforward import (MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_SPEED_RAD_S,
                                         MAX_SPEED_M_S, command_stiffness, led_pose)
-from envs.execution.policy_protocol import Action
+from envs.policies.interface import Action
 from env_states import wandering_states
 from envs.poses import Pose, quat_from_rotvec, quat_from_rotvec_one, quat_mul_one
 from numerics.small_linalg import norm

@@ -2,8 +2,8 @@
 
 import pytest
 
-from envs.execution.figures import outcome_kind, plot_outcomes, plot_protocol
-from envs.execution.protocol import ReplicateOutcome, summarise
+from envs.media.figures import outcome_kind, plot_outcomes, plot_protocol
+from envs.evaluation.benchmark import ReplicateOutcome, summarise
 
 
 def _record(success, reason, depth_mm, **perturbation):
@@ -38,7 +38,7 @@ def test_the_protocol_figure_draws_seeds_that_ran_and_skips_those_that_did_not(t
 def test_the_force_figure_draws_each_episode_and_the_limit(tmp_path):
     import numpy as np
 
-    from envs.execution.figures import plot_force_traces
+    from envs.media.figures import plot_force_traces
 
     t = np.linspace(0.0, 2.0, 201)
     traces = [("episode 0: success", True, t, 5.0 * t), ("episode 3: time_limit", False, t, 20.0 + 0.0 * t)]

@@ -1,4 +1,4 @@
-"""envs.friction: an episode's sampled frictions are the ones the physics uses -- read back from a sliding peg
+"""envs.sim.friction: an episode's sampled frictions are the ones the physics uses -- read back from a sliding peg
 and from the force at which the peg slips in the pads -- and sampling them leaves the rest of the episode's draws
 as they were."""
 
@@ -8,13 +8,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.perturbation import Perturbation, PerturbationRanges, sample_perturbation
+from envs.task.perturbation import Perturbation, PerturbationRanges, sample_perturbation
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
 from numerics.small_linalg import norm
 
 GRASP_FORCE_N = SceneConfig().grasp_force_n

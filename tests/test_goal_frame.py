@@ -1,4 +1,4 @@
-"""A policy run in the frame of the observed hole (envs.execution.goal_frame): the inner policy sees the observed goal
+"""A policy run in the frame of the observed hole (envs.policies.goal_frame): the inner policy sees the observed goal
 at its own goal, its commands come back moved by the same rigid motion, and without an observation everything passes
 unchanged."""
 
@@ -9,9 +9,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from envs.execution.goal_frame import GoalFramePolicy, RigidMotion
-from envs.execution.policy import ClosedLoopPolicy
-from envs.execution.policy_protocol import Action, Observation, PrivilegedState
+from envs.policies.goal_frame import GoalFramePolicy, RigidMotion
+from envs.policies.flow_skill import ClosedLoopPolicy
+from envs.policies.interface import Action, Observation, PrivilegedState
 from envs.poses import Pose, quat_from_rotvec, quat_mul, rotate
 from numerics.quaternion import quat_to_mat
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
@@ -119,7 +119,7 @@ def test_policies_in_moved_frames_answer_in_batches_as_they_do_alone() -> None:
 
 def test_the_evaluation_option_is_a_bool_and_reaches_the_config() -> None:
     from envs.errors import EnvError
-    from envs.execution.config import EvaluationConfig
+    from envs.evaluation.config import EvaluationConfig
     from scripts.cli import build_parser
     from scripts.evaluate import config_from_args
 

@@ -7,7 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.instability import InstabilityCheck
+from envs.sim.instability import InstabilityCheck
 
 ARM = slice(1, 3)  # dofs 1 and 2 are "the arm"; dof 0 is not checked for speed
 

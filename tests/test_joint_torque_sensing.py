@@ -1,4 +1,4 @@
-"""The joint-torque wrench sensing (envs.wrist_sensor, sensor_mode "joint_torque"): without sensor errors it reads the
+"""The joint-torque wrench sensing (envs.task.sensor_config, sensor_mode "joint_torque"): without sensor errors it reads the
 wrench the wrist sensor reads, pressed into the sorter and with joint friction (which sits before the link-side
 sensors and must not show); its noise maps through (J J^T)^-1 J as modelled; a payload error shows; the record
 keeps the true wrench."""
@@ -9,15 +9,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.execution.policy_protocol import observe
-from envs.perturbation import Perturbation
+from envs.policies.interface import observe
+from envs.task.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
-from envs.wrist_sensor import WristSensorConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
+from envs.task.sensor_config import WristSensorConfig
 
 GRAVITY_M_S2 = 9.81
 

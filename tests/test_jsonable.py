@@ -3,7 +3,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.jsonable import to_jsonable
+from envs.io.jsonable import to_jsonable
 
 
 @dataclass(frozen=True)

@@ -10,13 +10,13 @@ import pytest
 from controllers.impedance_kernel import pose_error_into
 from controllers.law_floor import (LAW_HELD_FACTORS, LAW_OF_RECORD, LAW_SPRING_DAMPER, reference_period,
                                    spring_damper_torque)
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
-from envs.period_kernel import controlled_period
-from envs.perturbation import Perturbation
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
+from envs.sim.period_kernel import controlled_period
+from envs.task.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
 
 
 @pytest.fixture(scope="module")

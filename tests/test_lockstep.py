@@ -1,4 +1,4 @@
-"""envs.execution.lockstep: episodes run side by side give the records, and the traces' poses, of the same episodes
+"""envs.rollout.lockstep: episodes run side by side give the records, and the traces' poses, of the same episodes
 run one at a time, to the last bit, whatever the number of slots, the order or the threads; the batched flow query
 (`ClosedLoopPolicy.act_many`) equals each policy's own ``act``; an error ends only its own episode; slots that
 share a model are refused. Physics episodes of the tiny skill, 45 mm above the goal with a 1 mm / 1 deg hole error
@@ -9,14 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.env import EpisodeConfig, PegInHoleEnv
+from envs.sim.env import EpisodeConfig, PegInHoleEnv
 from envs.errors import EnvError
-from envs.execution.episode import EpisodeRun, StartPose, run_episode
-from envs.execution.evaluate import sample_starts
-from envs.execution.lockstep import act_for, run_lockstep
-from envs.execution.policy import ClosedLoopPolicy, StiffnessSetting, make_policy
-from envs.execution.policy_protocol import observe
-from envs.perturbation import PerturbationRanges
+from envs.rollout.episode import EpisodeRun, StartPose, run_episode
+from envs.evaluation.evaluate import sample_starts
+from envs.rollout.lockstep import act_for, run_lockstep
+from envs.policies.flow_skill import ClosedLoopPolicy, StiffnessSetting, make_policy
+from envs.policies.interface import observe
+from envs.task.perturbation import PerturbationRanges
 from envs.poses import Pose
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 

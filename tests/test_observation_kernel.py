@@ -1,5 +1,5 @@
-"""The compiled read of an observation (envs.observation_kernel) equals, bit for bit, the reads it replaced: the three
-site poses by mju_mat2Quat through the bindings (`envs.observation.site_pose`), the peg tip's rotation matrix by
+"""The compiled read of an observation (envs.sim.observation_kernel) equals, bit for bit, the reads it replaced: the three
+site poses by mju_mat2Quat through the bindings (`envs.sim.observation.site_pose`), the peg tip's rotation matrix by
 `numerics.quaternion.quat_to_mat` and its speed by mj_objectVelocity (`Observer.peg_speed_m_s`), over the states of
 episodes moved by random commands; and it says so when the peg tip's pose is not finite."""
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from controllers.mujoco_c import FUNCTIONS
-from envs import observation_kernel as kernel
-from envs.env import PegInHoleEnv
-from envs.observation import site_pose
+from envs.sim import observation_kernel as kernel
+from envs.sim.env import PegInHoleEnv
+from envs.sim.observation import site_pose
 from env_states import wandering_states
 from numerics.quaternion import quat_to_mat
 

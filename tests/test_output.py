@@ -1,4 +1,4 @@
-"""envs.output: a failed write leaves the earlier file and no temporary one; pih's own outputs are recognised by
+"""envs.io.owned_output: a failed write leaves the earlier file and no temporary one; pih's own outputs are recognised by
 their marker (and a registered file no longer once changed); JSON is strict; a cut MP4 is not whole."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from envs.output import is_own_output, save_npz, write_file, write_json, write_text
-from envs.video import Mp4Writer, check_mp4
+from envs.io.owned_output import is_own_output, save_npz, write_file, write_json, write_text
+from envs.media.video import Mp4Writer, check_mp4
 
 
 def test_a_write_failing_half_way_leaves_the_earlier_file_and_no_temporary(tmp_path: Path) -> None:

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from envs.demo_file import save_demos
+from envs.demos.file import save_demos
 from envs.errors import EnvError
-from envs.output import write_json
-from envs.video import Mp4Writer
+from envs.io.owned_output import write_json
+from envs.media.video import Mp4Writer
 from scripts.cli import main
 from scripts.run import check_run_folder
 from skill_fixtures import synthetic_demos, write_demo_file

@@ -1,4 +1,4 @@
-"""Compliant finger pads (envs.pads): a grasped peg side-loaded at its tip turns in the fingers by F L / (2 k), the
+"""Compliant finger pads (envs.cell.pads): a grasped peg side-loaded at its tip turns in the fingers by F L / (2 k), the
 rigid pads of the contact task hold it within a hundredth of a degree, and the realistic preset's k is the rubber
 layer the module models."""
 
@@ -10,15 +10,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.pads import layer_torsion_stiffness, pad_patch_m, shore_a_shear_modulus_pa
+from envs.cell.pads import layer_torsion_stiffness, pad_patch_m, shore_a_shear_modulus_pa
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
-from envs.shapes import PEG_LENGTH_M
-from envs.task import Task, preset
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
+from envs.cell.shapes import PEG_LENGTH_M
+from envs.task.task import Task, preset
 
 
 def _env(stiffness: float) -> PegInHoleEnv:

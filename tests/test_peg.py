@@ -1,12 +1,12 @@
-"""Tests of envs.peg: the peg model's frame, length and convex prism meshes."""
+"""Tests of envs.cell.peg: the peg model's frame, length and convex prism meshes."""
 
 import mujoco
 import numpy as np
 import pytest
 
-from envs.contact import ContactConfig
-from envs.peg import build_peg, prism_vertices
-from envs.shapes import PEG_LENGTH_M, SHAPES
+from envs.cell.contact import ContactConfig
+from envs.cell.peg import build_peg, prism_vertices
+from envs.cell.shapes import PEG_LENGTH_M, SHAPES
 
 
 def compiled(shape):

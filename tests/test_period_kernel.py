@@ -1,4 +1,4 @@
-"""envs.period_kernel: a control period in one compiled call is the per-step path (controller.step with the sensing
+"""envs.sim.period_kernel: a control period in one compiled call is the per-step path (controller.step with the sensing
 hook) to the last bit, and controllers.mujoco_layout reads mjData's contacts where the bindings see them."""
 
 from __future__ import annotations
@@ -11,13 +11,13 @@ import pytest
 
 from controllers.impedance import CartesianImpedanceController
 from controllers.mujoco_layout import check_layout
-from envs import sensing_kernel
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
-from envs.perturbation import Perturbation
+from envs.sim import sensing_kernel
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
+from envs.task.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
 
 
 class PerStep:

@@ -1,4 +1,4 @@
-"""The Policy protocol (envs.execution.policy_protocol): what a policy sees, and the scripted expert and the replay
+"""The Policy protocol (envs.policies.interface): what a policy sees, and the scripted expert and the replay
 policy scored by the same episode loop as the skill."""
 
 from __future__ import annotations
@@ -8,16 +8,16 @@ import dataclasses
 import numpy as np
 import pytest
 
-from envs.demos import collect_demos
-from envs.expert import ExpertConfig
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.demos.record import collect_demos
+from envs.policies.expert_plan import ExpertConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.execution.episode import StartPose, run_episode
-from envs.execution.expert_policy import ScriptedExpertPolicy
-from envs.execution.policy_protocol import Action, Observation, is_policy, observe, policy_task
-from envs.execution.replay_policy import ReplayPolicy
-from envs.perturbation import Perturbation, PerturbationRanges, sample_perturbation
+from envs.rollout.episode import StartPose, run_episode
+from envs.policies.expert import ScriptedExpertPolicy
+from envs.policies.interface import Action, Observation, is_policy, observe, policy_task
+from envs.policies.replay import ReplayPolicy
+from envs.task.perturbation import Perturbation, PerturbationRanges, sample_perturbation
 from envs.poses import Pose, quat_angle_rad
 
 HOLE_ERROR = PerturbationRanges(hole_error_m=0.001, hole_error_deg=1.0)

@@ -1,9 +1,9 @@
-"""The one-quaternion maps (envs.poses) and the closed loop's one-pose paths (envs.execution.policy) give the
+"""The one-quaternion maps (envs.poses) and the closed loop's one-pose paths (envs.policies.flow_skill) give the
 batched maps' results to the bit."""
 
 import numpy as np
 
-from envs.execution import policy
+from envs.policies import flow_skill as policy
 from envs.poses import quat_conj, quat_from_rotvec, quat_from_rotvec_one, quat_mul, quat_mul_one, quat_to_rotvec
 
 

@@ -1,4 +1,4 @@
-"""envs.execution.profile: the split of a control period into its parts adds up, leaves the episodes unchanged and
+"""envs.evaluation.profile: the split of a control period into its parts adds up, leaves the episodes unchanged and
 leaves no wrapper behind."""
 
 from __future__ import annotations
@@ -8,12 +8,13 @@ import json
 
 import pytest
 
-from envs.execution import episode, feedforward
-from envs.execution.episode import run_episode
-from envs.execution.evaluate import EvaluationConfig, build_setup
-from envs.execution.starts import evaluation_starts
-from envs.execution.profile import LAW_FLOOR_PARTS, PARTS, law_floor_periods, profile_periods
-from envs.task import Task
+from envs.policies import feedforward
+from envs.rollout import episode
+from envs.rollout.episode import run_episode
+from envs.evaluation.evaluate import EvaluationConfig, build_setup
+from envs.evaluation.starts import evaluation_starts
+from envs.evaluation.profile import LAW_FLOOR_PARTS, PARTS, law_floor_periods, profile_periods
+from envs.task.task import Task
 from rflow.skill_io import save_skill
 from skill_fixtures import tiny_skill
 
@@ -57,7 +58,7 @@ def test_the_parts_add_up_to_the_period_and_the_episodes_are_unchanged(setup):
     assert "reset" not in vars(env)
     import importlib
 
-    from envs.execution.profile import COMPILED
+    from envs.evaluation.profile import COMPILED
     for _, module, names in COMPILED:  # the kernels themselves again, not their timers
         assert all(hasattr(getattr(importlib.import_module(module), name), "py_func") for name in names)
 

@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 
 from envs.errors import EnvError
-from envs.execution.protocol import (
+from envs.evaluation.benchmark import (
     ProtocolConfig,
     ReplicateOutcome,
     between_seed_interval,

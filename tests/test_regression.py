@@ -1,4 +1,4 @@
-"""envs.execution.regression.assert_no_regression: passes the same records, fails a degraded candidate with a
+"""envs.statistics.regression.assert_no_regression: passes the same records, fails a degraded candidate with a
 readable message; and on physics, a small trained skill against itself and against a time-starved run (slow)."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ import json
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.episode import record_from_dict
-from envs.execution.evaluate import EvaluationConfig, evaluate
-from envs.execution.result import EvaluationResult
-from envs.execution.regression import assert_no_regression
-from envs.task import preset
+from envs.rollout.episode import record_from_dict
+from envs.evaluation.evaluate import EvaluationConfig, evaluate
+from envs.evaluation.result import EvaluationResult
+from envs.statistics.regression import assert_no_regression
+from envs.task.task import preset
 from evaluation_fixtures import synthetic_evaluation
 
 EPISODES = 60

@@ -1,4 +1,4 @@
-"""envs.rendering, the one place that chooses MuJoCo's OpenGL backend."""
+"""envs.media.rendering, the one place that chooses MuJoCo's OpenGL backend."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from envs.rendering import DEFAULT_GL_BACKEND, use_headless_rendering
+from envs.media.rendering import DEFAULT_GL_BACKEND, use_headless_rendering
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -1,4 +1,4 @@
-"""envs.execution.replay: an evaluation JSON read back (config, checkpoint) and replays checked against records."""
+"""envs.evaluation.replay: an evaluation JSON read back (config, checkpoint) and replays checked against records."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ from pathlib import Path
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.episode import EpisodeRecord
-from envs.execution.evaluate import EvaluationConfig
-from envs.execution.replay import check_replay, evaluation_config_from_dict, load_evaluation
-from envs.jsonable import to_jsonable
-from envs.output import strict_json
-from envs.perturbation import PerturbationRanges
-from envs.task import Task
+from envs.rollout.episode import EpisodeRecord
+from envs.evaluation.evaluate import EvaluationConfig
+from envs.evaluation.replay import check_replay, evaluation_config_from_dict, load_evaluation
+from envs.io.jsonable import to_jsonable
+from envs.io.owned_output import strict_json
+from envs.task.perturbation import PerturbationRanges
+from envs.task.task import Task
 
 
 def test_config_survives_its_json_record() -> None:

@@ -1,4 +1,4 @@
-"""Tests of envs.scene: configuration checks, goal placement, the held and free peg, ids (build time: `pih bench`)."""
+"""Tests of envs.cell.scene: configuration checks, goal placement, the held and free peg, ids (build time: `pih bench`)."""
 
 import mujoco
 import numpy as np
@@ -7,10 +7,10 @@ import pytest
 from envs.errors import EnvError
 from envs.geometry import tilt_from_down_deg, z_down_yaw_deg
 from numerics.quaternion import mat_to_quat, quat_to_mat
-from envs.scene import CAMERAS, build_scene
-from envs.scene_config import (PAPER_GOAL_POS_M, PAPER_GOAL_QUAT, SceneConfig, goal_from_hole, goal_pose_from_paper,
+from envs.cell.scene import CAMERAS, build_scene
+from envs.cell.scene_config import (PAPER_GOAL_POS_M, PAPER_GOAL_QUAT, SceneConfig, goal_from_hole, goal_pose_from_paper,
                                 hole_from_goal)
-from envs.shapes import PEG_LENGTH_M, SHAPES
+from envs.cell.shapes import PEG_LENGTH_M, SHAPES
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from envs.output import write_json
+from envs.io.owned_output import write_json
 from rflow.config_file import train_config_record
 from rflow.lasa import ShapeResult
 from rflow.model import ModelConfig

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from envs.output import write_json
+from envs.io.owned_output import write_json
 from rflow.config_file import load_train_config, train_config_from_dict, train_config_record
 from rflow.errors import RFlowError
 from rflow.lasa import riemannian_lasa

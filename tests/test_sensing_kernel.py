@@ -1,4 +1,4 @@
-"""The compiled physics-rate sensing (envs.sensing_kernel) against plain numpy/Python evaluations of its equations."""
+"""The compiled physics-rate sensing (envs.sim.sensing_kernel) against plain numpy/Python evaluations of its equations."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import scipy.spatial.transform
 
-from envs import sensing_kernel as kernel
+from envs.sim import sensing_kernel as kernel
 from envs.errors import EnvError
-from envs.sensing import PegContacts, ToolLoad, WristSensor
-from envs.wrist_sensor import SENSOR_SIZE, WristSensorConfig
+from envs.sim.sensing import PegContacts, ToolLoad, WristSensor
+from envs.task.sensor_config import SENSOR_SIZE, WristSensorConfig
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
 DT, WINDOW_S, LIMIT_N = 0.001, 0.005, 40.0

@@ -1,4 +1,4 @@
-"""`pih sensitivity` (envs.execution.sensitivity): every variant runs the ideal cell's episodes with one imperfection
+"""`pih sensitivity` (envs.evaluation.sensitivity): every variant runs the ideal cell's episodes with one imperfection
 set, pairs with it episode for episode, and the command writes the table, JSON and figure."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from envs.execution.config import EvaluationConfig
-from envs.execution.sensitivity import ALTERNATIVES, IMPERFECTIONS, run_sensitivity, sensitivity_table
-from envs.task import Task
+from envs.evaluation.config import EvaluationConfig
+from envs.evaluation.sensitivity import ALTERNATIVES, IMPERFECTIONS, run_sensitivity, sensitivity_table
+from envs.task.task import Task
 from scripts.cli import main
 from scripts.sensitivity import IMPERFECTION_NAMES
 
@@ -61,7 +61,7 @@ def test_a_foreign_registry_is_refused_before_any_episode(model, tmp_path, capsy
     out = tmp_path / "sens"
     out.mkdir()
     (out / ".pih-outputs.json").write_text('{"files": {}}')  # not written by pih
-    monkeypatch.setattr("envs.execution.sensitivity.run_sensitivity",
+    monkeypatch.setattr("envs.evaluation.sensitivity.run_sensitivity",
                         lambda *a, **k: pytest.fail("episodes ran before the outputs were checked"))
     assert main(["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "1", "--workers", "1",
                  "--only", "payload"]) == 2

@@ -1,11 +1,11 @@
-"""Tests of envs.shapes: peg cross-sections, holes = peg + clearance, grip widths."""
+"""Tests of envs.cell.shapes: peg cross-sections, holes = peg + clearance, grip widths."""
 
 import numpy as np
 import pytest
 
 from envs.errors import EnvError
 from envs.geometry import edge_lines, mirror_y
-from envs.shapes import (
+from envs.cell.shapes import (
     SHAPES,
     SQUARE_SIDE_M,
     check_shape,

@@ -1,15 +1,15 @@
-"""envs.execution.policy: policies that turn a pose skill into commanded peg_tip poses, and the velocity feed-forward."""
+"""envs.policies.flow_skill: policies that turn a pose skill into commanded peg_tip poses, and the velocity feed-forward."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
+from envs.sim.env import PegInHoleEnv
 from envs.errors import EnvError
 from envs.poses import Pose
-from envs.execution.feedforward import feedforward_pose
-from envs.execution.policy import (
+from envs.policies.feedforward import feedforward_pose
+from envs.policies.flow_skill import (
     ClosedLoopPolicy,
     OpenLoopPolicy,
     generate_plan,
@@ -19,7 +19,7 @@ from envs.execution.policy import (
     skill_state_step,
     skill_step,
 )
-from envs.execution.policy_protocol import Action
+from envs.policies.interface import Action
 from skill_fixtures import GOAL_POS, GOAL_QUAT, tiny_skill
 
 

@@ -1,14 +1,14 @@
-"""Tests of envs.sorter: the plate is tiled exactly by boxes around the holes, holes are where the sites say."""
+"""Tests of envs.cell.sorter: the plate is tiled exactly by boxes around the holes, holes are where the sites say."""
 
 import mujoco
 import numpy as np
 import pytest
 
-from envs.contact import ContactConfig
+from envs.cell.contact import ContactConfig
 from envs.errors import EnvError
 from envs.geometry import edge_lines, polygon_area
-from envs.shapes import SHAPES
-from envs.sorter import BASE_HEIGHT_M, LAYOUT_ORDER, build_sorter, sorter_layout
+from envs.cell.shapes import SHAPES
+from envs.cell.sorter import BASE_HEIGHT_M, LAYOUT_ORDER, build_sorter, sorter_layout
 
 EPS = 1e-7
 

@@ -1,4 +1,4 @@
-"""envs.execution.statistics, .sequential and .pairing: Wilson interval, paired success comparison, finer metrics,
+"""envs.statistics.fixed_sample, .sequential and .pairing: Wilson interval, paired success comparison, finer metrics,
 the sequential e-processes, the pairing of records, and their error rates, power and coverage on synthetic
 Bernoulli pairs (fixed seeds)."""
 
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.pairing import pair_records
-from envs.execution.sequential import SequentialComparison, SequentialPairedTest, betting_log_wealth
-from envs.execution.statistics import (
+from envs.statistics.pairing import pair_records
+from envs.statistics.sequential import SequentialComparison, SequentialPairedTest, betting_log_wealth
+from envs.statistics.fixed_sample import (
     PairedCounts,
     compare_metric,
     compare_success,

@@ -1,4 +1,4 @@
-"""envs.stiffness_schedule: the scripted expert's stiffness, stiff in free space and compliant across the hole axis."""
+"""envs.policies.stiffness_schedule: the scripted expert's stiffness, stiff in free space and compliant across the hole axis."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 
 from controllers.impedance import ImpedanceConfig
 from envs.errors import EnvError
-from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
+from envs.policies.stiffness_schedule import StiffnessSchedule, expert_stiffness
 
 OPENING = np.array([0.6, -0.05, 0.2])
 SCHEDULE = StiffnessSchedule()

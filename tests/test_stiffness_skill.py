@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.policy import ClosedLoopPolicy, OpenLoopPolicy, StiffnessSetting, generate_plan
+from envs.policies.flow_skill import ClosedLoopPolicy, OpenLoopPolicy, StiffnessSetting, generate_plan
 from envs.poses import Pose
 from controllers.impedance import full_stiffness, validate_stiffness
 from rflow.errors import RFlowError
@@ -195,8 +195,8 @@ class _FakeEnv:
 
 
 def test_feedforward_lead_uses_the_commanded_stiffness():
-    from envs.execution.feedforward import command_stiffness, feedforward_pose
-    from envs.execution.policy_protocol import Action
+    from envs.policies.feedforward import command_stiffness, feedforward_pose
+    from envs.policies.interface import Action
 
     pose = Pose(pos=np.zeros(3), quat=np.array([1.0, 0.0, 0.0, 0.0]))
     env = _FakeEnv()
@@ -223,9 +223,9 @@ def test_pih_evaluate_bad_stiffness_exits_2_before_any_episode(tmp_path, capsys,
 
 
 def test_episode_records_the_learned_stiffness_it_commanded(trained):
-    from envs.env import PegInHoleEnv
-    from envs.episode_config import EpisodeConfig
-    from envs.execution.episode import StartPose, run_episode
+    from envs.sim.env import PegInHoleEnv
+    from envs.sim.episode_config import EpisodeConfig
+    from envs.rollout.episode import StartPose, run_episode
     from skill_fixtures import GOAL_POS, GOAL_QUAT
 
     skill, _ = trained
@@ -242,7 +242,7 @@ def test_episode_records_the_learned_stiffness_it_commanded(trained):
 
 
 def test_stiffness_figure_is_written_and_refuses_malformed_curves(tmp_path):
-    from envs.execution.figures import StiffnessCurve, plot_stiffness
+    from envs.media.figures import StiffnessCurve, plot_stiffness
 
     demos = stiffness_demos(n=2, m=20)
     curves = [StiffnessCurve(demos.dt * np.arange(20), k) for k in demos.stiffness]
@@ -266,7 +266,7 @@ def test_pih_evaluate_bad_stiffness_figure_exits_2_before_any_episode(tmp_path, 
 def test_schedule_stiffness_setting_commands_the_teachers_k_of_the_measured_height():
     """"schedule" commands the expert's K(h) at the measured pose's height above the nominal mouth (h from the
     skill's goal and the mouth depth the reset gives), free-space stiffness far above, the hole's at the goal."""
-    from envs.stiffness_schedule import StiffnessSchedule, expert_stiffness
+    from envs.policies.stiffness_schedule import StiffnessSchedule, expert_stiffness
 
     setting = StiffnessSetting.parse("schedule:2000/400/700")
     assert setting.schedule == StiffnessSchedule(2000.0, 400.0, 700.0)
@@ -334,7 +334,7 @@ def test_a_stiffness_model_beside_the_pose_models_is_spd_bounded_and_leaves_the_
 def test_the_stiffness_state_follows_the_measured_progress_not_the_clock(trained_beside):
     """Closed loop: a peg that makes the step the flow asked for advances the stiffness by one full flow step, a
     peg that makes half of it by half a step, a peg held still not at all; open loop generates K with the plan."""
-    from envs.execution.policy import progress_ratio, stiffness_step
+    from envs.policies.flow_skill import progress_ratio, stiffness_step
 
     skill, demos = trained_beside
     start = Pose(pos=demos.pos[0, 0], quat=demos.quat[0, 0])

@@ -1,4 +1,4 @@
-"""Tests of envs.success: insertion state in the hole frame, seated inside the walls at rest, wrong hole, hold."""
+"""Tests of envs.task.success: insertion state in the hole frame, seated inside the walls at rest, wrong hole, hold."""
 
 import numpy as np
 import pytest
@@ -6,10 +6,10 @@ import pytest
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, rot_z
 from numerics.quaternion import mat_to_quat, quat_to_mat
-from envs.shapes import hole_inradius_m, hole_polygon, peg_cross_section
-from envs.success import (
+from envs.cell.shapes import hole_inradius_m, hole_polygon, peg_cross_section
+from envs.cell.hole import HoleSpec
+from envs.task.success import (
     EpisodeHoles,
-    HoleSpec,
     PegFootprint,
     SuccessConfig,
     SuccessTracker,

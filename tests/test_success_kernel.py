@@ -1,4 +1,4 @@
-"""The compiled scoring of a peg_tip (envs.success_kernel, behind `EpisodeHoles.assess`, `assess_insertion` and
+"""The compiled scoring of a peg_tip (envs.task.success_kernel, behind `EpisodeHoles.assess`, `assess_insertion` and
 `insertion_state`) equals the numpy scoring it replaced (kept below as the reference) bit for bit: the hole, the
 insertion and every field of the state, for prism and round pegs, above the openings, on the chamfer, deep in the
 target hole and in another hole, tilted and turned past the symmetry's wrap; with the episode's shortcut and without
@@ -13,10 +13,11 @@ import pytest
 
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, rot_z, twist_angle_deg
-from envs.shapes import hole_inradius_m, hole_polygon, peg_cross_section
-from envs.success import (FLOOR_SLACK_M, MIN_ENTRY_DEPTH_M, Assessment, EpisodeHoles, HoleFrame, HoleSpec,
-                          InsertionState, PegFootprint, SuccessConfig, assess_insertion, insertion_state,
-                          wall_penetration_m, wrap_symmetric_deg)
+from envs.cell.shapes import hole_inradius_m, hole_polygon, peg_cross_section
+from envs.cell.hole import HoleSpec
+from envs.task.success import (FLOOR_SLACK_M, MIN_ENTRY_DEPTH_M, Assessment, EpisodeHoles, HoleFrame, InsertionState,
+                               PegFootprint, SuccessConfig, assess_insertion, insertion_state, wall_penetration_m,
+                               wrap_symmetric_deg)
 from numerics.quaternion import mat_to_quat, quat_to_mat
 from numerics.small_linalg import matmul, matvec
 

@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
-from envs.task import SuccessConfig, Task
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
+from envs.task.task import SuccessConfig, Task
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +21,7 @@ def scene():
 
 
 def _pressed_sideways(scene, push_n: float) -> tuple[float, float]:
-    """(wall penetration (envs.success), contact force on the peg) of the peg held 10 mm deep in the hole and pushed
+    """(wall penetration (envs.task.success), contact force on the peg) of the peg held 10 mm deep in the hole and pushed
     sideways against one wall with ~``push_n`` (a 4000 N/m spring stretched push_n / 4000 m beyond the wall)."""
     env = PegInHoleEnv(scene=scene, episode_config=EpisodeConfig(time_limit_s=5.0, force_limit_n=1000.0))
     inside = Pose(env.goal.pos + 0.02 * env.hole_axis, env.goal.quat)  # 10 mm below the opening

@@ -1,4 +1,4 @@
-"""Success maps (envs.execution.sweep, `pih sweep`): the grid, common starts, per-cell statistics, the files, and
+"""Success maps (envs.evaluation.sweep, `pih sweep`): the grid, common starts, per-cell statistics, the files, and
 bad input."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.evaluate import EvaluationConfig
-from envs.execution.starts import evaluation_starts
-from envs.execution.sweep import SweepAxes, cell_summary, sweep_cells, sweep_units, unit_key
-from envs.perturbation import PerturbationRanges
-from envs.task import Task
+from envs.evaluation.evaluate import EvaluationConfig
+from envs.evaluation.starts import evaluation_starts
+from envs.evaluation.sweep import SweepAxes, cell_summary, sweep_cells, sweep_units, unit_key
+from envs.task.perturbation import PerturbationRanges
+from envs.task.task import Task
 from rflow.skill_io import save_skill
 from scripts import cli
 from scripts.sweep import parse_values
@@ -147,7 +147,7 @@ def _summary(settings: dict, rate: float) -> dict:
 
 
 def test_a_single_axis_map_is_one_full_row() -> None:
-    from envs.execution.figures import success_map
+    from envs.media.figures import success_map
 
     cells = [_summary({"clearance_m": c}, r) for c, r in ((0.001, 1.0), (0.0005, 0.5), (0.0002, 0.25))]
     m = success_map(cells, None, "clearance_m")
@@ -156,7 +156,7 @@ def test_a_single_axis_map_is_one_full_row() -> None:
 
 
 def test_a_two_axis_map_puts_every_cell_in_its_square() -> None:
-    from envs.execution.figures import success_map
+    from envs.media.figures import success_map
 
     cells = [_summary({"clearance_m": c, "hole_error_m": e}, 0.1 * i)
              for i, (c, e) in enumerate((c, e) for c in (0.001, 0.0002) for e in (0.0, 0.001))]
@@ -167,7 +167,7 @@ def test_a_two_axis_map_puts_every_cell_in_its_square() -> None:
 def test_a_sweep_in_lockstep_gives_the_records_of_one_episode_at_a_time(model_dir) -> None:
     """Each cell's episodes in lockstep on that cell's slots (groups may straddle two cells) give the records of one
     episode at a time."""
-    from envs.execution.sweep import sweep
+    from envs.evaluation.sweep import sweep
 
     def records(lockstep: int) -> list[dict]:
         base = EvaluationConfig(episodes=4, task=Task(time_limit_s=0.3), lockstep=lockstep)

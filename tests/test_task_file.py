@@ -1,4 +1,4 @@
-"""The task file (envs/task.py): one frozen Task, saved and read as TOML, the presets shipped as such files, bad
+"""The task file (envs/task/task.py): one frozen Task, saved and read as TOML, the presets shipped as such files, bad
 files as one-line errors (exit 2 through the CLI), single options over the file, and the task recorded in demo
 files, checkpoints and result JSON."""
 
@@ -13,10 +13,10 @@ from pathlib import Path
 import pytest
 
 from envs.errors import EnvError
-from envs.execution.config import SCENE_FROM_TASK, EvaluationConfig
-from envs.perturbation import PerturbationRanges
-from envs.wrist_sensor import WristSensorConfig
-from envs.task import (PRESET_NAMES, SuccessConfig, StartRange, Task, TASK_VERSION, load_task, parse_toml, preset)
+from envs.evaluation.config import SCENE_FROM_TASK, EvaluationConfig
+from envs.task.perturbation import PerturbationRanges
+from envs.task.sensor_config import WristSensorConfig
+from envs.task.task import (PRESET_NAMES, SuccessConfig, StartRange, Task, TASK_VERSION, load_task, parse_toml, preset)
 from scripts.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,7 +61,7 @@ def test_a_task_survives_its_toml_file(tmp_path: Path) -> None:
 
 
 def test_a_task_survives_its_record_through_strict_json() -> None:
-    from envs.output import strict_json
+    from envs.io.owned_output import strict_json
 
     record = json.loads(json.dumps(strict_json(MINE.to_dict()), allow_nan=False))
     assert record["force_limit_n"] is None and Task.from_dict(record) == MINE  # null: no limit
@@ -215,8 +215,8 @@ def checkpoints(tmp_path_factory) -> dict[str, Path]:
     square demos: the demos' scene wins), and from one of before task files (none recorded)."""
     import dataclasses
 
-    from envs.demo_file import save_demos
-    from envs.output import strict_json
+    from envs.demos.file import save_demos
+    from envs.io.owned_output import strict_json
     from skill_fixtures import synthetic_demos
     from test_train_cli import TINY_ARGS
 
@@ -231,7 +231,7 @@ def checkpoints(tmp_path_factory) -> dict[str, Path]:
 
 
 def test_the_checkpoint_records_the_demos_task_with_their_scene(checkpoints) -> None:
-    from envs.scene_config import SceneConfig
+    from envs.cell.scene_config import SceneConfig
 
     recorded = json.loads((checkpoints["with"] / "skill.json").read_text())["metadata"]["task"]
     scene = SceneConfig(shape="square", clearance_m=0.001)  # the synthetic demos' (no scene recorded)
@@ -240,14 +240,14 @@ def test_the_checkpoint_records_the_demos_task_with_their_scene(checkpoints) -> 
 
 
 def test_a_demo_file_without_a_task_gives_the_default_task_with_its_scene(checkpoints) -> None:
-    from envs.scene_config import SceneConfig
+    from envs.cell.scene_config import SceneConfig
 
     recorded = json.loads((checkpoints["without"] / "skill.json").read_text())["metadata"]["task"]
     assert Task.from_dict(recorded) == Task().with_scene(SceneConfig(shape="square", clearance_m=0.001))
 
 
 def test_the_result_json_records_the_task_it_ran_and_reads_back(checkpoints, tmp_path: Path) -> None:
-    from envs.execution.replay import load_evaluation
+    from envs.evaluation.replay import load_evaluation
 
     path = write(tmp_path, Task(clearance_m=0.0005, time_limit_s=0.05).override(pos_range_m=0.01).to_toml())
     out = tmp_path / "eval.json"
@@ -262,7 +262,7 @@ def test_the_result_json_records_the_task_it_ran_and_reads_back(checkpoints, tmp
 
 def test_an_old_checkpoint_without_a_task_still_evaluates(tmp_path: Path) -> None:
     """tiny_skill's metadata is that of a checkpoint of before task files: the scene falls back to its demos'."""
-    from envs.execution.evaluate import evaluate
+    from envs.evaluation.evaluate import evaluate
     from rflow.skill_io import save_skill
     from skill_fixtures import tiny_skill
 
@@ -273,14 +273,14 @@ def test_an_old_checkpoint_without_a_task_still_evaluates(tmp_path: Path) -> Non
 
 
 def result_scene(result):
-    from envs.scene_config import SceneConfig
+    from envs.cell.scene_config import SceneConfig
 
     return SceneConfig(**{k: result.scene[k] for k in ("shape", "clearance_m", "chamfer_m", "hole_depth_m", "peg_mode",
                                                        "grasp_force_n")})
 
 
 def test_an_evaluation_json_of_before_task_files_still_reads() -> None:
-    from envs.execution.replay import evaluation_config_from_dict
+    from envs.evaluation.replay import evaluation_config_from_dict
 
     legacy = {"episodes": 4, "seed": 2, "mode": "closed-loop", "pos_range_m": 0.02, "rot_range_deg": 5.0,
               "around": "demo", "lookahead_s": 0.05, "feedforward_gain": 1.0, "speed": 1.0, "time_limit_s": 8.0,
@@ -296,7 +296,7 @@ def test_an_evaluation_json_of_before_task_files_still_reads() -> None:
 
 
 def test_the_demo_file_records_the_task(tmp_path: Path) -> None:
-    from envs.demo_file import load_demos
+    from envs.demos.file import load_demos
 
     path = write(tmp_path, preset("paper").to_toml())
     out = tmp_path / "demos.npz"

@@ -1,4 +1,4 @@
-"""The task options and presets (envs.task, scripts.task_options): one spelling on every command, bad values end
+"""The task options and presets (envs.task.task, scripts.task_options): one spelling on every command, bad values end
 with one line and exit 2 before any work, and the presets are what the README says."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from envs.errors import EnvError
-from envs.task import Task, preset
+from envs.task.task import Task, preset
 from scripts import cli
 from scripts.task_options import add_task_arguments, scene_from_task, task_from_args
 

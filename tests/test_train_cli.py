@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from envs.demo_file import load_demos
+from envs.demos.file import load_demos
 from rflow.skill_io import file_sha256, load_skill
 from scripts.cli import main
 from skill_fixtures import write_demo_file

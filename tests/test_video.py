@@ -8,11 +8,11 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
 from envs.poses import Pose
-from envs.video import PATH_RGBA, EpisodeVideo, Mp4Writer, OffscreenRenderer, VideoConfig, add_polyline
+from envs.media.video import PATH_RGBA, EpisodeVideo, Mp4Writer, OffscreenRenderer, VideoConfig, add_polyline
 
 SMALL = VideoConfig(width=160, height=120, fps=30, camera="side")
 

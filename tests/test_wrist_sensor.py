@@ -1,4 +1,4 @@
-"""envs.wrist_sensor in the episode: the policy sees the sensed wrench, the record keeps the true one, the force
+"""envs.task.sensor_config in the episode: the policy sees the sensed wrench, the record keeps the true one, the force
 limit reads the sensor, and the readings are a function of the episode alone."""
 
 from __future__ import annotations
@@ -6,15 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.env import PegInHoleEnv
-from envs.episode_config import EpisodeConfig
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.execution.policy_protocol import observe
-from envs.perturbation import Perturbation
+from envs.policies.interface import observe
+from envs.task.perturbation import Perturbation
 from envs.poses import Pose
-from envs.scene import build_scene
-from envs.scene_config import SceneConfig
-from envs.wrist_sensor import WristSensorConfig
+from envs.cell.scene import build_scene
+from envs.cell.scene_config import SceneConfig
+from envs.task.sensor_config import WristSensorConfig
 
 NOISY = WristSensorConfig(sensor_mode="wrist", force_noise_n=0.3, torque_noise_nm=0.02, force_bias_n=1.0,
                           torque_bias_nm=0.05)

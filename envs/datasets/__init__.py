@@ -1,15 +1,20 @@
 """Export of demonstrations and evaluation episodes to the LeRobot (v3.0) and robomimic (HDF5) dataset layouts,
 and their import as demos: what an episode holds (`features`), the two layouts (`lerobot`, `robomimic`) and the
-export folder written under a temporary name (`output`). pyarrow (and pandas) or h5py are imported only when a
+export folder written under a temporary name (`export_folder`). pyarrow (and pandas) or h5py are imported only when a
 layout is used (the `datasets` install extra)."""
 
 from __future__ import annotations
 
 import importlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from envs.demo_import import RecordedDemos
 from envs.errors import EnvError
+
+if TYPE_CHECKING:
+    from envs.demos.importing import RecordedDemos
+
+__all__ = ["LAYOUTS", "read_dataset", "require_layout"]
 
 #: The dataset layouts.
 LAYOUTS: tuple[str, ...] = ("lerobot", "robomimic")

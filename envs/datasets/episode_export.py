@@ -1,4 +1,4 @@
-"""Evaluation episodes exported while they are replayed (envs.execution.replay.replay_evaluation calls the
+"""Evaluation episodes exported while they are replayed (envs.evaluation.replay.replay_evaluation calls the
 ``on_episode``, ``on_step`` and ``on_trace`` methods): the camera frames captured after the reset and every step
 (LeRobot: one MP4 at the control rate, a frame per data row; robomimic: (T, H, W, 3) arrays per episode; both
 without the drawn path and goal of the figures' videos), and each episode written as it ends (robomimic) or kept
@@ -15,7 +15,7 @@ import numpy as np
 from envs.datasets.features import ExportEpisode, ExportMeta, episode_from_trace, evaluation_meta, fps_of
 from envs.datasets.frame_sample import FrameSample
 from envs.errors import EnvError
-from envs.jsonable import to_jsonable
+from envs.io.jsonable import to_jsonable
 
 
 class EpisodeExport:
@@ -60,7 +60,7 @@ class EpisodeExport:
         width, height = self.size
         if self.layout == "lerobot":
             from envs.datasets.lerobot import video_file, video_key
-            from envs.video import EpisodeVideo, VideoConfig
+            from envs.media.video import EpisodeVideo, VideoConfig
 
             fps = fps_of(env.control_period_s)
             if not isinstance(fps, int):
@@ -73,7 +73,7 @@ class EpisodeExport:
                                                                    goal_axis_length_m=0.0),
                                       on_frame=self.sample.add)
         else:
-            from envs.video import OffscreenRenderer
+            from envs.media.video import OffscreenRenderer
 
             self.video = OffscreenRenderer(env.model, width, height)
             self.video.set_camera(self.camera)

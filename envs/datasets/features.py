@@ -27,10 +27,10 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from envs.demo_file import DemoSet
-from envs.demo_import import RecordedDemos, check_trajectory
+from envs.demos.file import DemoSet
+from envs.demos.importing import RecordedDemos, check_trajectory
 from envs.errors import EnvError
-from envs.output import EXPORT_MARKER_FILE
+from envs.io.owned_output import EXPORT_MARKER_FILE
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -205,7 +205,7 @@ def episode_from_trace(record: dict[str, Any], trace: Any) -> ExportEpisode:
 
     Args:
         record: the episode's record (index, demo_index, success, reason, perturbation).
-        trace: an envs.execution.episode.EpisodeTrace (times_s, tcp_pos, tcp_quat, pos, quat, qpos, qvel,
+        trace: an envs.rollout.episode.EpisodeTrace (times_s, tcp_pos, tcp_quat, pos, quat, qpos, qvel,
             wrist_wrench, cmd_pos, cmd_quat, stiffness, success).
     """
     num = len(trace.times_s)
@@ -262,7 +262,7 @@ def read_meta(values: Any, source: str) -> dict[str, Any]:
 
 def recorded_from_poses(poses: Sequence[np.ndarray], stiffness: Sequence[np.ndarray] | None, dt: float | None,
                         meta: dict[str, Any] | None, layout: str, source: str) -> RecordedDemos:
-    """Demos to import (envs.demo_import.import_demos) from per-episode tcp poses and stiffness.
+    """Demos to import (envs.demos.importing.import_demos) from per-episode tcp poses and stiffness.
 
     Args:
         poses: one (T_n, 7) array per episode, [x, y, z, qw, qx, qy, qz].

@@ -42,9 +42,9 @@ import pyarrow.parquet as pq
 from envs.datasets.features import (FEATURE_BY_KEY, MARKER_FILE, ExportEpisode, ExportMeta, fps_of, read_meta,
                                     recorded_from_poses)
 from envs.datasets.frame_sample import FrameSample
-from envs.demo_import import RecordedDemos
+from envs.demos.importing import RecordedDemos
 from envs.errors import EnvError
-from envs.output import write_json
+from envs.io.owned_output import write_json
 
 CODEBASE_VERSION: str = "v3.0"
 ROBOT_TYPE: str = "franka_panda"

@@ -30,9 +30,9 @@ import h5py
 import numpy as np
 
 from envs.datasets.features import FEATURE_BY_KEY, MARKER_FILE, ExportEpisode, ExportMeta, read_meta, recorded_from_poses
-from envs.demo_import import RecordedDemos
+from envs.demos.importing import RecordedDemos
 from envs.errors import EnvError
-from envs.output import write_json
+from envs.io.owned_output import write_json
 
 ENV_NAME: str = "pih/PegInHole-v0"
 GYM_TYPE: int = 2  # robomimic.envs.env_base.EnvType.GYM_TYPE

@@ -1,0 +1,273 @@
+"""Score any `Policy` as the RiemannianFlow skill is scored: `pih evaluate --policy package.module:factory`.
+
+The factory. ``package.module:factory`` names a callable that the evaluation imports (the current folder first on
+``sys.path``, as ``python -m`` does) and calls once per process, before the first episode, as
+
+    factory(task: PolicyTask, **options: str) -> Policy
+
+with the nominal task (envs.policies.interface.PolicyTask: shape, clearance, control period, time and force
+limits, nominal hole and goal, the controller's default stiffness) and the ``--policy-option KEY=VALUE`` pairs as
+string keyword arguments. It returns an object with ``reset(observation, period_s)`` and ``act(observation) ->
+Action`` (envs.policies.interface). With worker processes each worker imports and calls it again, so the
+policy must not rely on state from the parent process.
+
+The same episodes. The scene is the demos' (shape, clearance, chamfer, peg mount, hole depth, from the demo file's
+recorded scene, as `pih train` keeps it for the skill) with the task options given; the starts are drawn around the
+demo file's start poses with the same seed and ranges (envs.evaluation.starts.evaluation_starts), each with its
+hole-pose error and grasp offset; success is the same physics check. So a policy evaluated on the demos a skill was
+trained on meets exactly the skill's starts and perturbations (`pih compare` pairs the two JSONs episode by episode).
+
+Privileged. A teacher that needs the true hole (the scripted expert, envs.policies.expert) is evaluated with
+``privileged=True`` (`--privileged`), which fills ``Observation.privileged``; the JSON records it.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import re
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from batch import Journal
+from envs.errors import EnvError
+from envs.evaluation.config import EvaluationConfig
+from envs.rollout.episode import StartPose
+from envs.rollout.episode import record_from_dict
+from envs.evaluation.evaluate import SlotPool, build_env, run_episodes, run_settings
+from envs.evaluation.result import EvaluationResult
+from envs.evaluation.starts import evaluation_starts, metadata_starts
+from envs.policies.interface import Policy, PolicyTask, is_policy, policy_task
+from envs.io.jsonable import to_jsonable
+from envs.poses import Pose
+from numerics.small_linalg import norm
+
+FACTORY_SIGNATURE = "factory(task: PolicyTask, **options: str) -> Policy"
+_DOTTED = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
+_KEY = re.compile(r"^[A-Za-z_]\w*$")
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return f"{type(err).__name__}: {text.splitlines()[0]}" if text else type(err).__name__
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """A user policy to evaluate (picklable: workers import and build it themselves).
+
+    Attributes:
+        spec: "package.module:factory" (the factory may be a dotted attribute path, "module:Class.make").
+        options: (key, value) string pairs passed to the factory as keyword arguments.
+        privileged: observations carry the true hole (a teacher only).
+        search_path: a folder put first on ``sys.path`` before the import (`pih evaluate`: the current folder).
+
+    Raises:
+        EnvError: a spec that is not "module:attribute" with dotted Python names, or a bad option key.
+    """
+
+    spec: str
+    options: tuple[tuple[str, str], ...] = ()
+    privileged: bool = False
+    search_path: str | None = None
+
+    def __post_init__(self) -> None:
+        module, colon, attribute = str(self.spec).partition(":")
+        if not colon:
+            raise EnvError(f"--policy {self.spec!r} must be package.module:factory (no ':' in it)")
+        if not (_DOTTED.match(module) and _DOTTED.match(attribute)):
+            raise EnvError(f"--policy {self.spec!r} must be package.module:factory with Python names on both sides "
+                           "of the ':'")
+        for key, value in self.options:
+            if not (_KEY.match(key) and isinstance(value, str)):
+                raise EnvError(f"--policy-option {key}={value!r}: the key must be a Python name")
+
+    @property
+    def module(self) -> str:
+        """The module part of the spec."""
+        return self.spec.partition(":")[0]
+
+    @property
+    def attribute(self) -> str:
+        """The factory's (dotted) name in the module."""
+        return self.spec.partition(":")[2]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: spec, options and privilege (not the search path, which is where it ran)."""
+        return {"spec": self.spec, "options": dict(self.options), "privileged": self.privileged}
+
+
+def parse_policy_options(values: Sequence[str]) -> tuple[tuple[str, str], ...]:
+    """``--policy-option KEY=VALUE`` strings as (key, value) pairs.
+
+    Raises:
+        EnvError: a value without '=' or a repeated key.
+    """
+    pairs: list[tuple[str, str]] = []
+    for text in values:
+        key, eq, value = text.partition("=")
+        if not eq or not _KEY.match(key):
+            raise EnvError(f"--policy-option {text!r} must be KEY=VALUE with a Python name as the key")
+        if key in dict(pairs):
+            raise EnvError(f"--policy-option {key} is given twice")
+        pairs.append((key, value))
+    return tuple(pairs)
+
+
+def load_factory(spec: PolicySpec) -> Callable[..., Any]:
+    """Import ``spec.module`` and return its callable ``spec.attribute``.
+
+    Raises:
+        EnvError: one line naming the spec: the module cannot be imported (or fails while importing), has no such
+            attribute, or the attribute is not callable.
+    """
+    if spec.search_path and spec.search_path not in sys.path:
+        sys.path.insert(0, spec.search_path)
+    try:
+        target: Any = importlib.import_module(spec.module)
+    except ImportError as err:
+        raise EnvError(f"--policy {spec.spec}: cannot import module {spec.module!r} ({_first_line(err)})") from None
+    except Exception as err:  # the user's module failed while importing
+        raise EnvError(f"--policy {spec.spec}: importing {spec.module!r} failed ({_first_line(err)})") from None
+    for part in spec.attribute.split("."):
+        if not hasattr(target, part):
+            raise EnvError(f"--policy {spec.spec}: module {spec.module!r} has no attribute {spec.attribute!r}")
+        target = getattr(target, part)
+    if not callable(target):
+        raise EnvError(f"--policy {spec.spec}: {spec.attribute!r} is a {type(target).__name__}, not a callable "
+                       f"factory ({FACTORY_SIGNATURE})")
+    return target
+
+
+def make_user_policy(spec: PolicySpec, task: PolicyTask) -> Policy:
+    """Call the spec's factory with the task and options and check that it returned a `Policy`.
+
+    Raises:
+        EnvError: see `load_factory`; the factory raised; or it returned something without reset/act methods.
+    """
+    factory = load_factory(spec)
+    try:
+        policy = factory(task, **dict(spec.options))
+    except Exception as err:
+        raise EnvError(f"--policy {spec.spec}: the factory raised {_first_line(err)} (it is called as "
+                       f"{FACTORY_SIGNATURE})") from None
+    if not is_policy(policy):
+        raise EnvError(f"--policy {spec.spec}: the factory returned a {type(policy).__name__}, not a Policy (an "
+                       "object with reset(observation, period_s) and act(observation) methods)")
+    return policy
+
+
+def demo_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """What an evaluation needs from a demo file (as a checkpoint keeps it): shape, clearance, recorded scene, goal,
+    start poses, and the file's path and SHA-256.
+
+    Raises:
+        EnvError: a missing or invalid demo file (envs.demos.file.load_demos).
+    """
+    from envs.demos.file import load_demos
+    from rflow.skill_io import file_sha256
+
+    demos = load_demos(path)
+    scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None
+    return {"shape": demos.shape, "clearance_m": demos.clearance_m, "scene": scene,
+            "goal_pos": demos.goal_pos.tolist(), "goal_quat": demos.goal_quat.tolist(),
+            "demo_starts": {"pos": demos.pos[:, 0].tolist(), "quat": demos.quat[:, 0].tolist()},
+            "demo_file": str(Path(path).resolve()), "demo_sha256": file_sha256(path)}
+
+
+def build_policy_setup(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig) -> tuple[Any, Policy]:
+    """The evaluation's environment (`build_env` of the demos' metadata) and the user's policy for it (with
+    ``follow_observed_hole``, run in the observed hole's frame from the task's nominal goal, envs.policies.goal_frame).
+
+    Raises:
+        EnvError: an invalid scene, or see `make_user_policy`.
+    """
+    goal = Pose(pos=metadata["goal_pos"], quat=metadata["goal_quat"])
+    env = build_env(metadata, goal, config)
+    task = policy_task(env)
+    policy = make_user_policy(spec, task)
+    if config.follow_observed_hole:
+        from envs.policies.goal_frame import GoalFramePolicy
+
+        return env, GoalFramePolicy(policy, task.nominal_goal)
+    return env, policy
+
+
+@dataclass(frozen=True)
+class _PolicySetup:
+    """What a worker needs to rebuild the environment and the policy (plain data, picklable)."""
+
+    spec: PolicySpec
+    metadata: dict[str, Any]
+    config: EvaluationConfig
+
+
+def _init_policy_worker(setup: _PolicySetup) -> dict[str, Any]:
+    """Worker context: the environment and the user's policy (torch, if the policy uses it, on one thread)."""
+    import torch
+
+    torch.set_num_threads(1)
+    env, policy = build_policy_setup(setup.spec, setup.metadata, setup.config)
+    return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain, "privileged": setup.spec.privileged,
+            "slots": SlotPool(env, policy, _PolicySlotMaker(setup))}
+
+
+class _PolicySlotMaker:
+    """Another lockstep slot of a policy evaluation: an environment of its own and a policy from the factory."""
+
+    def __init__(self, setup: _PolicySetup):
+        self.setup = setup
+
+    def __call__(self) -> tuple[Any, Policy]:
+        return build_policy_setup(self.setup.spec, self.setup.metadata, self.setup.config)
+
+
+def policy_journal_run(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig) -> dict[str, Any]:
+    """What identifies a policy evaluation for its journal: the spec and options, the demo file's checksum and every
+    config field that changes a record."""
+    return {"task": "pih evaluate --policy", "policy": spec.to_dict(), "demo_sha256": metadata.get("demo_sha256"),
+            **run_settings(config)}
+
+
+def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig = EvaluationConfig(),
+                    progress: bool = True, starts: Sequence[StartPose] | None = None,
+                    journal: Journal | None = None) -> EvaluationResult:
+    """Run ``config.episodes`` episodes of the user's policy (module docstring) and collect the records.
+
+    Args:
+        spec: the policy.
+        metadata: the demos' (`demo_metadata`): scene, goal and the start poses the starts are drawn around.
+        config: the evaluation (its skill fields -- mode, lookahead, speed, stiffness, adaptation -- are unused;
+            ``follow_observed_hole`` runs the policy in the observed hole's frame).
+        progress: tqdm bar.
+        starts: explicit starts (default: `evaluation_starts` around the demos' starts).
+        journal: as for envs.evaluation.evaluate.evaluate (open it with `policy_journal_run`).
+
+    Returns:
+        EvaluationResult with ``policy`` set (``model_dir`` empty).
+
+    Raises:
+        EnvError: a bad spec, a factory that fails or returns no Policy, an invalid scene, no demo starts.
+        BatchError: workers that cannot build the environment or the policy.
+    """
+    wall = time.perf_counter()
+    env, policy = build_policy_setup(spec, metadata, config)  # every check in this process first
+    goal_mismatch_mm = norm(env.goal.pos - metadata["goal_pos"]) * 1e3
+    scene_config = env.scene.config
+    scene = to_jsonable(asdict(scene_config))
+    if starts is None:
+        starts = evaluation_starts(metadata_starts(metadata, "the demo file"), config)
+    here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "privileged": spec.privileged,
+            "slots": SlotPool(env, policy, _PolicySlotMaker(_PolicySetup(spec, metadata, config)))}
+    del env, policy  # workers build their own
+    outcome, records, earlier_s = run_episodes(starts, _PolicySetup(spec, metadata, config), _init_policy_worker,
+                                               here, config, progress, journal, f"evaluate ({spec.spec})",
+                                               isolate=True)  # a user's code may take its process down
+    return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, "", metadata, scene,
+                            goal_mismatch_mm, outcome.complete, outcome.interrupted,
+                            [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
+                            outcome.workers, outcome.fault, policy=spec.to_dict(),
+                            task=config.task.with_scene(scene_config))

@@ -1,0 +1,227 @@
+"""A recorded evaluation replayed: its configuration and starts read back from the JSON of `pih evaluate`, and
+its episodes re-run with traces (envs.rollout.episode.EpisodeTrace).
+
+An evaluation JSON holds no per-step traces, but an episode is deterministic in its start and perturbation:
+the starts are drawn again from the checkpoint's demo starts with the recorded seed and ranges
+(`evaluation_starts`), checked against the recorded start poses, and each replayed episode is checked
+against its record (success, end reason, steps), so a replay made with other code or another checkpoint is
+an error instead of a silently different trajectory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from envs.errors import EnvError
+from envs.rollout.episode import EpisodeRecord, EpisodeTrace, StartPose
+from envs.evaluation.config import SCENE_FROM_TASK
+from envs.evaluation.evaluate import EvaluationConfig, iter_replays
+from envs.evaluation.starts import evaluation_starts
+from envs.task.task import Task
+
+#: Largest difference between a recorded and a redrawn start position (m) or quaternion component.
+START_TOL: float = 1e-12
+
+
+@dataclass(frozen=True)
+class RecordedEvaluation:
+    """What an evaluation JSON says about its episodes.
+
+    Attributes:
+        path: the JSON file.
+        model_dir: the checkpoint it evaluated.
+        config: its EvaluationConfig with the task the episodes ran (run in one process for the replay).
+        scene: the scene it ran in (asdict of SceneConfig).
+        skill: the checkpoint's metadata (demo starts, shape, clearance, ...).
+        records: the per-episode records (dicts, as in the file).
+    """
+
+    path: Path
+    model_dir: Path
+    config: EvaluationConfig
+    scene: dict[str, Any]
+    skill: dict[str, Any]
+    records: list[dict[str, Any]]
+
+
+LEGACY_TASK_KEYS: tuple[str, ...] = ("pos_range_m", "rot_range_deg", "around", "time_limit_s", "clearance_m",
+                                      "chamfer_m", "peg_mode", "grasp_force_n", "perturbations", "force_limit_n",
+                                      "shape")
+"""Task fields an evaluation JSON's "config" held before task files (None in a scene field: the demos')."""
+
+
+def evaluation_config_from_dict(values: dict[str, Any], source: str, task: Any = None) -> EvaluationConfig:
+    """The EvaluationConfig of an evaluation JSON: its "config" (`EvaluationConfig.settings`) and its "task" (the
+    task the episodes ran, envs.task.task.Task.to_dict); a JSON of before task files has no "task" and the task's fields
+    in "config" (LEGACY_TASK_KEYS). Unknown keys, from other versions, are an error because they may change an
+    episode. Workers and backend become one local process.
+
+    Raises:
+        EnvError: not an object, unknown keys, or values the config or the task rejects.
+    """
+    if not isinstance(values, dict):
+        raise EnvError(f"{source}: 'config' must be a JSON object, got {type(values).__name__}")
+    known = {f.name for f in dataclasses.fields(EvaluationConfig)} - {"task"}
+    legacy = set(LEGACY_TASK_KEYS) if task is None else set()
+    unknown = sorted(set(values) - known - legacy)
+    if unknown:
+        raise EnvError(f"{source}: 'config' has keys this version does not know: {unknown}")
+    fields = {k: v for k, v in values.items() if k in known}
+    if task is not None:
+        fields["task"] = Task.from_dict(task, f"{source}: task")
+    else:
+        fields.update(_legacy_task(values, source))
+    fields.update(workers=1, backend="process", ray_address=None)
+    try:
+        return EvaluationConfig(**fields)
+    except TypeError as err:
+        raise EnvError(f"{source}: 'config' is malformed ({err})") from None
+
+
+def _legacy_task(values: dict[str, Any], source: str) -> dict[str, Any]:
+    """The task and scene_from_task of a "config" of before task files (None in a scene field: the demos')."""
+    leaves = {k: values[k] for k in LEGACY_TASK_KEYS if k in values and k != "perturbations"}
+    ranges = values.get("perturbations")
+    if ranges is not None and not isinstance(ranges, dict):
+        raise EnvError(f"{source}: 'config.perturbations' is malformed ({ranges!r})")
+    leaves.update(ranges or {})
+    if "force_limit_n" in leaves and leaves["force_limit_n"] is None:
+        leaves["force_limit_n"] = math.inf  # strict JSON writes "no limit" (inf) as null (envs.io.owned_output)
+    try:
+        task = Task().override(**leaves)
+    except TypeError as err:
+        raise EnvError(f"{source}: 'config' is malformed ({err})") from None
+    return {"task": task, "scene_from_task": tuple(k for k in SCENE_FROM_TASK if values.get(k) is not None)}
+
+
+def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[str] | None = None) -> RecordedEvaluation:
+    """Read an evaluation JSON written by `pih evaluate --json`.
+
+    Args:
+        path: the JSON file.
+        model_dir: the checkpoint (default: the file's "model", taken relative to the current folder, else
+            to the JSON's folder).
+
+    Raises:
+        EnvError: missing or unreadable file, missing keys, an incomplete evaluation, no checkpoint folder, an
+            evaluation of a user policy (`pih evaluate --policy`).
+    """
+    src = Path(path)
+    if not src.is_file():
+        raise EnvError(f"evaluation file {src} not found")
+    try:
+        data = json.loads(src.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise EnvError(f"{src}: not a readable evaluation JSON ({type(err).__name__}: {err})") from None
+    if not isinstance(data, dict):
+        raise EnvError(f"{src}: not an evaluation JSON (a JSON object from `pih evaluate --json`)")
+    if isinstance(data.get("policy"), dict):
+        raise EnvError(f"{src}: an evaluation of --policy {data['policy'].get('spec')} cannot be replayed (only the "
+                       "RiemannianFlow skill's, from its checkpoint)")
+    missing = [k for k in ("model", "config", "per_episode", "skill") if k not in data]
+    if missing:
+        raise EnvError(f"{src}: missing keys {missing} (not written by `pih evaluate --json`?)")
+    records = data["per_episode"]
+    if not isinstance(records, list) or not records or not all(isinstance(r, dict) for r in records):
+        raise EnvError(f"{src}: 'per_episode' must be a non-empty list of episode records")
+    if model_dir is None:
+        candidates = [Path(str(data["model"])), src.parent / str(data["model"])]
+        found = next((c for c in candidates if c.is_dir()), None)
+        if found is None:
+            raise EnvError(f"{src}: its checkpoint {data['model']!r} is not a folder here; give it with --model")
+        model_dir = found
+    elif not Path(model_dir).is_dir():
+        raise EnvError(f"--model {model_dir}: checkpoint folder not found")
+    skill = data["skill"] if isinstance(data["skill"], dict) else {}
+    config = evaluation_config_from_dict(data["config"], str(src), data.get("task"))
+    return RecordedEvaluation(src, Path(model_dir), config, data.get("scene") or {}, skill, records)
+
+
+def recorded_starts(evaluation: RecordedEvaluation, indices: Sequence[int] | None = None) -> list[StartPose]:
+    """The starts of the chosen episodes (default: all recorded), drawn again and checked against the records.
+
+    Raises:
+        EnvError: an index with no record, no demo starts in the skill metadata, or a redrawn start that differs
+            from the recorded one.
+    """
+    by_index = {int(r.get("index", -1)): r for r in evaluation.records}
+    chosen = sorted(by_index) if indices is None else list(indices)
+    absent = [i for i in chosen if i not in by_index]
+    if absent:
+        raise EnvError(f"{evaluation.path}: no episode record with index {absent} (it holds {len(by_index)})")
+    meta = evaluation.skill.get("demo_starts")
+    if not isinstance(meta, dict) or "pos" not in meta or "quat" not in meta:
+        raise EnvError(f"{evaluation.path}: the skill metadata has no demo starts to draw the episodes' starts from")
+    drawn = evaluation_starts(meta, dataclasses.replace(evaluation.config,
+                                                        episodes=max(evaluation.config.episodes, max(chosen) + 1)))
+    starts = []
+    for i in chosen:
+        start, record = drawn[i], by_index[i]
+        recorded = np.concatenate([np.asarray(record.get("start_pos"), float), np.asarray(record.get("start_quat"), float)])
+        redrawn = np.concatenate([start.pose.pos, start.pose.quat])
+        if recorded.shape != (7,) or not np.all(np.abs(recorded - redrawn) <= START_TOL):
+            raise EnvError(f"{evaluation.path}: episode {i}'s recorded start differs from the start drawn from its "
+                           "seed (the evaluation used explicit starts or another checkpoint)")
+        starts.append(start)
+    return starts
+
+
+def check_replay(record: dict[str, Any], replayed: EpisodeRecord, source: str) -> None:
+    """The replayed episode must end as recorded (success, end reason, steps).
+
+    Raises:
+        EnvError: naming the episode and the first field that differs.
+    """
+    for key in ("success", "reason", "steps"):
+        was, now = record.get(key), getattr(replayed, key)
+        if was != now:
+            raise EnvError(f"{source}: the replay of episode {replayed.index} differs from its record ({key}: "
+                           f"{was!r} recorded, {now!r} replayed); evaluate again with this code and checkpoint")
+
+
+#: Records whose reason starts with one of these have no trajectory to replay (no episode ran, or its worker
+#: was lost).
+NO_TRAJECTORY: tuple[str, ...] = ("unreachable start", "worker_died", "wall_timeout")
+
+
+def replay_evaluation(evaluation: RecordedEvaluation, indices: Sequence[int] | None = None,
+                      on_step: Callable[[Any], None] | None = None,
+                      on_episode: Callable[[StartPose, Any], None] | None = None,
+                      on_trace: Callable[[dict[str, Any], EpisodeRecord, EpisodeTrace], None] | None = None
+                      ) -> tuple[list[int], dict[int, str]]:
+    """Replay the chosen episodes (default: all) one at a time with traces, each checked against its record;
+    episodes without a trajectory (NO_TRAJECTORY) are skipped.
+
+    Args:
+        evaluation: from `load_evaluation`.
+        indices: the episodes to replay.
+        on_step, on_episode: as for `iter_replays` (e.g. video capture).
+        on_trace: called after each episode with (recorded dict, replayed record, trace), so that a caller can
+            write the episode out and let go of it before the next one.
+
+    Returns:
+        (the replayed episode indices, {skipped index: its recorded reason}).
+
+    Raises:
+        EnvError: see `recorded_starts` and `check_replay`.
+        RFlowError: a missing or corrupt checkpoint.
+    """
+    by_index = {int(r.get("index", -1)): r for r in evaluation.records}
+    chosen = sorted(by_index) if indices is None else list(indices)
+    skipped = {i: str(by_index[i].get("reason")) for i in chosen
+               if i in by_index and str(by_index[i].get("reason", "")).startswith(NO_TRAJECTORY)}
+    starts = recorded_starts(evaluation, [i for i in chosen if i not in skipped])
+    replays = iter_replays(evaluation.model_dir, evaluation.config, starts, on_step=on_step, on_episode=on_episode)
+    for start, (replayed, trace) in zip(starts, replays):
+        check_replay(by_index[start.index], replayed, str(evaluation.path))
+        if on_trace is not None and trace is not None:
+            on_trace(by_index[start.index], replayed, trace)
+    return [s.index for s in starts], skipped

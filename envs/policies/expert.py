@@ -1,0 +1,88 @@
+"""The scripted expert of envs.demos.record as a `Policy`: a privileged teacher, scored like any other policy.
+
+At ``reset`` it plans the expert's path (envs.policies.expert_plan.plan_expert_path: align above the hole, slow entry, seat, hold)
+from the measured start pose into the TRUE hole, which only a privileged observation carries
+(``run_episode(..., privileged=True)``, `pih evaluate --policy envs.policies.expert:make --privileged`);
+without it ``reset`` raises. Each ``act`` commands the plan's next sample with the plan's twist and acceleration as
+feed-forward (the lead the demos are recorded with, envs.policies.feedforward) and, with a stiffness schedule,
+the schedule's translational stiffness at the measured tcp position (envs.policies.stiffness_schedule); after the plan's end
+it holds the goal. `pih demos` records the same expert through envs.demos.record.execute_demo, which plans from the
+requested start pose rather than the measured one.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from envs.policies.expert_plan import ExpertConfig, plan_expert_path, plan_twists
+from envs.errors import EnvError
+from envs.policies.interface import Action, Observation, PolicyTask
+from envs.poses import Pose
+from envs.policies.stiffness_schedule import expert_stiffness
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class ScriptedExpertPolicy:
+    """The scripted expert (module docstring); needs privileged observations."""
+
+    def __init__(self, config: ExpertConfig = ExpertConfig()):
+        if not isinstance(config, ExpertConfig):
+            raise EnvError(f"ScriptedExpertPolicy needs an ExpertConfig, got {type(config).__name__}")
+        self.config = config
+        self.plan_pos: FloatArray = np.zeros((0, 3))
+        self.plan_quat: FloatArray = np.zeros((0, 4))
+        self._twist: FloatArray = np.zeros((0, 6))
+        self._accel: FloatArray = np.zeros((0, 6))
+        self._hole_pos: FloatArray = np.zeros(3)
+        self._hole_axis: FloatArray = np.zeros(3)
+        self._step = 0
+
+    def reset(self, observation: Observation, period_s: float) -> None:
+        """Plan from the measured tcp pose into the true hole (``observation.privileged``).
+
+        Raises:
+            EnvError: no privileged state in the observation, or a start the expert cannot plan from.
+        """
+        truth = observation.privileged
+        if truth is None:
+            raise EnvError("the scripted expert is a privileged teacher (it plans into the true hole): run it with "
+                           "privileged=True (pih evaluate --privileged)")
+        steps = int(round(self.config.duration_s / period_s))
+        times = period_s * np.arange(1, steps + 1)
+        start = Pose(pos=np.asarray(observation.tcp.pos), quat=np.asarray(observation.tcp.quat))
+        self.plan_pos, self.plan_quat = plan_expert_path(start, truth.hole.pos, truth.hole_axis, truth.goal,
+                                                         self.config, times)
+        self._twist, self._accel = plan_twists(self.plan_pos, self.plan_quat, period_s)
+        self._hole_pos, self._hole_axis = np.asarray(truth.hole.pos), np.asarray(truth.hole_axis)
+        self._step = 0
+
+    def act(self, observation: Observation) -> Action:
+        """The plan's next sample with its twist and acceleration (the goal, at rest, after the plan's end) and the
+        schedule's stiffness at the measured tcp position."""
+        if self.plan_pos.shape[0] == 0:
+            raise EnvError("ScriptedExpertPolicy.act before reset")
+        last = self.plan_pos.shape[0] - 1
+        k = min(self._step, last)
+        self._step += 1
+        schedule = self.config.stiffness
+        stiffness = (None if schedule is None
+                     else expert_stiffness(observation.tcp.pos, self._hole_pos, self._hole_axis, schedule))
+        pose = Pose(pos=self.plan_pos[k], quat=self.plan_quat[k])
+        if self._step > last + 1:
+            return Action(pose, stiffness, twist=np.zeros(6))
+        return Action(pose, stiffness, twist=self._twist[k], accel=self._accel[k])
+
+
+def make(task: PolicyTask, **options: Any) -> ScriptedExpertPolicy:
+    """`pih evaluate --policy envs.policies.expert:make --privileged`: the expert with its default config.
+
+    Raises:
+        EnvError: any option (it takes none).
+    """
+    if options:
+        raise EnvError(f"the scripted expert takes no policy options, got {sorted(options)}")
+    return ScriptedExpertPolicy()
