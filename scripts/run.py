@@ -2,7 +2,7 @@
 
     pih run [--name default] [--episodes 50] [--workers 2] [--overwrite]
 
-The task is the default "contact" preset (envs/tasks/contact.toml: grasped peg, 0.2 mm clearance, 1 mm chamfers,
+The task is the default "contact" preset (envs/task/presets/contact.toml: grasped peg, 0.2 mm clearance, 1 mm chamfers,
 seated on the hole floor, hole-pose error up to 1 mm / 1 deg, 40 N force limit) unless --task (a preset or a task
 file) or a task option says otherwise; the demo file, the checkpoint and eval.json record it. Writes runs/<name>/:
 demos.npz (7 scripted demos, seed 0), model/ (checkpoint with loss.png), eval.json (closed-loop evaluation, 50

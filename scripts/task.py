@@ -2,7 +2,7 @@
 
     pih task show [--task NAME|FILE.toml] [task options] > my_task.toml
 
-The task is resolved as every command resolves it (scripts/task_options.py): --task (a preset of envs/tasks/ or a
+The task is resolved as every command resolves it (scripts/task_options.py): --task (a preset of envs/task/presets/ or a
 file; default the contact preset) with the single options given replacing its fields, all checked (envs/task/task.py).
 Edit the file and give it to any command with --task my_task.toml.
 """

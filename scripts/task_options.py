@@ -5,7 +5,7 @@
     --grasp-force-n F  --hole-error-mm R  --hole-error-deg A  --grasp-offset-mm G  --force-limit-n F
     and, where episodes run, --time-limit-s T  --pos-range-mm P  --rot-range-deg A  --around mean|demo
 
-The task is --task's (a preset of envs/tasks/ or a TOML file; default: the contact preset) with each single option
+The task is --task's (a preset of envs/task/presets/ or a TOML file; default: the contact preset) with each single option
 given replacing its field (envs.task.task.Task.override validates them, one line naming the field). Every option
 defaults to None ("not given"), so a command can tell an explicit choice from the task's value.
 """
@@ -45,7 +45,7 @@ OPTION_FIELDS: dict[str, tuple[str, float | None]] = {
 def add_task_file_arguments(group: Any) -> None:
     """--task and its alias --preset, into ``group``."""
     group.add_argument("--task", metavar="NAME|FILE.toml",
-                       help=f"the task: a preset ({', '.join(PRESET_NAMES)}; envs/tasks/) or a task file "
+                       help=f"the task: a preset ({', '.join(PRESET_NAMES)}; envs/task/presets/) or a task file "
                             f"(`pih task show` prints one to start from); single options below replace its fields "
                             f"(default {DEFAULT_PRESET})")
     group.add_argument("--preset", choices=PRESET_NAMES, help="the same as --task NAME")

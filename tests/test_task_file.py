@@ -77,7 +77,7 @@ def test_each_preset_file_round_trips(name: str) -> None:
 
 def test_the_contact_preset_is_the_default_task() -> None:
     assert preset("contact") == Task()
-    shipped = tomllib.loads((ROOT / "envs" / "tasks" / "contact.toml").read_text())
+    shipped = tomllib.loads((ROOT / "envs" / "task" / "presets" / "contact.toml").read_text())
     assert shipped == {k: v for k, v in Task().to_dict().items()}  # every field written out, none left to defaults
 
 
@@ -91,8 +91,8 @@ def test_the_presets_are_what_the_readme_table_says() -> None:
 
 def test_the_preset_files_are_package_data() -> None:
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    assert "tasks/*.toml" in pyproject["tool"]["setuptools"]["package-data"]["envs"]
-    assert sorted(p.stem for p in (ROOT / "envs" / "tasks").glob("*.toml")) == sorted(PRESET_NAMES)
+    assert "presets/*.toml" in pyproject["tool"]["setuptools"]["package-data"]["envs.task"]
+    assert sorted(p.stem for p in (ROOT / "envs" / "task" / "presets").glob("*.toml")) == sorted(PRESET_NAMES)
 
 
 def test_a_key_left_out_keeps_the_default_value(tmp_path: Path) -> None:

@@ -1,7 +1,7 @@
 """What each imperfection of a real cell costs a skill: each alone, paired with the ideal cell on the same episodes.
 
 `IMPERFECTIONS` names the cell's imperfections (envs.task.perturbation, envs.task.sensor_config) at the magnitudes of the
-"realistic" task preset (envs/tasks/realistic.toml combines them all; a test keeps the two equal). `run_sensitivity`
+"realistic" task preset (envs/task/presets/realistic.toml combines them all; a test keeps the two equal). `run_sensitivity`
 evaluates the skill on the base task (default: the "contact" preset, the ideal cell) and on the base task with one
 imperfection set, with the same seed and episodes: the imperfections are drawn from a generator of their own, so
 every variant meets the same starts and hole-pose errors as the base, and its episodes pair with the base's

@@ -17,7 +17,7 @@ metres, _deg degrees, _n newtons, _s seconds, _m_s metres per second; ``force_li
 keeps the default task's value (the "contact" preset); an unknown key, a value of the wrong type or out of range,
 a missing file or malformed TOML is an EnvError of one line naming the file and the key.
 
-Presets (package data, envs/tasks/NAME.toml, `preset(name)`):
+Presets (package data, envs/task/presets/NAME.toml, `preset(name)`):
   - "contact" (default, equal to ``Task()``): the peg grasped with 70 N, a 0.2 mm clearance, 1 mm chamfers, holes
     exactly as deep as the insertion (seated = on the hole's floor, as in Factory), the real hole off by up to 1 mm
     horizontally and 1 deg (yaw and tilt), a 40 N wrist force limit. The peg meets the walls in most episodes, so
@@ -379,15 +379,15 @@ def parse_toml(text: str, source: str) -> Task:
 
 @lru_cache(maxsize=None)
 def preset(name: str) -> Task:
-    """The named preset: the package's task file envs/tasks/NAME.toml.
+    """The named preset: the package's task file envs/task/presets/NAME.toml.
 
     Raises:
         EnvError: for an unknown name.
     """
     if name not in PRESET_NAMES:
         raise EnvError(f"preset {name!r} is unknown; choose one of {', '.join(PRESET_NAMES)}")
-    text = resources.files("envs").joinpath("tasks", f"{name}.toml").read_text(encoding="utf-8")
-    return parse_toml(text, f"preset {name} (envs/tasks/{name}.toml)")
+    text = resources.files("envs.task").joinpath("presets", f"{name}.toml").read_text(encoding="utf-8")
+    return parse_toml(text, f"preset {name} (envs/task/presets/{name}.toml)")
 
 
 def load_task(spec: str | Path) -> Task:
