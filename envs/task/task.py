@@ -41,16 +41,18 @@ from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from envs.errors import EnvError
 from envs.cell.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
 from envs.cell.pads import check_pad_stiffness
-from envs.cell.scene_config import SceneConfig
 from envs.task.perturbation import PerturbationRanges
 from envs.task.sensor_config import WristSensorConfig
 from envs.cell.shapes import check_shape
 from envs.cell.sorter import check_chamfer, check_clearance, check_hole_depth
+
+if TYPE_CHECKING:
+    from envs.cell.scene_config import SceneConfig
 
 TASK_VERSION: int = 1
 """Version of the task record (files, checkpoints, result JSON); a reader refuses another."""
@@ -210,6 +212,8 @@ class Task:
     def scene_config(self, **overrides: Any) -> SceneConfig:
         """The scene of this task (its shape, when set, and its scene fields, `scene_fields`), plus ``overrides``.
         Built here, not in envs.cell, so that the cell knows nothing of tasks."""
+        from envs.cell.scene_config import SceneConfig  # numba (small_linalg): not for a command's --help
+
         return SceneConfig(**{**self.scene_fields(), **overrides})
 
     def override(self, **values: Any) -> Task:
