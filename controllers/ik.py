@@ -15,7 +15,7 @@ Two solvers of this one problem (`solve_ik`'s ``solver``):
   - "mink": mink itself (mink.FrameTask, PostureTask, ConfigurationLimit, daqp), the IK of record. It answers
     whether a pose is reachable (the evaluation's goal check) and is the reference of the tests.
   - "compiled": the same QP step in numba (`controllers.ik_kernel`), equal to mink + daqp to ~1e-9 rad per step
-    (tests/test_ik_kernel.py, which runs on every CI run). `NullspaceReference` runs it every control step,
+    (tests/controllers/test_ik_kernel.py, which runs on every CI run). `NullspaceReference` runs it every control step,
     where mink's Python iterations would cost more than the control law, and `PegInHoleEnv.reset` takes the
     start joints from it: from the starts of the contact and paper tasks the two solvers end within 2e-12 rad
     of each other and agree on every reachability verdict, but not to the bit, and a start 1e-12 rad away is
@@ -174,8 +174,8 @@ class _DifferentialIK:
 class _MinkIK(_DifferentialIK):
     """The same problem built from mink's own pieces -- mink.FrameTask (position and orientation cost 1,
     ``lm_damping``), mink.PostureTask, mink.ConfigurationLimit (gain 0.95) -- and solved by daqp (damping 1e-9):
-    the IK of record, which the compiled step equals to ~1e-9 rad (tests/test_ik_kernel.py). Its iterations run
-    in Python, many times slower than the compiled ones (README: `pih bench --only ik`)."""
+    the IK of record, which the compiled step equals to ~1e-9 rad (tests/controllers/test_ik_kernel.py). Its iterations
+    run in Python, many times slower than the compiled ones (README: `pih bench --only ik`)."""
 
     def __init__(self, model: mujoco.MjModel, site: int | str, config: IKConfig) -> None:
         import mink

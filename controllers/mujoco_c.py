@@ -22,8 +22,8 @@ and call them through the intrinsics below, which jump to an address with the C 
     void mju_mat2Quat(mjtNum quat[4], const mjtNum mat[9]);
     void mj_objectVelocity(const mjModel* m, const mjData* d, int objtype, int objid, mjtNum res[6], int flg_local);
 
-The signatures are written here, not read from the library: tests/test_mujoco_c.py runs each call against the
-Python bindings on random Panda states (bit for bit), so a MuJoCo whose signatures change fails the tests instead of
+The signatures are written here, not read from the library: tests/controllers/test_mujoco_c.py runs each call against
+the Python bindings on random Panda states (bit for bit), so a MuJoCo whose signatures change fails the tests instead of
 corrupting memory in an episode.
 """
 

@@ -75,13 +75,13 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 from controllers.impedance import ImpedanceConfig
+from envs.cell.scene_config import SceneConfig
+from envs.errors import EnvError
+from envs.media.rendering import MAX_FRAME_PX
+from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
 from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
 from envs.sim.observation import REASON_TIME_LIMIT, SimulatorState
-from envs.errors import EnvError
-from envs.poses import Pose, quat_angle_rad, quat_from_rotvec, quat_mul
-from envs.media.rendering import MAX_FRAME_PX
-from envs.cell.scene_config import SceneConfig
 from envs.task.task import Task
 from numerics.errors import shown
 from numerics.small_linalg import norm

@@ -16,7 +16,7 @@ import numpy.typing as npt
 from envs.errors import EnvError
 from envs.geometry import all_finite
 from numerics.quaternion import (quat_angle_rad, quat_conj, quat_from_rotvec, quat_from_rotvec_one, quat_mul,
-                              quat_mul_one, quat_to_rotvec, quat_to_rotvec_one, rotate, slerp)
+                                 quat_mul_one, quat_to_rotvec, quat_to_rotvec_one, rotate, slerp)
 from numerics.small_linalg import matvec, norm
 
 FloatArray = npt.NDArray[np.float64]

@@ -14,7 +14,7 @@ Each formula is written once, over scalar components, in `hamilton`, `matrix_to_
 (`quat_mul`), one quaternion in Python floats (`quat_mul_one`) and, compiled with ``numba.njit``, the kernels
 (`controllers.impedance_kernel` at 1 kHz, `envs.policies.closed_loop_kernel` once per control period). One source
 means one rounding: a kernel's quaternion equals the array version's to the bit (tests/test_numba_twins.py). scipy's `Rotation` is the reference these are tested
-against (tests/test_quaternion.py); it is not used here because it rounds differently, and what feeds an
+against (tests/numerics/test_quaternion.py); it is not used here because it rounds differently, and what feeds an
 episode record must not change with a library's internals.
 
 This module imports numpy only (no numba, no torch), so the task configs may use it while `pih evaluate
@@ -242,7 +242,8 @@ def _check_slerp_input(q0: Any, q1: Any, s: Any) -> tuple[FloatArray, FloatArray
     except (TypeError, ValueError) as err:
         raise NumericsError(f"slerp: s is not an array of numbers: {err}") from None
     if not (math.isfinite(t.item()) if t.ndim == 0 else bool(np.isfinite(t).all())):
-        raise NumericsError(f"slerp: s contains NaN or inf: {t.tolist() if t.size <= 8 else 'of shape ' + str(t.shape)}")
+        raise NumericsError(f"slerp: s contains NaN or inf: "
+                            f"{t.tolist() if t.size <= 8 else 'of shape ' + str(t.shape)}")
     return out[0], out[1], t
 
 
@@ -283,8 +284,8 @@ def rotate(quat: npt.ArrayLike, vec: npt.ArrayLike) -> FloatArray:
 # The closed loop's hot path: tiny arrays cost more in numpy call overhead than in arithmetic. The product is
 # `hamilton` itself; the rotation-vector maps repeat quat_to_rotvec and quat_from_rotvec operation for
 # operation (np.linalg.norm over the last axis is a left-to-right sum of squares), so the results are the same
-# to the bit (tests/test_policy_single_pose.py); the transcendental functions are numpy's own ufuncs, which
-# are what the array versions call.
+# to the bit (tests/envs/policies/test_policy_single_pose.py); the transcendental functions are numpy's own ufuncs,
+# which are what the array versions call.
 
 
 def quat_mul_one(a: list[float], b: list[float]) -> list[float]:

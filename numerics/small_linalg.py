@@ -1,8 +1,8 @@
 """Small dense linear algebra without BLAS or LAPACK: every sum in a fixed order, so results do not depend on the CPU.
 
-This is the BLAS-free half of `numerics.cpu_dispatch`. numpy's ``@``, ``dot``, ``matmul``, ``inner``, ``linalg.norm`` of a
-whole vector, ``linalg.solve``/``eigh``/``inv`` and ``scipy.linalg.expm`` call OpenBLAS, which picks its kernels by the
-host CPU (or by ``OPENBLAS_CORETYPE``, the machine's own setting that a program must leave alone) and sums in the
+This is the BLAS-free half of `numerics.cpu_dispatch`. numpy's ``@``, ``dot``, ``matmul``, ``inner``, ``linalg.norm`` of
+a whole vector, ``linalg.solve``/``eigh``/``inv`` and ``scipy.linalg.expm`` call OpenBLAS, which picks its kernels by
+the host CPU (or by ``OPENBLAS_CORETYPE``, the machine's own setting that a program must leave alone) and sums in the
 order of that kernel: the same product differs in the last bit between an AVX2 and an SSE3 kernel, and the contact
 physics of an episode amplifies that into other records. What feeds an episode record or a demo file therefore
 computes its matrix products here:

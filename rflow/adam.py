@@ -5,7 +5,7 @@ For every parameter p with gradient g, at step t (from 1) with learning rate lr:
     p <- p - lr (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps).
 `FusedAdam.step` hands all parameters to ``torch._fused_adam_``, the kernel `torch.optim.Adam(fused=True)` runs,
 with the same state (m and v zero-initialised like the parameters, t a float32 scalar tensor) and arguments, so the
-weights equal torch.optim's bit for bit (`tests/test_adam.py`). Why not torch.optim itself: constructing any
+weights equal torch.optim's bit for bit (`tests/rflow/test_adam.py`). Why not torch.optim itself: constructing any
 `torch.optim.Optimizer` imports torch._dynamo (about 1.5 s of a training process's start, each time a training
 process starts), and Adam is all that training the skill needs. The other optimizers of the search space
 (`rflow.train.OPTIMIZERS`) still come from torch.optim.

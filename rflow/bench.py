@@ -35,7 +35,7 @@ TRAINING_QUICK_EPOCH_FRACTION = 0.05
 SKILL_LOG_SCALE_CLAMP = 0.5
 SKILL_PRIOR_WEIGHT = 0.3
 """The skill's model settings (scripts/train.py DEFAULT_LOG_SCALE_CLAMP, DEFAULT_PRIOR_WEIGHT; rflow does not import
-scripts, tests/test_rflow_bench.py checks they agree)."""
+scripts, tests/rflow/test_bench.py checks they agree)."""
 
 
 def synthetic_pose_demos(n: int = 7, m: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:

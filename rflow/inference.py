@@ -17,11 +17,11 @@ import multiprocessing
 import numpy as np
 import numpy.typing as npt
 
-from rflow import flow_kernel
 from numerics.errors import shown
+from numerics.small_linalg import eigh_sym, expm, matmul, matvec
+from rflow import flow_kernel
 from rflow.errors import RFlowError
 from rflow.flow_kernel import PackedFlow
-from numerics.small_linalg import eigh_sym, expm, matmul, matvec
 
 
 def check_dt(dt: object) -> None:
@@ -62,7 +62,7 @@ class NumpyImitationFlow:
     a control loop or an evaluation worker's single rollout must not wake threads that compete with other workers.
     A worker process (a child of multiprocessing) runs every batch on one core: the workers share the cores
     already, and a forked one must not enter a parallel region, since GNU OpenMP (numba's "omp" layer) terminates a
-    forked child whose parent ran one (`tests/test_inference.py`)."""
+    forked child whose parent ran one (`tests/rflow/test_inference.py`)."""
 
     def __init__(self, packed: PackedFlow, offset: np.ndarray, drift: np.ndarray, dt: float):
         self._packed = packed

@@ -41,12 +41,12 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import numpy.typing as npt
 
+from numerics.small_linalg import eigh_sym
 from pihutil.atomic import atomic_folder
 from pihutil.manifest import folder_strangers, shown, write_manifest
 from rflow.errors import RFlowError
 from rflow.manifolds import EuclideanSpace, Manifold, ProductManifold, SPDNormalMatrices, UnitQuaternions
 from rflow.model import CONFIG_FILE, WEIGHTS_FILE, RiemannianFlow, read_json
-from numerics.small_linalg import eigh_sym
 from rflow.stiffness import StiffnessBounds, clip_eigenvalues, log_euclidean_mean
 
 SKILL_FILE = "skill.json"

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from numerics.small_linalg import eigh_sym, matmul
 from rflow.errors import RFlowError
 from rflow.manifolds import spd
-from numerics.small_linalg import eigh_sym, matmul
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -24,9 +24,9 @@ import numpy.typing as npt
 import torch
 from tqdm import tqdm
 
+from numerics.cpu_dispatch import check_torch_dispatch
 from pihutil.atomic import write_atomic
 from rflow.adam import FusedAdam
-from numerics.cpu_dispatch import check_torch_dispatch
 from rflow.errors import RFlowError
 from rflow.manifolds import Manifold, get_manifold
 from rflow.model import ImitationFlow, ModelConfig, RiemannianFlow

@@ -35,14 +35,14 @@ import mujoco
 import numpy as np
 
 from controllers.timing import physics_state, replayed_step_rate
-from envs.demos.record import demo_episode_config
-from envs.policies.expert_plan import ExpertConfig, plan_expert_path
-from envs.sim.env import PegInHoleEnv
-from envs.errors import EnvError
-from envs.io.owned_output import MiB, check_output, write_json
 from envs.cell.scene import build_scene
 from envs.cell.scene_config import SceneConfig
+from envs.demos.record import demo_episode_config
+from envs.errors import EnvError
+from envs.io.owned_output import MiB, check_output, write_json
 from envs.media.video import EpisodeVideo, VideoConfig
+from envs.policies.expert_plan import ExpertConfig, plan_expert_path
+from envs.sim.env import PegInHoleEnv
 
 Benchmark = tuple[str, Callable[[bool], dict[str, Any]]]
 
@@ -99,10 +99,10 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         substeps = env.n_substeps
         extra: dict[str, Any] = {"flow_in_loop": False}
     else:
-        from envs.rollout.episode import run_episode
         from envs.evaluation.evaluate import EvaluationConfig, build_setup
-        from envs.evaluation.starts import evaluation_starts
         from envs.evaluation.profile import law_floor_periods, profile_periods
+        from envs.evaluation.starts import evaluation_starts
+        from envs.rollout.episode import run_episode
 
         config = EvaluationConfig(episodes=2 if quick else 5)
         skill, env, policy = build_setup(model, config)
@@ -198,10 +198,10 @@ def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
     The records of every variant equal the one-at-a-time ones ("records_equal")."""
     if model is None:
         return {"skipped": "no trained skill (--model)"}
-    from envs.rollout.episode import run_episode
     from envs.evaluation.evaluate import EvaluationConfig, build_slots
-    from envs.rollout.lockstep import run_lockstep
     from envs.evaluation.starts import evaluation_starts
+    from envs.rollout.episode import run_episode
+    from envs.rollout.lockstep import run_lockstep
 
     sizes = LOCKSTEP_SLOTS[:2] if quick else LOCKSTEP_SLOTS
     config = EvaluationConfig(episodes=16 if quick else max(sizes))

@@ -139,8 +139,8 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
     from batch import Journal
     from envs.demos.file import save_demos
     from envs.demos.record import collect_demos
-    from envs.rollout.episode import record_from_dict
     from envs.evaluation.evaluate import evaluate, journal_run
+    from envs.rollout.episode import record_from_dict
     from scripts.train import skill_train_config, train_skill
 
     folder.mkdir(exist_ok=True)
@@ -185,8 +185,8 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
 
 def main(args: argparse.Namespace) -> int:
     """Run or continue the protocol; print and write its summary."""
-    from envs.media.figures import plot_protocol
     from envs.io.owned_output import write_json
+    from envs.media.figures import plot_protocol
     from numerics.errors import NumericsError
 
     config = protocol_from_args(args)

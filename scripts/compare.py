@@ -34,9 +34,9 @@ import scripts.evaluate as evaluate_cli
 from envs.errors import EnvError
 from envs.io.owned_output import write_json
 from envs.statistics.comparison import compare_evaluations, load_evaluation, sequential_differences
+from envs.statistics.fixed_sample import DECISIONS
 from envs.statistics.pairing import pair_records
 from envs.statistics.sequential import SequentialComparison
-from envs.statistics.fixed_sample import DECISIONS
 from scripts.options import MAX_EPISODES, count, refuse_unused
 
 KIND = "pih compare"

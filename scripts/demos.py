@@ -1,8 +1,9 @@
 """`pih demos`: record scripted peg-in-hole demonstrations in physics (or check the expert's success rate).
 
-The expert commands and records its translational stiffness schedule (envs/demos/record.py, envs/policies/stiffness_schedule.py):
-the demo file's ``stiffness``, learned with `pih train --stiffness expert`. The scene is the task's (--task and the
-task options, envs/task/task.py); the demo file records the task, and `pih train` copies it into the checkpoint.
+The expert commands and records its translational stiffness schedule (envs/demos/record.py,
+envs/policies/stiffness_schedule.py): the demo file's ``stiffness``, learned with `pih train --stiffness expert`. The
+scene is the task's (--task and the task options, envs/task/task.py); the demo file records the task, and `pih train`
+copies it into the checkpoint.
 
     pih demos --num 7 --seed 0 --out runs/demos.npz [--shape square] [--task NAME|FILE.toml] [--video runs/demos.mp4]
     pih demos --num 7 --seed 0 --noise realistic --out runs/noisy.npz   # as a real cell records them
@@ -27,9 +28,9 @@ from scripts.options import (MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera,
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator loads in main(), never for --help
+    from envs.cell.scene_config import SceneConfig
     from envs.demos.record import DemoAttempt
     from envs.policies.expert_plan import ExpertConfig
-    from envs.cell.scene_config import SceneConfig
 
 
 def expert_stiffness(text: str) -> Any:

@@ -51,11 +51,11 @@ def add_import_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_import(args: argparse.Namespace) -> int:
     """Validate every option, convert, write the demo file, print the per-demo goal jumps; exit status."""
+    from envs.cell.scene import nominal_flange_to_peg_tip
     from envs.datasets import read_dataset
     from envs.demos.file import save_demos
     from envs.demos.importing import ImportConfig, import_demos, load_recorded_demos, parse_tool_offset, resolve_dt
     from envs.poses import Pose
-    from envs.cell.scene import nominal_flange_to_peg_tip
 
     if args.check is not None:
         raise EnvError("--import and --check cannot be combined")

@@ -36,10 +36,10 @@ from typing import TYPE_CHECKING, Any, Sequence
 from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
 from envs.evaluation.config import MAX_LOCKSTEP, MAX_SPEED, EvaluationConfig  # noqa: E402
-from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
 from envs.io.owned_output import MiB, check_distinct, check_output  # noqa: E402
-from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, refuse_unused, seed  # noqa: E402
+from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
+from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, refuse_unused, seed  # noqa: E402
 from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
@@ -379,8 +379,8 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     """
     from envs.evaluation.evaluate import replay_episodes
     from envs.evaluation.starts import evaluation_starts
-    from envs.policies.flow_skill import generate_plan
     from envs.media.video import EpisodeVideo, VideoConfig
+    from envs.policies.flow_skill import generate_plan
     from rflow.skill_io import load_skill
 
     out: dict[str, Any] = {"video": None, "figure": None, "stiffness_figure": None, "force_figure": None,

@@ -17,8 +17,8 @@ import time
 from pathlib import Path
 
 from envs.datasets import LAYOUTS, require_layout
-from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demos
 from envs.datasets.export_folder import check_export_folder, staged_folder
+from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demos
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output_folder
 from scripts.options import refuse_unused

@@ -28,7 +28,8 @@ from typing import Any, Callable
 import numpy as np
 
 from envs.io.npz import open_npz
-from envs.io.owned_output import MiB, check_distinct, check_output, check_output_folder, save_npz, write_json, write_text
+from envs.io.owned_output import (MiB, check_distinct, check_output, check_output_folder, save_npz, write_json,
+                                  write_text)
 from numerics.cpu_dispatch import DISPATCH_VARIABLES
 from rflow.errors import RFlowError
 from rflow.lasa import (
@@ -160,7 +161,8 @@ FIGURE_DPI = 90
 
 
 def save_figure(path: Path, figure: Any) -> Path:
-    """Write a matplotlib figure as PNG (envs.io.owned_output.save_figure; the argument order of lasa_report's ``save``)."""
+    """Write a matplotlib figure as PNG (envs.io.owned_output.save_figure; the argument order of lasa_report's
+    ``save``)."""
     from envs.io.owned_output import save_figure as save_png
 
     return save_png(figure, path, dpi=FIGURE_DPI)

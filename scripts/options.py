@@ -78,8 +78,8 @@ def check_camera(camera: str) -> None:
     Raises:
         EnvError: naming the camera and the available ones.
     """
-    from envs.errors import EnvError
     from envs.cell.scene import CAMERAS
+    from envs.errors import EnvError
 
     if camera not in CAMERAS:
         raise EnvError(f"--camera {camera!r} is not a camera of the scene (available: {', '.join(CAMERAS)})")

@@ -17,17 +17,17 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from envs.cell.scene_config import SceneConfig
 from envs.demos.file import load_demos
 from envs.demos.record import scene_config_from_demos
+from envs.errors import EnvError
+from envs.io.owned_output import MiB, check_output
+from envs.media.video import EpisodeVideo, VideoConfig
+from envs.poses import Pose
 from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
 from envs.sim.observation import StepResult
 from envs.sim.trajectory import replay_trajectory
-from envs.errors import EnvError
-from envs.io.owned_output import MiB, check_output
-from envs.poses import Pose
-from envs.cell.scene_config import SceneConfig
-from envs.media.video import EpisodeVideo, VideoConfig
 from scripts.options import MAX_DEMOS, check_camera, count, number
 
 VIDEO_BYTES = 100 * MiB

@@ -27,7 +27,8 @@ from scripts.task_options import add_start_arguments, add_task_arguments, task_f
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "forces.png", "episodes.mp4",
                "summary.json")
-"""What `pih run` writes into runs/<name>/ (an earlier run's are replaced only with --overwrite, envs/io/owned_output.py)."""
+"""What `pih run` writes into runs/<name>/ (an earlier run's are replaced only with --overwrite,
+envs/io/owned_output.py)."""
 RUN_BYTES = 200 * MiB
 """Generous size of a run folder (a checkpoint, the demos, the record and a video of four episodes)."""
 
@@ -84,9 +85,9 @@ def main(args: argparse.Namespace) -> int:
 
     from envs.demos.file import save_demos
     from envs.demos.record import collect_demos
-    from envs.policies.expert_plan import ExpertConfig
     from envs.evaluation.evaluate import EvaluationConfig, evaluate
     from envs.media.figures import plot_outcomes
+    from envs.policies.expert_plan import ExpertConfig
     from scripts.evaluate import choose_episodes, render_and_plot
     from scripts.train import skill_train_config, train_skill
 

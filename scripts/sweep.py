@@ -24,8 +24,8 @@ from pathlib import Path
 
 from envs.errors import EnvError
 from envs.evaluation.config import EvaluationConfig
-from envs.policies.skill_settings import MODES
 from envs.io.owned_output import MiB, check_output, check_output_folder, write_json
+from envs.policies.skill_settings import MODES
 from scripts.options import MAX_EPISODES, MAX_WORKERS, count, number, seed
 from scripts.task_options import add_task_file_arguments, check_option_value, scene_from_task, task_from_args
 
@@ -132,8 +132,8 @@ def main(args: argparse.Namespace) -> int:
     """Run the sweep; exit 0 when complete, 3 when incomplete, 1 when a fault stopped it, 130 when interrupted."""
     from batch import Journal, describe_event
     from envs.evaluation.evaluate import journal_run
-    from envs.media.figures import plot_success_map
     from envs.evaluation.sweep import SweepAxes, sweep, sweep_cells, sweep_run
+    from envs.media.figures import plot_success_map
 
     axes = SweepAxes(**{name: parse_values(option, getattr(args, option[2:].replace("-", "_")), scale)
                         for name, (option, scale) in AXIS_OPTIONS.items()}, stiffness=parse_stiffness(args.stiffness))

@@ -5,8 +5,8 @@
     --grasp-force-n F  --hole-error-mm R  --hole-error-deg A  --grasp-offset-mm G  --force-limit-n F
     and, where episodes run, --time-limit-s T  --pos-range-mm P  --rot-range-deg A  --around mean|demo
 
-The task is --task's (a preset of envs/task/presets/ or a TOML file; default: the contact preset) with each single option
-given replacing its field (envs.task.task.Task.override validates them, one line naming the field). Every option
+The task is --task's (a preset of envs/task/presets/ or a TOML file; default: the contact preset) with each single
+option given replacing its field (envs.task.task.Task.override validates them, one line naming the field). Every option
 defaults to None ("not given"), so a command can tell an explicit choice from the task's value.
 """
 

@@ -23,13 +23,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Compile the kernels by running the code paths of a run once; returns 0."""
-    from envs.rollout.episode import StartPose, run_episode
     from envs.evaluation.evaluate import EvaluationConfig
     from envs.policies.flow_skill import generate_plan, make_policy
+    from envs.poses import Pose
+    from envs.rollout.episode import StartPose, run_episode
     from envs.sim.env import PegInHoleEnv
     from envs.sim.episode_config import EpisodeConfig
     from envs.task.perturbation import Perturbation
-    from envs.poses import Pose
     from rflow.bench import synthetic_pose_demos
     from rflow.model import ModelConfig
     from rflow.skill_io import fit_pose_skill

@@ -17,7 +17,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 def paper_checkpoint(tmp_path_factory):
     """A small RiemannianFlow skill in the paper's setting (the "paper" preset: grasped peg, 1 mm clearance, the
     hole where the demos ended), trained once per session: 7 scripted demos of 400 samples, 40 epochs. It seats
-    20 of 20 closed-loop starts of seed 1 (tests/test_end_to_end.py)."""
+    20 of 20 closed-loop starts of seed 1 (tests/end_to_end/test_paper_skill.py)."""
     from envs.demos.file import save_demos
     from envs.demos.record import collect_demos
     from envs.policies.expert_plan import ExpertConfig

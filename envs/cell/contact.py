@@ -20,7 +20,7 @@ class ContactConfig:
     [d0, d_max] blends the unconstrained and the reference acceleration, so a resting contact settles at
     about r = (1 - d) a0 / (d k), a0 the acceleration the contact cancels. The defaults (timeconst 2 ms =
     2 timesteps of panda.xml, d = 0.99..0.999) give k = 2.5e5 s^-2 and r < 1e-5 m for a 57 g peg under
-    gravity or pushed with 30 N; tests/test_contact_physics.py measures ~1e-7 m resting and ~3e-6 m under
+    gravity or pushed with 30 N; tests/envs/cell/test_contact_physics.py measures ~1e-7 m resting and ~3e-6 m under
     30 N, far below the 0.1 mm gap of a 0.2 mm clearance. MuJoCo's default contacts (timeconst 20 ms,
     d = 0.9..0.95) let that push sink a square peg 14 mm into the triangle hole.
 
@@ -37,7 +37,7 @@ class ContactConfig:
             removes the creep of soft friction: a contact inside its friction cone does not slide. Without it a
             triangle peg squeezed by the pads (faces at 30 deg to the pads, wedge ratio tan 30 = 0.58 < mu = 1,
             so dry friction holds it) crept 0.44 mm/s out of the grasp, and every grasped peg drifted slowly
-            under wall loads; 3 iterations stop both (tests/test_contact_physics.py).
+            under wall loads; 3 iterations stop both (tests/envs/cell/test_contact_physics.py).
     """
 
     solref: tuple[float, float] = (0.002, 1.0)

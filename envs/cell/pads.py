@@ -12,8 +12,8 @@ arm's compliance and are left rigid. A peg side-loaded by F at distance L from t
 
     theta = F L / (2 k)                                     (two pads in parallel)
 
-(tests/test_pads.py measures it). The rubber's G follows from its Shore A hardness S by Gent's relation (A. N. Gent,
-"On the relation between indentation hardness and Young's modulus", Trans. IRI 34, 1958),
+(tests/envs/cell/test_pads.py measures it). The rubber's G follows from its Shore A hardness S by Gent's relation (A. N.
+Gent, "On the relation between indentation hardness and Young's modulus", Trans. IRI 34, 1958),
 E = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.54 S)) MPa, and G = E / 3 (incompressible rubber).
 
 MuJoCo model. Each pad geom moves into its own body on a hinge about the closing axis through the patch's centre,

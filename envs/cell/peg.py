@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from envs.cell.contact import ContactConfig
-from envs.errors import EnvError
 from envs.cell.shapes import PEG_LENGTH_M, peg_cross_section
+from envs.errors import EnvError
 
 if TYPE_CHECKING:  # loads MuJoCo: imported where the model is built
     from dm_control import mjcf

@@ -36,14 +36,14 @@ from dm_control import mjcf
 
 import assets
 from envs.cell.contact import ContactConfig
-from envs.errors import EnvError
-from envs.geometry import FloatArray, look_at_xyaxes
+from envs.cell.hole import HoleSpec
 from envs.cell.pads import make_pads_compliant, pad_patch_m
 from envs.cell.peg import build_peg
 from envs.cell.scene_config import SceneConfig, goal_from_hole, hole_from_goal
 from envs.cell.shapes import PEG_LENGTH_M, SHAPES, check_shape, grip_half_width_m, hole_inradius_m
-from envs.cell.hole import HoleSpec
 from envs.cell.sorter import SorterLayout, build_sorter, sorter_layout, symmetry_order
+from envs.errors import EnvError
+from envs.geometry import FloatArray, look_at_xyaxes
 from numerics.quaternion import mat_to_quat, quat_to_mat
 from numerics.small_linalg import matmul, matvec, norm
 

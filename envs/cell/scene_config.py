@@ -15,6 +15,10 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.cell.contact import ContactConfig
+from envs.cell.pads import check_pad_stiffness
+from envs.cell.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
+from envs.cell.shapes import check_shape
+from envs.cell.sorter import check_chamfer, check_clearance, check_hole_depth
 from envs.errors import EnvError
 from envs.geometry import (
     R_FLIP_X,
@@ -25,10 +29,6 @@ from envs.geometry import (
     z_down_rotation,
     z_down_yaw_deg,
 )
-from envs.cell.pads import check_pad_stiffness
-from envs.cell.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
-from envs.cell.shapes import check_shape
-from envs.cell.sorter import check_chamfer, check_clearance, check_hole_depth
 from numerics.quaternion import mat_to_quat, quat_to_mat
 from numerics.small_linalg import matmul
 

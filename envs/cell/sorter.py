@@ -39,9 +39,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from envs.cell.contact import ContactConfig
+from envs.cell.shapes import SHAPES, hole_polygon, peg_cross_section
 from envs.errors import EnvError
 from envs.geometry import FloatArray, clip_polygon, edge_lines, polygon_area, rectangle
-from envs.cell.shapes import SHAPES, hole_polygon, peg_cross_section
 
 if TYPE_CHECKING:  # loads MuJoCo: imported where the model is built, so the limits here stay light
     from dm_control import mjcf
@@ -86,7 +86,8 @@ class WallBox:
 
     def corners(self) -> FloatArray:
         """The four corners (4, 2) in the sorter plane."""
-        from numerics.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
+        # here: the task configs import this module, --help must not load numba
+        from numerics.small_linalg import matmul
 
         c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
         hx, hy = self.half_size_xy

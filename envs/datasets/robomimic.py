@@ -29,7 +29,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from envs.datasets.features import FEATURE_BY_KEY, MARKER_FILE, ExportEpisode, ExportMeta, read_meta, recorded_from_poses
+from envs.datasets.features import (FEATURE_BY_KEY, MARKER_FILE, ExportEpisode, ExportMeta, read_meta,
+                                    recorded_from_poses)
 from envs.demos.importing import RecordedDemos
 from envs.errors import EnvError
 from envs.io.owned_output import write_json

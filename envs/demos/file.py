@@ -176,8 +176,8 @@ def anchored_at_goal(demos: DemoSet) -> tuple[FloatArray, FloatArray]:
 
     so each demo is what it was relative to its own end (its own target: where the part sat, how the peg sat in the
     hand), now relative to the goal, as a demonstration recorded at the goal would be. The shape of each demo is kept
-    (unlike `envs.demos.importing.snap_to_goal`, which bends its last part onto the goal). Demos that end at the goal are
-    returned as they are.
+    (unlike `envs.demos.importing.snap_to_goal`, which bends its last part onto the goal). Demos that end at the goal
+    are returned as they are.
     """
     from numerics.quaternion import quat_conj, quat_mul, rotate
 

@@ -4,8 +4,8 @@ The recorded frame is the ``tcp`` (the nominal peg_tip on the hand, measured thr
 real robot records a demonstration); with the grasped peg it differs from the peg's own peg_tip only by slip
 and tilt in the grasp. The expert knows the real hole.
 
-The scripted expert and its path are envs.policies.expert_plan (ExpertConfig, plan_expert_path). The impedance controller
-executes the path with the velocity and inertia feed-forward of its own pose lead
+The scripted expert and its path are envs.policies.expert_plan (ExpertConfig, plan_expert_path). The impedance
+controller executes the path with the velocity and inertia feed-forward of its own pose lead
 (x_cmd = x_plan + K^-1 (D(q) xi + Lambda(q) xi_dot), controllers.impedance.pose_lead, xi the plan's twist by
 central differences), so the compliant arm follows the plan instead of lagging and swinging beside it (without
 it the peg reached the opening 0.3-0.4 mm beside the axis, a bias every learned skill then copied). The
@@ -44,14 +44,13 @@ import numpy as np
 import numpy.typing as npt
 
 from controllers.impedance import ImpedanceConfig, full_stiffness
-from envs.io.jsonable import to_jsonable
 from envs.cell.contact import ContactConfig
+from envs.cell.scene_config import SceneConfig
 from envs.demos.file import DemoSet
-from envs.sim.env import PegInHoleEnv
-from envs.sim.episode_config import EpisodeConfig
 from envs.errors import EnvError
-from envs.sim.observation import StepResult
+from envs.io.jsonable import to_jsonable
 from envs.policies.expert_plan import ExpertConfig, plan_expert_path, plan_twists
+from envs.policies.stiffness_schedule import expert_stiffness
 from envs.poses import (
     Pose,
     format_pose,
@@ -65,8 +64,9 @@ from envs.poses import (
     quat_to_rotvec,
     resample_trajectory,
 )
-from envs.cell.scene_config import SceneConfig
-from envs.policies.stiffness_schedule import expert_stiffness
+from envs.sim.env import PegInHoleEnv
+from envs.sim.episode_config import EpisodeConfig
+from envs.sim.observation import StepResult
 from envs.task.task import Task
 from numerics.small_linalg import norm
 from rflow.stiffness import log_euclidean_resample

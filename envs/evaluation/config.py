@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from batch.errors import BatchError
 from batch.config import BatchConfig
+from batch.errors import BatchError
 from envs.errors import EnvError
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.task.task import Task, check_number

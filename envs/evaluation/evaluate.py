@@ -31,14 +31,14 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 from batch import Journal, run_batch
 from envs.errors import EnvError
-from envs.policies.adaptation import ContactAdaptation
 from envs.evaluation.config import EvaluationConfig
-from envs.rollout.episode import EpisodeRecord, EpisodeTrace, StartPose, record_from_dict, run_episode
-from envs.policies.flow_skill import make_policy
-from envs.policies.skill_settings import StiffnessSetting
 from envs.evaluation.starts import evaluation_starts, metadata_starts, sample_starts
 from envs.io.jsonable import to_jsonable
+from envs.policies.adaptation import ContactAdaptation
+from envs.policies.flow_skill import make_policy
+from envs.policies.skill_settings import StiffnessSetting
 from envs.poses import Pose, format_pose
+from envs.rollout.episode import EpisodeRecord, EpisodeTrace, StartPose, record_from_dict, run_episode
 from numerics.small_linalg import norm
 
 if TYPE_CHECKING:  # the result (with scipy.stats, ~0.7 s to import) is built in the parent only, never in a worker
@@ -424,6 +424,6 @@ __all__ = [
     "run_settings",
     "run_episode",
     "run_episodes",
-    "sample_starts",  # tests/policy_record_cases.py imports it from here: the same file runs on older commits
+    "sample_starts",  # tests/helpers/policy_record_cases.py imports it from here: the same file runs on older commits
     "scene_config_for",
 ]

@@ -35,14 +35,14 @@ from typing import Any, Callable, Sequence
 from batch import Journal
 from envs.errors import EnvError
 from envs.evaluation.config import EvaluationConfig
-from envs.rollout.episode import StartPose
-from envs.rollout.episode import record_from_dict
 from envs.evaluation.evaluate import SlotPool, build_env, run_episodes, run_settings
 from envs.evaluation.result import EvaluationResult
 from envs.evaluation.starts import evaluation_starts, metadata_starts
-from envs.policies.interface import Policy, PolicyTask, is_policy, policy_task
 from envs.io.jsonable import to_jsonable
+from envs.policies.interface import Policy, PolicyTask, is_policy, policy_task
 from envs.poses import Pose
+from envs.rollout.episode import StartPose
+from envs.rollout.episode import record_from_dict
 from numerics.small_linalg import norm
 
 FACTORY_SIGNATURE = "factory(task: PolicyTask, **options: str) -> Policy"

@@ -21,10 +21,10 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from envs.errors import EnvError
-from envs.rollout.episode import EpisodeRecord, EpisodeTrace, StartPose
 from envs.evaluation.config import SCENE_FROM_TASK
 from envs.evaluation.evaluate import EvaluationConfig, iter_replays
 from envs.evaluation.starts import evaluation_starts
+from envs.rollout.episode import EpisodeRecord, EpisodeTrace, StartPose
 from envs.task.task import Task
 
 #: Largest difference between a recorded and a redrawn start position (m) or quaternion component.

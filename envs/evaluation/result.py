@@ -17,9 +17,9 @@ import numpy as np
 
 from envs.errors import EnvError
 from envs.evaluation.config import EvaluationConfig
+from envs.io.owned_output import write_json
 from envs.rollout.episode import EpisodeRecord
 from envs.statistics.fixed_sample import wilson_interval
-from envs.io.owned_output import write_json
 from envs.task.task import Task
 
 

@@ -1,10 +1,10 @@
 """What each imperfection of a real cell costs a skill: each alone, paired with the ideal cell on the same episodes.
 
-`IMPERFECTIONS` names the cell's imperfections (envs.task.perturbation, envs.task.sensor_config) at the magnitudes of the
-"realistic" task preset (envs/task/presets/realistic.toml combines them all; a test keeps the two equal). `run_sensitivity`
-evaluates the skill on the base task (default: the "contact" preset, the ideal cell) and on the base task with one
-imperfection set, with the same seed and episodes: the imperfections are drawn from a generator of their own, so
-every variant meets the same starts and hole-pose errors as the base, and its episodes pair with the base's
+`IMPERFECTIONS` names the cell's imperfections (envs.task.perturbation, envs.task.sensor_config) at the magnitudes of
+the "realistic" task preset (envs/task/presets/realistic.toml combines them all; a test keeps the two equal).
+`run_sensitivity` evaluates the skill on the base task (default: the "contact" preset, the ideal cell) and on the base
+task with one imperfection set, with the same seed and episodes: the imperfections are drawn from a generator of their
+own, so every variant meets the same starts and hole-pose errors as the base, and its episodes pair with the base's
 (envs.statistics.comparison: McNemar, the paired difference of success, the paired time to seat and held force).
 """
 
@@ -18,8 +18,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from envs.errors import EnvError
-from envs.statistics.comparison import Comparison, compare_evaluations, load_evaluation
 from envs.evaluation.config import EvaluationConfig
+from envs.statistics.comparison import Comparison, compare_evaluations, load_evaluation
 from envs.task.task import Task
 
 IMPERFECTIONS: dict[str, dict[str, Any]] = {
@@ -209,8 +209,8 @@ def plot_sensitivity(rows: Sequence[SensitivityRow], path: str | os.PathLike[str
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from envs.statistics.fixed_sample import wilson_interval
     from envs.io.owned_output import save_figure
+    from envs.statistics.fixed_sample import wilson_interval
 
     names = [r.name.replace("_", " ") for r in rows]
     rates = np.array([r.successes / max(r.episodes, 1) for r in rows]) * 100.0

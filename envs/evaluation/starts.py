@@ -19,9 +19,9 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.evaluation.config import EvaluationConfig
+from envs.poses import Pose, StartRegion, mean_quat, sample_start_poses
 from envs.rollout.episode import StartPose
 from envs.task.perturbation import PerturbationRanges, sample_perturbation
-from envs.poses import Pose, StartRegion, mean_quat, sample_start_poses
 from envs.task.task import StartRange
 from numerics.small_linalg import norm
 

@@ -8,9 +8,9 @@ all cells use the same K start poses and per-episode perturbation draws (common 
 do not depend on the cell, so cells differ only by their setting). The unit of work is one episode of one
 cell, run through `batch.run_batch` (processes or Ray, journal, resume), so a sweep survives dead workers and
 Ctrl-C like an evaluation: an episode whose worker is lost runs again, and one lost on every try is an
-infrastructure error, left out of its cell's statistics and listed apart (envs.evaluation.evaluate). Per cell: the success rate with its 95 % Wilson interval, the median time to
-seat, the median and largest peak wrist force of the successes, the share of episodes touching a wall, and
-the failures by kind.
+infrastructure error, left out of its cell's statistics and listed apart (envs.evaluation.evaluate). Per cell: the
+success rate with its 95 % Wilson interval, the median time to seat, the median and largest peak wrist force of the
+successes, the share of episodes touching a wall, and the failures by kind.
 """
 
 from __future__ import annotations
@@ -22,12 +22,11 @@ from typing import Any, Sequence
 
 
 from envs.errors import EnvError
-from envs.rollout.episode import StartPose, run_episode
 from envs.evaluation.config import SCENE_FROM_TASK
-from envs.rollout.episode import record_from_dict
-from envs.evaluation.evaluate import (EvaluationConfig, SlotMaker, SlotPool, _failed_unit, build_setup,
-                                     run_settings)
+from envs.evaluation.evaluate import EvaluationConfig, SlotMaker, SlotPool, _failed_unit, build_setup, run_settings
 from envs.evaluation.result import failure_kinds, finite_max, finite_median, finite_min
+from envs.rollout.episode import StartPose, run_episode
+from envs.rollout.episode import record_from_dict
 from envs.statistics.fixed_sample import wilson_interval
 
 AXES: tuple[str, ...] = ("clearance_m", "hole_error_m", "chamfer_m", "hole_error_deg", "pos_range_m", "stiffness")

@@ -6,8 +6,8 @@ twists, the hemisphere flips, the adaptation's integrals, saturations and the st
 period, as much as the compiled flow itself. Here they are two compiled calls on preallocated arrays; the
 equations are those of the two modules' docstrings, operation for operation as the Python version computed them
 (the same sums in the same order, numpy's own sin, cos and arctan2 on scalars, `numerics.quaternion`'s scalar
-formulas compiled from their source), so the records are the same to the last bit (tests/test_closed_loop_kernel.py
-runs the former Python as the reference).
+formulas compiled from their source), so the records are the same to the last bit
+(tests/envs/policies/test_closed_loop_kernel.py runs the former Python as the reference).
 
 The adaptation's state is one float64 vector (the STATE_* slots; None is NaN or a 0 flag), its settings another
 (the CONFIG_* slots, `ContactAdapter.settings`), its geometry a (4, 3) array: the goal position, the
@@ -172,7 +172,7 @@ def offset_into(state: np.ndarray, config: np.ndarray, out: np.ndarray) -> None:
 @_jit
 def _on_hemisphere(w: float, x: float, y: float, z: float, a: float, b: float, c: float,
                    d: float) -> tuple[float, float, float, float]:
-    """(w, x, y, z), negated when its dot product with (a, b, c, d) is negative (`policy.on_goal_hemisphere`)."""
+    """(w, x, y, z), negated when its dot product with (a, b, c, d) is negative (`flow_skill.on_goal_hemisphere`)."""
     if w * a + x * b + y * c + z * d < 0.0:
         return -w, -x, -y, -z
     return w, x, y, z
@@ -180,7 +180,7 @@ def _on_hemisphere(w: float, x: float, y: float, z: float, a: float, b: float, c
 
 @_jit
 def _twist_into(out: np.ndarray, p0: np.ndarray, q0: tuple, p1: np.ndarray, q1: tuple, dt: float) -> None:
-    """out (6,) = [(p1 - p0)/dt; rotvec(q1 conj(q0))/dt] (`policy.pose_twist` of one pose pair)."""
+    """out (6,) = [(p1 - p0)/dt; rotvec(q1 conj(q0))/dt] (`flow_skill.pose_twist` of one pose pair)."""
     w0, x0, y0, z0 = q0
     r0, r1, r2 = rotvec_components(*hamilton(q1[0], q1[1], q1[2], q1[3], w0, -x0, -y0, -z0))
     for i in range(3):

@@ -1,12 +1,12 @@
 """The scripted expert of envs.demos.record as a `Policy`: a privileged teacher, scored like any other policy.
 
-At ``reset`` it plans the expert's path (envs.policies.expert_plan.plan_expert_path: align above the hole, slow entry, seat, hold)
-from the measured start pose into the TRUE hole, which only a privileged observation carries
+At ``reset`` it plans the expert's path (envs.policies.expert_plan.plan_expert_path: align above the hole, slow entry,
+seat, hold) from the measured start pose into the TRUE hole, which only a privileged observation carries
 (``run_episode(..., privileged=True)``, `pih evaluate --policy envs.policies.expert:make --privileged`);
 without it ``reset`` raises. Each ``act`` commands the plan's next sample with the plan's twist and acceleration as
 feed-forward (the lead the demos are recorded with, envs.policies.feedforward) and, with a stiffness schedule,
-the schedule's translational stiffness at the measured tcp position (envs.policies.stiffness_schedule); after the plan's end
-it holds the goal. `pih demos` records the same expert through envs.demos.record.execute_demo, which plans from the
+the schedule's translational stiffness at the measured tcp position (envs.policies.stiffness_schedule); after the plan's
+end it holds the goal. `pih demos` records the same expert through envs.demos.record.execute_demo, which plans from the
 requested start pose rather than the measured one.
 """
 
@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from envs.policies.expert_plan import ExpertConfig, plan_expert_path, plan_twists
 from envs.errors import EnvError
+from envs.policies.expert_plan import ExpertConfig, plan_expert_path, plan_twists
 from envs.policies.interface import Action, Observation, PolicyTask
-from envs.poses import Pose
 from envs.policies.stiffness_schedule import expert_stiffness
+from envs.poses import Pose
 
 FloatArray = npt.NDArray[np.float64]
 

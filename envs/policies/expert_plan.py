@@ -1,6 +1,6 @@
 """The scripted expert's plan: its settings (`ExpertConfig`) and the smooth peg_tip path it commands
-(`plan_expert_path`) with the path's twists (`plan_twists`); arrays only, no physics. envs.demos.record executes the plan in
-physics and records demonstrations; envs.policies.expert runs it as a (privileged) policy.
+(`plan_expert_path`) with the path's twists (`plan_twists`); arrays only, no physics. envs.demos.record executes the
+plan in physics and records demonstrations; envs.policies.expert runs it as a (privileged) policy.
 
 The scripted expert plans one smooth peg_tip pose path in the hole frame (axis a out of the hole, opening
 o; the start offset s - o splits into the height h0 = (s - o) . a and the lateral part l0):
@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from envs.policies.stiffness_schedule import StiffnessSchedule
 from envs.poses import (
     Pose,
     StartRegion,
@@ -40,7 +41,6 @@ from envs.poses import (
     quintic_hermite,
     slerp,
 )
-from envs.policies.stiffness_schedule import StiffnessSchedule
 from numerics.small_linalg import dot, norm
 
 FloatArray = npt.NDArray[np.float64]

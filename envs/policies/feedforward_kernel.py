@@ -11,7 +11,7 @@ rotation vector onto the anchor), about 20 us a period. Here they are one call:
 
 operation for operation as the Python did it (the same sums in the same order, `numerics.quaternion`'s scalar formulas
 compiled from their source), so the commanded poses and the records are the same to the last bit
-(tests/test_feedforward_kernel.py holds the former Python as the reference).
+(tests/envs/policies/test_feedforward_kernel.py holds the former Python as the reference).
 """
 
 from __future__ import annotations

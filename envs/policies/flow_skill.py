@@ -54,15 +54,14 @@ import numpy.typing as npt
 from envs.errors import EnvError
 from envs.policies import closed_loop_kernel as kernel
 from envs.policies.adaptation import ContactAdaptation, ContactAdapter
-from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.policies.interface import Action, Observation
-from envs.poses import (Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec,
-                         quat_to_rotvec_one, rotate)
+from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.policies.stiffness_schedule import expert_stiffness
+from envs.poses import Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec, quat_to_rotvec_one, rotate
 from numerics.errors import NumericsError
+from numerics.small_linalg import dot
 from rflow.generate import lookahead_points, next_point, rollout
 from rflow.skill_io import PoseSkill
-from numerics.small_linalg import dot
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -469,8 +468,8 @@ class ClosedLoopPolicy(_PoseSkillPolicy):
         return stiffness_step(self.skill, query.pos, query.quat, k, rho * self._flow_period_s)
 
     def scheduled_stiffness(self, pos: npt.ArrayLike) -> FloatArray:
-        """K(h) of the "schedule" stiffness (`envs.policies.stiffness_schedule.expert_stiffness`) at the measured peg_tip
-        position: h = (p - o) . (-a), the height above the nominal mouth o = g - d a (g the skill's goal, a its
+        """K(h) of the "schedule" stiffness (`envs.policies.stiffness_schedule.expert_stiffness`) at the measured
+        peg_tip position: h = (p - o) . (-a), the height above the nominal mouth o = g - d a (g the skill's goal, a its
         insertion axis, d the goal's depth below the nominal mouth, from `reset`), axis -a out of the hole."""
         setting, depth = self.stiffness, self._mouth_depth_m
         if setting is None or setting.schedule is None or depth is None:

@@ -2,8 +2,8 @@
 
 A skill learned from demonstrations knows the hole where the demonstrations ended: its reference goal g (for the
 flow skill, the demos' mean end). When the cell observes where this episode's hole is (the task's
-``hole_observation``; with ``"measured"`` a sensor that sees the part, envs.task.perturbation), the policy can run in that
-hole's frame. With b the observed goal (the policy's ``nominal_goal``), the rigid motion that takes g onto b is
+``hole_observation``; with ``"measured"`` a sensor that sees the part, envs.task.perturbation), the policy can run in
+that hole's frame. With b the observed goal (the policy's ``nominal_goal``), the rigid motion that takes g onto b is
 
     T = T_b T_g^-1:   R_T = R_b R_g^T  (q_T = q_b conj(q_g)),   t_T = p_b - R_T p_g,
 

@@ -2,8 +2,8 @@
 for an action every control period, record what the simulated peg did (the success check of envs.task.success on the
 MEASURED peg, never the command).
 
-The policy sees `policy_protocol.Observation` (what a real cell measures, the nominal hole) and nothing else; the
-true hole only with ``privileged=True`` (a teacher such as the scripted expert). Each `Action` becomes the impedance
+The policy sees `envs.policies.interface.Observation` (what a real cell measures, the nominal hole) and nothing else;
+the true hole only with ``privileged=True`` (a teacher such as the scripted expert). Each `Action` becomes the impedance
 controller's target and stiffness for one period (envs.policies.feedforward: the 6x6 stiffness, the velocity
 feed-forward lead).
 
@@ -24,11 +24,11 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.rollout.failure import ProgressWindow
 from envs.policies.feedforward import command_stiffness, led_pose, translational_stiffness
 from envs.policies.interface import Action, Policy, observe
-from envs.task.perturbation import Perturbation
 from envs.poses import Pose, quat_angle_rad
+from envs.rollout.failure import ProgressWindow
+from envs.task.perturbation import Perturbation
 from numerics.small_linalg import eigh_sym, norm
 
 FloatArray = npt.NDArray[np.float64]
@@ -261,7 +261,7 @@ class EpisodeRun:
         return self.running
 
     def observation(self) -> Any:
-        """What the policy sees now (`policy_protocol.observe`)."""
+        """What the policy sees now (`envs.policies.interface.observe`)."""
         return observe(self.env, self.privileged)
 
     def act(self) -> Any:

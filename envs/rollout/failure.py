@@ -1,8 +1,8 @@
 """What went wrong in a failed episode, from what the simulated peg did: one kind per failure.
 
-An episode that ends without success ends for a reason of the simulator (envs.sim.env: "force_limit", "instability: ...",
-"time_limit") or of the loop ("unreachable start: ...", "error: ..."). A time limit alone does not say what happened,
-so it is told apart from the peg's last ``window_s`` of control periods (`ProgressWindow`):
+An episode that ends without success ends for a reason of the simulator (envs.sim.env: "force_limit", "instability:
+...", "time_limit") or of the loop ("unreachable start: ...", "error: ..."). A time limit alone does not say what
+happened, so it is told apart from the peg's last ``window_s`` of control periods (`ProgressWindow`):
 
     left_grasp          the peg moved in the fingers by more than ``grasp_slip_m`` since the start (|peg_tip - tcp|
                         changed): it slipped out or turned in the grasp, whatever the contact did

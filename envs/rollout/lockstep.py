@@ -15,8 +15,8 @@ Every period:
 
 An episode that ends leaves its slot to the next start. Each slot runs exactly the arithmetic of
 `envs.rollout.episode.run_episode` (both are `EpisodeRun`), so an episode's record is the one it gets run alone,
-to the last bit, whatever the batch size, the order or the threads (tests/test_lockstep.py); only ``wall_s``
-differs. An error in one episode ends that episode ("error: ..."), never the batch.
+to the last bit, whatever the batch size, the order or the threads (tests/envs/rollout/test_lockstep.py); only
+``wall_s`` differs. An error in one episode ends that episode ("error: ..."), never the batch.
 """
 
 from __future__ import annotations

@@ -15,15 +15,15 @@ controller does with its end-effector load setting).
 
 After every physics step the wrist F/T sensor and the peg's contacts are read (envs.sim.sensing.EpisodeSensing): a
 wrist force above ``force_limit_n`` sustained for ``force_limit_window_s`` ends the episode ("force_limit"). After
-each period the state is checked (envs.sim.instability) and observed (envs.sim.observation), the insertion scored from the
-peg's MEASURED pose and speed (envs.task.success). An episode ends on success, at the time limit, at the force limit or on
-an instability; physics failures are recorded as the end reason, never raised. The configuration is
+each period the state is checked (envs.sim.instability) and observed (envs.sim.observation), the insertion scored from
+the peg's MEASURED pose and speed (envs.task.success). An episode ends on success, at the time limit, at the force limit
+or on an instability; physics failures are recorded as the end reason, never raised. The configuration is
 envs.sim.episode_config.EpisodeConfig; commanding whole trajectories, envs.sim.trajectory.
 
 ``reset`` applies a per-episode perturbation (envs.task.perturbation): the sorter is moved by a hole-pose error
 (mocap), the hole the cell believes in is moved by its observation error, the episode's frictions, payload and joint
-friction are written into the model (envs.sim.friction, envs.sim.model_error) and the peg is placed in the grasp with its
-offset along its axis and its in-hand pose error, then the grasp settles for
+friction are written into the model (envs.sim.friction, envs.sim.model_error) and the peg is placed in the grasp with
+its offset along its axis and its in-hand pose error, then the grasp settles for
 ``grasp_settle_s`` with the arm holding the start pose before the episode clock starts.
 """
 
@@ -42,22 +42,23 @@ from controllers.ik import NullspaceReference, solve_ik
 from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
 from controllers.impedance_kernel import STATUS_OK
 from controllers.interface import Controller
-from envs.sim.episode_config import EpisodeConfig
-from envs.errors import EnvError
-from envs.sim.friction import EpisodeFriction
-from envs.geometry import as_vector
-from envs.sim.model_error import ActuatorNoise, ModelError
-from envs.sim.instability import InstabilityCheck
-from envs.sim.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUCCESS, REASON_TIME_LIMIT, SimulatorState,
-                              Observer, StepResult, site_pose)
-from envs.sim.period_kernel import controlled_period
-from envs.task.perturbation import Perturbation, perturbed_frame, sample_perturbation
-from envs.poses import Pose, format_pose, quat_from_rotvec_one, quat_mul_one, nominal_start, rotate, sample_start_poses, validate_pose
 from envs.cell.scene import Scene, build_scene
 from envs.cell.scene_config import SceneConfig, goal_from_hole
-from envs.sim.sensing import ContactStats, EpisodeSensing, JointTorqueSensors, PegContacts, ToolLoad, WristSensor
 from envs.cell.shapes import PEG_LENGTH_M, peg_cross_section
+from envs.errors import EnvError
+from envs.geometry import as_vector
+from envs.poses import (Pose, format_pose, quat_from_rotvec_one, quat_mul_one, nominal_start, rotate,
+                        sample_start_poses, validate_pose)
+from envs.sim.episode_config import EpisodeConfig
+from envs.sim.friction import EpisodeFriction
+from envs.sim.instability import InstabilityCheck
+from envs.sim.model_error import ActuatorNoise, ModelError
+from envs.sim.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUCCESS, REASON_TIME_LIMIT,
+                                  Observer, SimulatorState, StepResult, site_pose)
+from envs.sim.period_kernel import controlled_period
+from envs.sim.sensing import ContactStats, EpisodeSensing, JointTorqueSensors, PegContacts, ToolLoad, WristSensor
 from envs.sim.sensor_reading import episode_generator
+from envs.task.perturbation import Perturbation, perturbed_frame, sample_perturbation
 from envs.task.success import Assessment, EpisodeHoles, PegFootprint, SuccessTracker
 from numerics.quaternion import quat_to_mat
 
@@ -314,7 +315,8 @@ class PegInHoleEnv:
     def _set_believed_hole(self, perturbation: Perturbation) -> None:
         """Where the cell believes the hole and the goal are (what a policy sees as ``nominal_hole`` and
         ``nominal_goal``): the nominal ones, or with ``hole_observation = "measured"`` the true ones (a sensor that
-        sees the part), moved by the episode's hole observation error (envs.task.perturbation). `_set_hole_error` first."""
+        sees the part), moved by the episode's hole observation error (envs.task.perturbation). `_set_hole_error`
+        first."""
         error = perturbation.observation_error()
         measured = self.config.perturbations.hole_observation == "measured"
         hole, goal = (self.hole, self.goal) if measured else (self.nominal_hole, self.nominal_goal)
@@ -440,8 +442,8 @@ class PegInHoleEnv:
     def run_period(self, period: PeriodCommand) -> None:
         """The physics of a prepared period (`prepare_period`): its physics steps toward the command, each followed by
         the sensing; the outcome is stored in ``period``. With the impedance controller this is one compiled call
-        (envs.sim.period_kernel) that touches this episode's MjData and buffers only and releases the GIL, so the periods
-        of several episodes may run on threads at once (envs.rollout.lockstep); any other Controller runs its
+        (envs.sim.period_kernel) that touches this episode's MjData and buffers only and releases the GIL, so the
+        periods of several episodes may run on threads at once (envs.rollout.lockstep); any other Controller runs its
         ``step`` with the sensing hook."""
         if period.problem is not None:
             return
@@ -488,8 +490,8 @@ class PegInHoleEnv:
                           info={"target": period.pose, "q_ref": period.q_ref, "step": self._steps})
 
     def _sense(self) -> bool:
-        """The hook after every physics step (envs.sim.sensing.EpisodeSensing.substep: peaks, force window, force limit);
-        True when the force limit hits."""
+        """The hook after every physics step (envs.sim.sensing.EpisodeSensing.substep: peaks, force window, force
+        limit); True when the force limit hits."""
         return self.sensing.substep()
 
     # ------------------------------------------------------------------------------------------- helpers
@@ -519,7 +521,8 @@ class PegInHoleEnv:
         return self.observer.peg_speed_m_s()
 
     def assess(self, peg_tip: Pose | None = None, speed_m_s: float | None = None) -> Assessment:
-        """Score a peg_tip pose and speed (default: the simulated peg's) against the episode's holes (envs.task.success).
+        """Score a peg_tip pose and speed (default: the simulated peg's) against the episode's holes
+        (envs.task.success).
 
         Raises:
             EnvError: a given pose that is not 3 + 4 finite numbers, or a zero quaternion.

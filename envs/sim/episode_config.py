@@ -8,8 +8,8 @@ from typing import Any
 
 from controllers.ik import IKConfig
 from envs.errors import EnvError
-from envs.task.perturbation import PerturbationRanges
 from envs.poses import StartRegion
+from envs.task.perturbation import PerturbationRanges
 from envs.task.sensor_config import WristSensorConfig
 from envs.task.task import SuccessConfig, Task, check_force_limit, check_number
 

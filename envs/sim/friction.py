@@ -1,8 +1,8 @@
 """An episode's sliding friction: the peg against the sorter and against the finger pads, written into the model.
 
 MuJoCo gives a contact the parameters of its higher-priority geom (equal priorities: the larger friction of the
-two). The sorter's and the pads' geoms have priority 1 over the peg's 0 (envs.cell.sorter, envs.cell.scene), so a peg-sorter
-contact slides with the sorter's mu and a peg-pad contact with the pad's, and an episode's mu_hole and mu_pad
+two). The sorter's and the pads' geoms have priority 1 over the peg's 0 (envs.cell.sorter, envs.cell.scene), so a
+peg-sorter contact slides with the sorter's mu and a peg-pad contact with the pad's, and an episode's mu_hole and mu_pad
 (envs.task.perturbation; 0: the scene's) are set on those geoms alone. At the scene's values the contacts are those of
 max-mixing, so episodes without a friction range are unchanged.
 

@@ -33,8 +33,8 @@ import mujoco
 import numpy as np
 
 from envs.errors import EnvError
-from envs.task.perturbation import Perturbation
 from envs.sim.sensor_reading import episode_generator
+from envs.task.perturbation import Perturbation
 
 
 MASS_CONSTANTS: tuple[str, ...] = ("body_mass", "body_inertia", "body_ipos", "body_subtreemass", "body_invweight0",

@@ -16,9 +16,9 @@ import numpy as np
 import numpy.typing as npt
 
 from controllers.mujoco_c import FUNCTIONS
-from envs.sim import observation_kernel as kernel
-from envs.poses import Pose
 from envs.cell.scene import SceneIds
+from envs.poses import Pose
+from envs.sim import observation_kernel as kernel
 from envs.sim.sensing import ContactStats, PegContacts, WristSensor
 from envs.task.success import Assessment, EpisodeHoles, InsertionState, SuccessTracker
 from numerics.small_linalg import norm

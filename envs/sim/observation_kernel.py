@@ -4,7 +4,7 @@ Every control period the observation read three site poses (each a quaternion by
 checked the peg tip's pose, turned its quaternion back into a rotation matrix for the success check and read its
 velocity (mj_objectVelocity): about 10 us of Python a period. Here it is one call to the same MuJoCo functions
 (controllers.mujoco_c) and the same rotation formula (`numerics.quaternion.matrix_components`, compiled from its
-source), so the observation and the records are the same to the last bit (tests/test_observation_kernel.py).
+source), so the observation and the records are the same to the last bit (tests/envs/sim/test_observation_kernel.py).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from numerics.small_linalg import norm
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 OBJ_SITE = 6
-"""mjtObj.mjOBJ_SITE (tests/test_mujoco_c.py checks it)."""
+"""mjtObj.mjOBJ_SITE (tests/controllers/test_mujoco_c.py checks it)."""
 NOT_FINITE = -1.0
 """What `read_sites_into` returns for a peg tip whose pose is not finite (a speed is >= 0 or NaN)."""
 

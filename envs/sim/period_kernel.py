@@ -8,7 +8,7 @@ For each of the period's n physics steps (envs.sim.env.PegInHoleEnv.step):
 
 stopping after the step at which the force limit hits, or before mj_step2 of a step whose law fails. The kernels are
 the same functions the per-step path (controller.step with the sensing hook) calls, in the same order, so the
-states and the episode records are the same to the last bit (tests/test_period_kernel.py); what goes is the
+states and the episode records are the same to the last bit (tests/envs/sim/test_period_kernel.py); what goes is the
 Python between physics steps (two kernel dispatches, a hook and the bindings' contact views per step).
 """
 

@@ -28,10 +28,10 @@ import numpy.typing as npt
 
 from controllers.mujoco_c import FUNCTIONS
 from controllers.mujoco_layout import check_layout
-from envs.sim import sensing_kernel as kernel
 from envs.errors import EnvError
+from envs.sim import sensing_kernel as kernel
 from envs.task.sensor_config import (MAX_ARM_JOINTS, SENSOR_ALPHA, SENSOR_BIAS, SENSOR_JOINT_BIAS, SENSOR_JOINT_TORQUE,
-                                SENSOR_ON, SENSOR_SIZE, SENSOR_WRIST, WristSensorConfig)
+                                     SENSOR_ON, SENSOR_SIZE, SENSOR_WRIST, WristSensorConfig)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -95,8 +95,8 @@ class WristSensor:
 
 
 class JointTorqueSensors:
-    """The arm's joint torque sensors as a wrench sensor (envs.task.sensor_config, ``sensor_mode = "joint_torque"``): the
-    estimate at the F/T site through its Jacobian over the arm's joints, zeroed for the nominal weight of the tool
+    """The arm's joint torque sensors as a wrench sensor (envs.task.sensor_config, ``sensor_mode = "joint_torque"``):
+    the estimate at the F/T site through its Jacobian over the arm's joints, zeroed for the nominal weight of the tool
     the arm's model does not contain (a grasped peg; a welded peg is part of the hand's body and of the model)."""
 
     def __init__(self, model: mujoco.MjModel, site: int, arm_dofs: tuple[int, ...], tool: ToolLoad) -> None:
@@ -320,7 +320,8 @@ class EpisodeSensing:
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
         """New figures for a new episode (the earlier episode's ``stats`` object is left as it was); with the sensor
-        model on, the episode's bias and noise come from ``rng`` (envs.sim.sensor_reading.episode_generator; required)."""
+        model on, the episode's bias and noise come from ``rng`` (envs.sim.sensor_reading.episode_generator;
+        required)."""
         self.stats = ContactStats()
         self.inputs.state[:] = 0.0
         self.inputs.jt_estimate[:] = 0.0

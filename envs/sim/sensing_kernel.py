@@ -1,4 +1,5 @@
-"""The physics-rate sensing of an episode (envs.sim.sensing.EpisodeSensing), compiled with numba (no Python work per step).
+"""The physics-rate sensing of an episode (envs.sim.sensing.EpisodeSensing), compiled with numba (no Python work per
+step).
 
 Every physics step (1 kHz) the episode reads the wrist F/T sensor and the peg's contacts, keeps their peaks and
 checks the force limit. In numpy that was ~30 Python-level calls per step, costing about half of the physics step;
@@ -68,8 +69,8 @@ READINGS = 6
 WRENCH = 7
 """The latest [F_ext; tau_ext] (6 slots)."""
 SENSED = 13
-"""The latest sensed wrench y (6 slots; envs.task.sensor_config): what the force limit and the policy read when the sensor
-model is on."""
+"""The latest sensed wrench y (6 slots; envs.task.sensor_config): what the force limit and the policy read when the
+sensor model is on."""
 SUBSTEP = 19
 """Physics steps sensed in the current control period (the row of the period's noise to add)."""
 WINDOW = 20

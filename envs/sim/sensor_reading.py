@@ -7,10 +7,10 @@ A real sensor adds, per reading (1 kHz, every physics step k) and per axis j,
     m_k = w_k + b + n_k,      n_k ~ N(0, sigma_j^2),   b ~ N(0, beta_j^2) drawn once per episode,
     y_k = y_{k-1} + alpha (m_k - y_{k-1}),   alpha = 1 - exp(-2 pi f_c h)      (first-order low-pass, cutoff f_c),
 
-with y_0 = 0 (the episode starts from a sensor zeroed at rest). With ``sensor_mode = "wrist"`` the policy's observation and
-the force limit use y; every figure of the record (peaks, medians, the trace) keeps the true w. ``sensor_mode = "ideal"``
-(the default) is the exact wrench, as before. The noise comes from a generator seeded by the episode's perturbation
-(`episode_generator`), so an episode's readings are the same wherever it runs and paired runs share them.
+with y_0 = 0 (the episode starts from a sensor zeroed at rest). With ``sensor_mode = "wrist"`` the policy's observation
+and the force limit use y; every figure of the record (peaks, medians, the trace) keeps the true w. ``sensor_mode =
+"ideal"`` (the default) is the exact wrench, as before. The noise comes from a generator seeded by the episode's
+perturbation (`episode_generator`), so an episode's readings are the same wherever it runs and paired runs share them.
 
 ``sensor_mode = "joint_torque"``: the external wrench estimated from the arm's link-side joint torque sensors through
 the Jacobian (envs.sim.sensing_kernel.joint_torque_reading), as the Panda does. Per reading and joint i the sensors add

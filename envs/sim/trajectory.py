@@ -10,8 +10,8 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.sim.observation import StepResult
 from envs.poses import resample_trajectory
+from envs.sim.observation import StepResult
 
 if TYPE_CHECKING:
     from envs.sim.env import PegInHoleEnv

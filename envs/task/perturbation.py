@@ -223,8 +223,8 @@ class Perturbation:
             raise EnvError(f"Perturbation.payload_mass_error={self.payload_mass_error} must be > -1 (a mass > 0)")
 
     def seed_values(self) -> tuple[float, ...]:
-        """The values that seed the episode's own generators (envs.sim.sensor_reading.episode_generator): the fields up to
-        ``actuator_noise_nm``, in order. They are drawn from the episode's draws and tell episodes apart; the fields
+        """The values that seed the episode's own generators (envs.sim.sensor_reading.episode_generator): the fields up
+        to ``actuator_noise_nm``, in order. They are drawn from the episode's draws and tell episodes apart; the fields
         added after them (the observation's tilt) are left out, so the sensors of an episode read the noise they
         read before those fields existed."""
         values = astuple(self)
@@ -243,7 +243,8 @@ class Perturbation:
 
     def hole_transform(self) -> tuple[FloatArray, FloatArray]:
         """(t (3,), R_err (3, 3)) of T_err in the hole frame."""
-        from numerics.small_linalg import matmul  # here: the task configs import this module, --help must not load numba
+        # here: the task configs import this module, --help must not load numba
+        from numerics.small_linalg import matmul
         phi, tilt, yaw = np.deg2rad([self.hole_tilt_dir_deg, self.hole_tilt_deg, self.hole_yaw_deg])
         axis = np.array([np.cos(phi), np.sin(phi), 0.0])
         k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])

@@ -28,11 +28,11 @@ from typing import Mapping
 import numpy as np
 import numpy.typing as npt
 
+from envs.cell.hole import HoleSpec
+from envs.cell.shapes import CrossSection
 from envs.errors import EnvError
 from envs.geometry import R_FLIP_X, as_vector, edge_lines
 from envs.poses import rotate
-from envs.cell.hole import HoleSpec
-from envs.cell.shapes import CrossSection
 from envs.task.success_kernel import NO_HOLE, NO_POLYGON, assess_tip, wall_penetration, wrap_symmetric
 from envs.task.task import SuccessConfig  # the tolerances are part of the task
 from numerics.quaternion import quat_to_mat

@@ -43,13 +43,13 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
-from envs.errors import EnvError
-from envs.cell.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
 from envs.cell.pads import check_pad_stiffness
-from envs.task.perturbation import PerturbationRanges
-from envs.task.sensor_config import WristSensorConfig
+from envs.cell.peg import FRANKA_GRASP_FORCE_N, PEG_MODES, check_grasp_force
 from envs.cell.shapes import check_shape
 from envs.cell.sorter import check_chamfer, check_clearance, check_hole_depth
+from envs.errors import EnvError
+from envs.task.perturbation import PerturbationRanges
+from envs.task.sensor_config import WristSensorConfig
 
 if TYPE_CHECKING:
     from envs.cell.scene_config import SceneConfig
@@ -101,7 +101,7 @@ class SuccessConfig:
         floor_force_n: > 0: the peg must also press on the hole's floor with at least this normal force (N), so a
             peg held a hair above the floor by the walls is not seated; 0: not required (the depth decides).
 
-    The penetration tolerance is set from the contact model (tests/test_success_tolerances.py): a peg pressed
+    The penetration tolerance is set from the contact model (tests/envs/task/test_success_tolerances.py): a peg pressed
     sideways into a wall with the force limit's 40 N penetrates it ~20 um (13 um at 27 N), so the tolerance is 1.5x
     that, 30 um: a peg the walls hold at any force an episode may hold counts as inside, and one off by more than
     the clearance (100 um a side at 0.2 mm) does not. (It was 20 um, reached at ~42 N: near the limit the verdict

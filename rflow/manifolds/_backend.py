@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 
 from numerics.arrays import Array, _torch, concat, is_torch, stack, xp
-from rflow.errors import RFlowError
 from numerics.small_linalg import eigh_sym
 from numerics.small_linalg import matmul as small_matmul
+from rflow.errors import RFlowError
 
 
 def as_array(x: Any, name: str) -> Array:

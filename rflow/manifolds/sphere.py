@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from numerics.quaternion import quat_conj, quat_mul
 from rflow.errors import RFlowError
 from rflow.manifolds._backend import Array, as_array, check_last_dims, concat, is_torch, max_abs, norm, xp
-from numerics.quaternion import quat_conj, quat_mul
 
 UNIT_TOLERANCE = 1e-6  # | ||q|| - 1 | allowed for an input quaternion
 _SMALL_ANGLE = 1e-4  # below this rotation angle the sinc / angle-over-sine series are used

@@ -1,0 +1,87 @@
+"""`pih sensitivity` (envs.evaluation.sensitivity): every variant runs the ideal cell's episodes with one imperfection
+set, pairs with it episode for episode, and the command writes the table, JSON and figure."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from envs.evaluation.config import EvaluationConfig
+from envs.evaluation.sensitivity import ALTERNATIVES, IMPERFECTIONS, run_sensitivity, sensitivity_table
+from envs.task.task import Task
+from scripts.cli import main
+from scripts.sensitivity import IMPERFECTION_NAMES
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory) -> Path:
+    from rflow.skill_io import save_skill
+    from tests.helpers.skill_fixtures import tiny_skill
+
+    return save_skill(tmp_path_factory.mktemp("sens") / "model", tiny_skill())
+
+
+def test_the_cli_names_are_the_imperfections() -> None:
+    assert IMPERFECTION_NAMES == (*IMPERFECTIONS, *ALTERNATIVES)
+
+
+def test_every_variant_pairs_with_the_ideal_cell(model) -> None:
+    config = EvaluationConfig(episodes=3, seed=5, task=Task(time_limit_s=0.3))
+    seen = []
+    rows = run_sensitivity(model, config, ["payload", "grasp_offset"], on_variant=seen.append)
+    assert seen == ["ideal", "payload", "grasp_offset", "all"] == [r.name for r in rows]
+    assert rows[0].comparison is None and all(r.comparison.success.counts.pairs == 3 for r in rows[1:])
+    assert rows[3].settings == {**IMPERFECTIONS["payload"], **IMPERFECTIONS["grasp_offset"]}
+    table = sensitivity_table(rows).splitlines()
+    assert len(table) == 2 + 4 and table[2].startswith("| ideal | ")
+
+
+def test_the_command_writes_table_json_and_figure(model, tmp_path) -> None:
+    out = tmp_path / "sens"
+    assert main(["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "2", "--workers", "1",
+                 "--only", "payload"]) == 0
+    data = json.loads((out / "sensitivity.json").read_text())
+    assert [row["name"] for row in data["rows"]] == ["ideal", "payload"]
+    assert data["rows"][1]["paired_with_ideal"]["success"]["pairs"] == 2
+    assert (out / "sensitivity.png").stat().st_size > 10_000 and "| payload |" in (out / "sensitivity.md").read_text()
+    assert main(["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "2", "--workers", "1",
+                 "--only", "payload"]) == 2  # outputs there: --overwrite needed
+
+
+def test_an_unknown_imperfection_is_refused(model, tmp_path, capsys) -> None:
+    assert main(["sensitivity", "--model", str(model), "--out", str(tmp_path / "x"), "--only", "gravity"]) == 2
+    assert "gravity" in capsys.readouterr().err
+
+
+def test_a_foreign_registry_is_refused_before_any_episode(model, tmp_path, capsys, monkeypatch) -> None:
+    import scripts.sensitivity  # noqa: F401 -- the command's module, whose runner must not be reached
+
+    out = tmp_path / "sens"
+    out.mkdir()
+    (out / ".pih-outputs.json").write_text('{"files": {}}')  # not written by pih
+    monkeypatch.setattr("envs.evaluation.sensitivity.run_sensitivity",
+                        lambda *a, **k: pytest.fail("episodes ran before the outputs were checked"))
+    assert main(["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "1", "--workers", "1",
+                 "--only", "payload"]) == 2
+    assert ".pih-outputs.json" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == [".pih-outputs.json"]
+
+
+@pytest.mark.parametrize("bad", ["task", "model"])
+def test_bad_input_leaves_no_output_folder(model, tmp_path, capsys, bad) -> None:
+    out = tmp_path / "new" if bad == "task" else tmp_path / "deep"
+    args = ["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "1", "--workers", "1",
+            "--only", "payload"]
+    if bad == "task":
+        (tmp_path / "bad.toml").write_text("this is = not [toml")
+        args += ["--task", str(tmp_path / "bad.toml")]
+    else:
+        garbage = tmp_path / "garbage"
+        garbage.mkdir()
+        (garbage / "skill.json").write_text("{")
+        args[2] = str(garbage)
+    assert main(args) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert not out.exists()
