@@ -17,6 +17,9 @@ GOAL_QUAT = np.array([0.0, 0.99213864, -0.12514362, 0.0]) / np.linalg.norm([0.0,
 
 TINY = TrainConfig(model=ModelConfig(layers=2, width=16), epochs=2, transitions_per_epoch=256, horizon=5, seed=0,
                    threads=1)
+TINY_ARGS = ["--epochs", "2", "--layers", "2", "--width", "16", "--subsample", "1", "--horizon", "5",
+             "--transitions-per-epoch", "256", "--threads", "1", "--quiet"]
+"""`pih train` options for a tiny skill, quietly (the command-line tests)."""
 
 
 def synthetic_demos(n: int = 3, m: int = 40, shape: str = "square", seed: int = 0) -> DemoSet:

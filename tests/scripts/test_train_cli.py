@@ -11,10 +11,7 @@ import torch
 from envs.demos.file import load_demos
 from rflow.skill_io import file_sha256, load_skill
 from scripts.cli import main
-from tests.helpers.skill_fixtures import write_demo_file
-
-TINY_ARGS = ["--epochs", "2", "--layers", "2", "--width", "16", "--subsample", "1", "--horizon", "5",
-             "--transitions-per-epoch", "256", "--threads", "1", "--quiet"]
+from tests.helpers.skill_fixtures import TINY_ARGS, write_demo_file
 
 
 @pytest.fixture(scope="module")

@@ -217,8 +217,7 @@ def checkpoints(tmp_path_factory) -> dict[str, Path]:
 
     from envs.demos.file import save_demos
     from envs.io.owned_output import strict_json
-    from tests.helpers.skill_fixtures import synthetic_demos
-    from test_train_cli import TINY_ARGS
+    from tests.helpers.skill_fixtures import TINY_ARGS, synthetic_demos
 
     folder = tmp_path_factory.mktemp("task_records")
     demos = synthetic_demos()
