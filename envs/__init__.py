@@ -18,39 +18,23 @@ pin_cpu_dispatch()  # first, before numpy or torch load: numpy's, torch's and MK
 from pihutil.lazy import lazy_exports  # noqa: E402
 
 EXPORTS: dict[str, str] = {
+    # name -> the sub-package (or base module) that exports it; a sub-package's own table names the defining module
     "EnvError": "envs.errors",
     "Pose": "envs.poses",
     "StartRegion": "envs.poses",
-    "Task": "envs.task.task",
-    "SuccessConfig": "envs.task.task",
-    "StartRange": "envs.task.task",
-    "PRESET_NAMES": "envs.task.task",
-    "preset": "envs.task.task",
-    "load_task": "envs.task.task",
-    "SceneConfig": "envs.cell.scene_config",
-    "PegInHoleEnv": "envs.sim.env",
-    "EpisodeConfig": "envs.sim.episode_config",
-    "SimulatorState": "envs.sim.observation",
-    "Policy": "envs.policies.interface",
-    "Observation": "envs.policies.interface",
-    "Action": "envs.policies.interface",
-    "PolicyTask": "envs.policies.interface",
-    "PrivilegedState": "envs.policies.interface",
-    "run_episode": "envs.rollout.episode",
-    "EpisodeRecord": "envs.rollout.episode",
-    "EvaluationConfig": "envs.evaluation.config",
-    "EvaluationResult": "envs.evaluation.result",
+    **{name: "envs.task" for name in ("Task", "SuccessConfig", "StartRange", "PRESET_NAMES", "preset", "load_task")},
+    "SceneConfig": "envs.cell",
+    **{name: "envs.sim" for name in ("PegInHoleEnv", "EpisodeConfig", "SimulatorState")},
+    **{name: "envs.policies" for name in ("Policy", "Observation", "Action", "PolicyTask", "PrivilegedState")},
+    **{name: "envs.rollout" for name in ("run_episode", "EpisodeRecord")},
+    **{name: "envs.evaluation" for name in ("EvaluationConfig", "EvaluationResult")},
     "evaluate": "envs.evaluation.evaluate",
     "evaluate_policy": "envs.evaluation.evaluate_policy",
     "sweep": "envs.evaluation.sweep",
-    "compare_evaluations": "envs.statistics.comparison",
-    "assert_no_regression": "envs.statistics.regression",
-    "collect_demos": "envs.demos.record",
-    "DemoSet": "envs.demos.file",
-    "load_demos": "envs.demos.file",
-    "save_demos": "envs.demos.file",
+    **{name: "envs.statistics" for name in ("compare_evaluations", "assert_no_regression")},
+    **{name: "envs.demos" for name in ("collect_demos", "DemoSet", "load_demos", "save_demos")},
 }
-"""The public names (name -> the module that defines it), imported on first use."""
+"""The public names (name -> where to find it), imported on first use."""
 
 __all__ = sorted(EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, EXPORTS)

@@ -17,9 +17,9 @@ from typing import Any, Callable, Mapping
 
 
 def lazy_exports(package: str, exports: Mapping[str, str]) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
-    """The module-level ``__getattr__`` and ``__dir__`` of ``package`` for the names of ``exports`` (name -> the module
-    that defines it): the first ``package.NAME`` (or ``from package import NAME``) imports that module, takes its NAME
-    and keeps it in the package, so later lookups do not come back here.
+    """The module-level ``__getattr__`` and ``__dir__`` of ``package`` for the names of ``exports`` (name -> the module,
+    or the package re-exporting it, where it is found): the first ``package.NAME`` (or ``from package import NAME``)
+    imports that module, takes its NAME and keeps it in the package, so later lookups do not come back here.
 
     The returned ``__getattr__`` raises AttributeError for a name not in ``exports``, as Python does for a module
     without the attribute (``from package import submodule`` then imports the submodule, as usual).
