@@ -3,8 +3,8 @@
 OpenBLAS sums in the order of the kernel it picks for the CPU (or for OPENBLAS_CORETYPE, which a test must not
 change), and the contact physics amplifies a last-bit difference into other records; `numerics.small_linalg` has the
 BLAS-free replacements. This is a source check: it walks the modules of envs/, controllers/, numerics/ and rflow/
-(less the ones below that feed no record) and fails on ``@``, ``np.dot``-like calls, ``np.linalg.*`` (``norm`` only with an
-``axis``: then it is a reduction, not a dot product), ``scipy.linalg`` and ``einsum(..., optimize=...)``. A line
+(less the ones below that feed no record) and fails on ``@``, ``np.dot``-like calls, ``np.linalg.*`` (``norm`` only
+with an ``axis``: then it is a reduction, not a dot product), ``scipy.linalg`` and ``einsum(..., optimize=...)``. A line
 proven not to feed a record carries ``# blas-ok: <reason>``.
 """
 
