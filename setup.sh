@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Set up pih-rflow on a fresh Debian machine: system packages for headless rendering (Mesa EGL/OSMesa) and the
 # PostgreSQL server of the shared-study test, a virtual environment in .venv with the CPU build of torch, and
-# the project with its test (pytest, stable-baselines3), cluster (Ray), search (Optuna) and datasets (pyarrow,
-# h5py) extras. stable-baselines3 needs torch, which the pinned CPU build installed first already satisfies.
+# the project with its test (pytest, stable-baselines3), cluster (Ray), search (Optuna), datasets (pyarrow,
+# h5py) and docs (MkDocs, whose --strict build is a test) extras. stable-baselines3 needs torch, which the pinned
+# CPU build installed first already satisfies.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -24,7 +25,7 @@ PYTHON="${PYTHON:-python3}"
 # torch first, pinned, so no resolver pulls another build: the CPU file this project's machines hold; elsewhere set
 # TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu (PyPI's torch for Linux is the CUDA build).
 .venv/bin/python -m pip install -q ${TORCH_INDEX_URL:+--index-url "$TORCH_INDEX_URL"} "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[test,cluster,search,datasets]"
+.venv/bin/python -m pip install -q -e ".[test,cluster,search,datasets,docs]"
 # Compile the numba kernels once (cached beside their modules), so the first `pih run` does not wait ~25 s.
 MUJOCO_GL="${MUJOCO_GL:-egl}" .venv/bin/pih warmup
 echo "setup.sh: ready -- activate with: source .venv/bin/activate"
