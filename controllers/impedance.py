@@ -35,8 +35,10 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 from controllers import impedance_kernel as kernel
+from controllers import joint_torque_kernel as jt_kernel
 from controllers.errors import ControllerError
 from controllers.mujoco_c import FUNCTIONS
+from controllers.mujoco_layout import layout
 from controllers.validation import as_unit_quaternion, as_vector, site_id
 from numerics.small_linalg import eigh_sym
 
@@ -65,6 +67,13 @@ class ImpedanceConfig:
         nullspace_damping: D_n of the posture torque in N m s/rad.
         torque_limits: |tau_i| bound per joint in N m (the Panda's, by default).
         torque_rate_limit: |d tau_i / dt| bound in N m/s (the Panda's, by default).
+        friction_observer_time_s: T_o of the joint friction observer closed on the link-side joint torque sensors
+            (controllers.joint_torque_kernel, eq. 2), s; 0 turns it off. 5 ms: five physics steps, so the
+            compensation follows a friction that flips with the joint's direction within a few steps while one
+            reading's noise is averaged over five.
+        friction_observer_limit_nm: f_max, the largest compensation per joint, N m: beyond any friction the cell
+            has (the identified Panda joints' Coulomb friction is 0.15-0.36 N m, twice that in the harsh cell), so
+            a wrong reading (a collision, a sensor fault) cannot turn into more than this much torque.
     """
 
     translational_stiffness: float = 1500.0
@@ -74,6 +83,8 @@ class ImpedanceConfig:
     nullspace_damping: float = 3.0
     torque_limits: tuple[float, ...] = PANDA_TORQUE_LIMITS_NM
     torque_rate_limit: float = PANDA_TORQUE_RATE_LIMIT_NM_PER_S
+    friction_observer_time_s: float = 0.005
+    friction_observer_limit_nm: float = 2.0
 
     def __post_init__(self) -> None:
         for name, minimum_excluded in (
@@ -83,6 +94,8 @@ class ImpedanceConfig:
             ("damping_ratio", False),
             ("nullspace_stiffness", False),
             ("nullspace_damping", False),
+            ("friction_observer_time_s", False),
+            ("friction_observer_limit_nm", False),
         ):
             value = getattr(self, name)
             if not isinstance(value, numbers.Real) or not np.isfinite(value) or value < 0.0 or (
@@ -287,7 +300,21 @@ class CartesianImpedanceController:
         self._jac_tool = np.zeros((3, model.nv))
         self._jac_tool_arm = self._jac_tool[:, self.dof_slice]
         self._disturbance = np.zeros((1, n))  # the actuators' torque beyond the command, per physics step
-        self._disturbance_state = np.zeros(2)  # [on, next row] (impedance_kernel.impedance_substep)
+        self._disturbance_state = np.zeros(3)  # [noise on, next row, smooth friction on] (impedance_substep)
+        self._smooth = np.zeros((n, 3))  # the joints' smooth transmission friction (joint_torque_kernel, eq. 4)
+        # The joint torque sensors and the friction observer (controllers.joint_torque_kernel): its feedback vector,
+        # the sensors' noise rows, mjData's layout for the friction rows and a scratch for the reading.
+        self._feedback = np.zeros(jt_kernel.feedback_size(n))
+        self._fb_f, self._fb_sum, self._fb_bias_hat, self._fb_bias = jt_kernel.feedback_slices(n)
+        observer = config.friction_observer_time_s > 0.0
+        self._feedback[jt_kernel.FB_ON] = 1.0 if observer else 0.0
+        self._feedback[jt_kernel.FB_GAIN] = min(1.0, model.opt.timestep / config.friction_observer_time_s) if (
+            observer) else 0.0
+        self._feedback[jt_kernel.FB_LIMIT] = config.friction_observer_limit_nm
+        self._sensor_noise = np.zeros((1, n))
+        self._layout = layout() if observer else np.zeros(1, dtype=np.int64)
+        self._reading = np.zeros(n)
+        self._no_offset = np.zeros(n)  # the law alone (compute_torque)
         self._checked = self.default_stiffness  # the last stiffness `checked_stiffness` accepted (a private copy)
 
     def checked_stiffness(self, stiffness: npt.ArrayLike | None) -> npt.NDArray[np.float64]:
@@ -329,7 +356,7 @@ class CartesianImpedanceController:
             ControllerError: rows that are not a finite (R, n_joints) array with R >= 1.
         """
         if rows is None:
-            self._disturbance_state[:] = 0.0
+            self._disturbance_state[:2] = 0.0
             return
         values = np.asarray(rows, dtype=np.float64)
         n = self._last_tau.shape[0]
@@ -338,7 +365,72 @@ class CartesianImpedanceController:
         if self._disturbance.shape != values.shape:
             self._disturbance = np.zeros(values.shape)
         self._disturbance[:] = values
-        self._disturbance_state[:] = (1.0, 0.0)
+        self._disturbance_state[:2] = (1.0, 0.0)
+
+    def set_transmission_friction(self, phi: npt.ArrayLike | None) -> None:
+        """The joints' smooth transmission friction (controllers.joint_torque_kernel, eq. 4), which the actuators lose
+        between the motor and the link every physics step (a cell's friction, not part of the law): rows [phi_1 (N m),
+        phi_2 (s/rad), phi_3 (rad/s)] per arm joint, or None (the default) for none.
+
+        Raises:
+            ControllerError: not a finite (n_joints, 3) array with phi_1 >= 0 and phi_2 > 0.
+        """
+        if phi is None:
+            self._disturbance_state[2] = 0.0
+            return
+        values = np.asarray(phi, dtype=np.float64)
+        n = self._last_tau.shape[0]
+        if (values.shape != (n, 3) or not np.isfinite(values).all() or np.any(values[:, 0] < 0.0)
+                or np.any(values[:, 1] <= 0.0)):
+            raise ControllerError(f"transmission friction must be a finite ({n}, 3) array of [phi_1 >= 0, phi_2 > 0, "
+                                  f"phi_3] rows, got shape {values.shape}")
+        self._smooth[:] = values
+        self._disturbance_state[2] = 1.0
+
+    def set_joint_torque_sensors(self, bias_nm: npt.ArrayLike | None = None,
+                                 noise_rows: npt.ArrayLike | None = None) -> None:
+        """What the link-side joint torque sensors add to the torque they read (a cell's sensors): a bias per joint
+        (N m, for the episode; None: none) and noise rows (R, n) for the coming physics steps (N m, the last row
+        repeating; None: none). The friction observer reads them (controllers.joint_torque_kernel, eq. 1).
+
+        Raises:
+            ControllerError: a bias that is not n finite numbers, or noise rows that are not a finite (R >= 1, n) array.
+        """
+        n = self._last_tau.shape[0]
+        if bias_nm is not None:
+            bias = np.asarray(bias_nm, dtype=np.float64)
+            if bias.shape != (n,) or not np.isfinite(bias).all():
+                raise ControllerError(f"joint torque sensor bias must be {n} finite numbers, got shape {bias.shape}")
+            self._feedback[self._fb_bias] = bias
+        if noise_rows is None:
+            self._feedback[jt_kernel.FB_NOISE_ON] = 0.0
+            return
+        rows = np.asarray(noise_rows, dtype=np.float64)
+        if rows.ndim != 2 or rows.shape[0] < 1 or rows.shape[1] != n or not np.isfinite(rows).all():
+            raise ControllerError(f"joint torque sensor noise must be a finite (R >= 1, {n}) array, got shape "
+                                  f"{rows.shape}")
+        if self._sensor_noise.shape != rows.shape:
+            self._sensor_noise = np.zeros(rows.shape)
+        self._sensor_noise[:] = rows
+        self._feedback[jt_kernel.FB_NOISE_ON] = 1.0
+        self._feedback[jt_kernel.FB_ROW] = 0.0
+
+    def settled(self) -> None:
+        """End the joint torque sensors' tare that `start` began (controllers.joint_torque_kernel, eq. 3): the bias
+        estimate b_hat is the mean of the readings taken since, and the friction observer runs from now on. Called
+        after the arm held still in free space (the episode's grasp settle, controllers.interface); without readings
+        b_hat stays 0."""
+        feedback = self._feedback
+        if feedback[jt_kernel.FB_TARE] == 0.0:
+            return
+        count = feedback[jt_kernel.FB_TARE_COUNT]
+        feedback[self._fb_bias_hat] = feedback[self._fb_sum] / count if count > 0.0 else 0.0
+        feedback[jt_kernel.FB_TARE] = 0.0
+
+    @property
+    def friction_compensation(self) -> npt.NDArray[np.float64]:
+        """Copy of the friction observer's compensation f per joint, N m (zeros when it is off)."""
+        return self._feedback[self._fb_f].copy()
 
     def reset(self, tau0: npt.ArrayLike | None = None) -> None:
         """Set the last commanded torque, the reference of the torque-rate limit.
@@ -359,12 +451,20 @@ class CartesianImpedanceController:
     def start(self, data: mujoco.MjData) -> None:
         """Start an episode at the state of ``data`` (after mj_forward, arm at rest): the last commanded torque, the
         reference of the torque-rate limit, becomes the bias torque c(q, 0) there (`reset` with
-        data.qfrc_bias[dof_slice]), so the first command holds the arm against gravity (controllers.interface).
+        data.qfrc_bias[dof_slice]), so the first command holds the arm against gravity (controllers.interface). With
+        the friction observer on, its compensation starts at 0 and the joint torque sensors' tare begins (it ends
+        with `settled`; until then the observer does not compensate).
 
         Raises:
             ControllerError: a non-finite bias torque.
         """
         self.reset(data.qfrc_bias[self.dof_slice])
+        feedback = self._feedback
+        feedback[self._fb_f] = 0.0
+        feedback[self._fb_sum] = 0.0
+        feedback[self._fb_bias_hat] = 0.0
+        feedback[jt_kernel.FB_TARE_COUNT] = 0.0
+        feedback[jt_kernel.FB_TARE] = feedback[jt_kernel.FB_ON]
 
     @property
     def last_torque(self) -> npt.NDArray[np.float64]:
@@ -507,7 +607,8 @@ class CartesianImpedanceController:
         return (self._fns, self.model._address, data._address, self.site_id, self._jac, self._jac_minv, qpos, qvel,
                 bias, site_pos, site_mat, self._target, k, self._params, self._last_tau, ctrl, self._work, self._vec,
                 self._tool, self._tool_point, self._jac_tool, self._jac_tool_arm, data.qfrc_applied[self.dof_slice],
-                self._disturbance, self._disturbance_state)
+                self._disturbance, self._disturbance_state, self._smooth, self._feedback, self._sensor_noise,
+                self._layout, data.qfrc_passive, self._reading)
 
     def _validate(
         self,
@@ -548,6 +649,6 @@ class CartesianImpedanceController:
         _, qpos, qvel, bias, site_pos, site_mat, ctrl = views
         status = kernel.impedance_torque(self._jac, self._jac_minv, qpos, qvel, bias, site_pos, site_mat,
                                          self._target, stiffness, self._params, self._last_tau, ctrl,
-                                         self._work, self._vec)
+                                         self._work, self._vec, self._no_offset)
         if status != kernel.STATUS_OK:
             raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed); the arm is singular")

@@ -14,7 +14,7 @@ Equations (see controllers/impedance.py for the derivation):
     e   = [p_d - p; Log(q_d conj(q))]                         (world-frame rotation vector)
     F   = K e - P diag(2 zeta sqrt(w)) P^T (J qdot) - P P^T (J M^-1 tau_0)
     tau = J^T F + tau_0 + c,   tau_0 = K_n (q_ref - q) - D_n qdot
-    tau_k = clip(clip(tau, tau_{k-1} -+ rate dt), -+tau_max)
+    tau_k = clip(clip(tau + f, tau_{k-1} -+ rate dt), -+tau_max)   (f: the friction observer's, 0 without it)
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import math
 import numba
 import numpy as np
 
+from controllers.joint_torque_kernel import FB_ON, actuator_torque_into, compensation_into, feedback_update
 from controllers.mujoco_c import FN_JAC, FN_JAC_SITE, FN_SOLVE_M, FN_STEP1, FN_STEP2, call_jac, call_md, call_mdppi
 from numerics import quaternion
 from numerics.small_linalg import _solve_into, symmetric_eig
@@ -238,6 +239,7 @@ def impedance_torque(
     ctrl: np.ndarray,
     work: np.ndarray,
     vec: np.ndarray,
+    offset: np.ndarray,
 ) -> int:
     """One evaluation of the control law (module docstring); writes the limited torque to last_tau and ctrl.
 
@@ -251,6 +253,8 @@ def impedance_torque(
         last_tau: the last command (n,), updated.
         ctrl: MjData.ctrl (n,), receives the torque.
         work, vec: scratch matrices (5, 6, 6) and vectors (8, max(6, n)) (see `work_buffers`).
+        offset: a torque (n,) added to the law's before its limits (the friction observer's compensation; zeros for
+            the law alone).
 
     Returns:
         STATUS_OK, or STATUS_NOT_POSITIVE_DEFINITE (nothing written).
@@ -258,7 +262,7 @@ def impedance_torque(
     if not impedance_factors(jac, jac_minv, stiffness, params, work, vec):
         return STATUS_NOT_POSITIVE_DEFINITE
     factored_torque(jac, jac_minv, qpos, qvel, qfrc_bias, site_pos, site_mat, target, stiffness, params, last_tau,
-                    ctrl, work, vec)
+                    ctrl, work, vec, offset)
     return STATUS_OK
 
 
@@ -266,7 +270,7 @@ def impedance_torque(
 def factored_torque(jac: np.ndarray, jac_minv: np.ndarray, qpos: np.ndarray, qvel: np.ndarray,
                     qfrc_bias: np.ndarray, site_pos: np.ndarray, site_mat: np.ndarray, target: np.ndarray,
                     stiffness: np.ndarray, params: np.ndarray, last_tau: np.ndarray, ctrl: np.ndarray,
-                    work: np.ndarray, vec: np.ndarray) -> None:
+                    work: np.ndarray, vec: np.ndarray, offset: np.ndarray) -> None:
     """The law from the factors `impedance_factors` left in work[4] (P) and vec[0] (w): the pose error, the
     posture torque, the modal damping, the nullspace and the limits (module docstring); into last_tau and ctrl.
     (Arguments as in `impedance_torque`.)"""
@@ -305,8 +309,8 @@ def factored_torque(jac: np.ndarray, jac_minv: np.ndarray, qpos: np.ndarray, qve
             s += stiffness[r, c] * vec[1, c] - p[r, c] * vec[4, c]
         vec[5, r] = s
     rate = params[4]
-    for i in range(n):  # tau = J^T F + tau_0 + c, then rate and magnitude limits
-        t = tau0[i] + qfrc_bias[i]
+    for i in range(n):  # tau = J^T F + tau_0 + c (+ the offset), then rate and magnitude limits
+        t = tau0[i] + qfrc_bias[i] + offset[i]
         for r in range(6):
             t += jac[r, dof0 + i] * vec[5, r]
         previous = last_tau[i]
@@ -348,7 +352,9 @@ def impedance_substep(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarra
                       site_mat: np.ndarray, target: np.ndarray, stiffness: np.ndarray, params: np.ndarray,
                       last_tau: np.ndarray, ctrl: np.ndarray, work: np.ndarray, vec: np.ndarray, tool: np.ndarray,
                       tool_point: np.ndarray, jac_tool: np.ndarray, jac_tool_arm: np.ndarray,
-                      applied: np.ndarray, disturbance: np.ndarray, disturbance_state: np.ndarray) -> int:
+                      applied: np.ndarray, disturbance: np.ndarray, disturbance_state: np.ndarray,
+                      smooth: np.ndarray, feedback: np.ndarray, sensor_noise: np.ndarray, layout: np.ndarray,
+                      qfrc_passive: np.ndarray, reading: np.ndarray) -> int:
     """One controlled physics step: the tool load (when enabled, from the site pose of the last step, as a
     hook before mj_step1 sees it), mj_step1, J and J M^-1 of the site (mj_jacSite, mj_solveM), the law
     (`impedance_torque`) into ctrl, the actuators' torque disturbance (when on) added to ctrl, mj_step2.
@@ -359,8 +365,13 @@ def impedance_substep(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarra
         qpos .. vec: as in `impedance_torque` (site_mat (9,)).
         tool .. applied: as in `tool_load_into`.
         disturbance, disturbance_state: the torque the actuators deliver beyond the command, one row (n,) per
-            physics step (R, n), and [on, the next row]: the row's values are added to ctrl after the law (the
-            law's own record of its command, last_tau, keeps the command), the last row repeating past R.
+            physics step (R, n), and [noise on, the next row, smooth friction on]: the row's values are added to ctrl
+            after the law (the law's own record of its command, last_tau, keeps the command), the last row
+            repeating past R; with smooth friction on, ctrl loses the joints' smooth transmission friction at their
+            speed (``smooth`` (n, 3), controllers.joint_torque_kernel).
+        feedback, sensor_noise, layout, qfrc_passive, reading: the joint torque sensors and the friction observer
+            closed on them (controllers.joint_torque_kernel: the feedback vector, the sensors' noise rows, mjData's
+            layout, its qfrc_passive and an (n,) scratch for the reading); off when feedback[FB_ON] is 0.
 
     Returns:
         STATUS_OK, or the law's failure status (the state is then left after mj_step1, nothing applied).
@@ -371,17 +382,17 @@ def impedance_substep(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarra
     nv = jac.shape[1]
     call_mdppi(fns[FN_JAC_SITE], m, d, jac.ctypes.data, jac.ctypes.data + 3 * nv * 8, site)
     call_mdppi(fns[FN_SOLVE_M], m, d, jac_minv.ctypes.data, jac.ctypes.data, 6)
+    compensation_into(feedback, reading)  # the friction observer's compensation, inside the law's limits
     status = impedance_torque(jac, jac_minv, qpos, qvel, qfrc_bias, site_pos, site_mat, target, stiffness, params,
-                              last_tau, ctrl, work, vec)
+                              last_tau, ctrl, work, vec, reading)
     if status != STATUS_OK:
         return status
-    if disturbance_state[0] != 0.0:
-        row = int(disturbance_state[1])
-        disturbance_state[1] = row + 1
-        row = min(row, disturbance.shape[0] - 1)
-        for i in range(disturbance.shape[1]):
-            ctrl[i] += disturbance[row, i]
+    dof0 = int(params[5])
+    actuator_torque_into(dof0, qvel, ctrl, disturbance, disturbance_state, smooth)
     call_md(fns[FN_STEP2], m, d)
+    if feedback[FB_ON] != 0.0:
+        feedback_update(d, layout, dof0, ctrl, applied, qfrc_passive, qfrc_bias, last_tau, feedback, sensor_noise,
+                        reading)
     return STATUS_OK
 
 

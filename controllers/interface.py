@@ -44,6 +44,11 @@ class Controller(Protocol):
             ControllerError: a state it cannot start from.
         """
 
+    def settled(self) -> None:
+        """The arm has held its start pose at rest in free space since `start` (the episode's grasp settled; possibly
+        for no time at all): calibrate what needs it, e.g. tare joint torque sensors. Called once per episode, before
+        its first control period."""
+
     def set_tool_load(self, mass_kg: float, depth_m: float) -> None:
         """Compensate a carried tool of ``mass_kg`` whose centre of mass is ``depth_m`` below the controlled site
         along its z axis (0 kg: none).

@@ -69,8 +69,11 @@ def reference_period(n_substeps: int, law: int, fns: np.ndarray, m: int, d: int,
                      applied: np.ndarray) -> bool:
     """``n_substeps`` physics steps under ``law`` (LAW_*; module docstring), from the arguments of
     `impedance_kernel.impedance_substep` (its first 23, without the disturbance). False when Lambda^-1 is not
-    positive definite (the step is then left after mj_step1)."""
+    positive definite (the step is then left after mj_step1). The law of record runs without the friction
+    observer (controllers.joint_torque_kernel): a floor of the law, compared with a period whose controller has the
+    observer off."""
     nv = jac.shape[1]
+    no_offset = np.zeros(last_tau.shape[0])
     for step in range(n_substeps):
         if tool[TOOL_ENABLED] != 0.0:
             tool_load_into(fns, m, d, tool, site_pos, site_mat, tool_point, jac_tool, jac_tool_arm, applied)
@@ -84,7 +87,7 @@ def reference_period(n_substeps: int, law: int, fns: np.ndarray, m: int, d: int,
                                                                               vec):
                 return False
             factored_torque(jac, jac_minv, qpos, qvel, qfrc_bias, site_pos, site_mat, target, stiffness, params,
-                            last_tau, ctrl, work, vec)
+                            last_tau, ctrl, work, vec, no_offset)
         call_md(fns[FN_STEP2], m, d)
     return True
 

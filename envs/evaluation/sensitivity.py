@@ -29,11 +29,12 @@ IMPERFECTIONS: dict[str, dict[str, Any]] = {
     "in_hand_pose": {"grasp_lateral_m": 0.001, "grasp_tilt_deg": 1.0, "grasp_yaw_deg": 1.0},
     "grasp_offset": {"grasp_offset_m": 0.003},
     "payload": {"payload_mass_error": 0.2, "payload_com_error_m": 0.002},
-    "joint_friction": {"joint_friction_min_nm": 0.05, "joint_friction_max_nm": 0.2, "joint_damping_nm_s": 0.5},
+    "joint_friction": {"joint_friction_scale_min": 1.0, "joint_friction_scale_max": 1.0,
+                       "joint_friction_model": "stick_slip"},
     "torque_noise": {"actuator_noise_nm": 0.05},
     "hole_observation": {"hole_observation_error_m": 0.001, "hole_observation_error_deg": 1.0},
-    "joint_torque_sensing": {"sensor_mode": "joint_torque", "joint_torque_noise_nm": 0.05,
-                             "joint_torque_bias_nm": 0.3, "sensor_cutoff_hz": 100.0},
+    "joint_torque_sensing": {"sensor_mode": "joint_torque", "joint_torque_noise_nm": 0.005,
+                             "joint_torque_bias_nm": 0.15, "sensor_cutoff_hz": 100.0},
 }
 """Imperfection -> the task fields that set it (Task.override names), at the realistic preset's magnitudes. The
 wrench is sensed as a stock Panda senses it, from its joint torque sensors."""

@@ -74,6 +74,7 @@ ADAPTATION_PARTS: dict[str, dict[str, object]] = {
     "compliance": {"rotational_stiffness": None},
     "search": {"search_amplitude_m": 0.0},
     "seat": {"seat_speed_m_s": 0.0},
+    "insertion": {"insertion": False},
 }
 """The hand-written parts of the adaptation and the settings that turn each off (`ContactAdaptation.without`)."""
 
@@ -116,6 +117,8 @@ class ContactAdaptation:
         seat_radius_m: distance of the measured tcp from the goal within which the seat push runs, m (5 mm: the
             largest grasp offset of the realistic cell, 3 mm, plus margin).
         seat_force_n: the wrist force against the axis (N) at which the seat push stops: the floor holds the peg.
+        insertion: from the peg's first touch on the part near the hole, the force-regulated search and insertion
+            of envs.policies.insertion take over from the flow (and from the parts above, which then act no more).
 
     Raises:
         EnvError: a negative, NaN or zero-where-positive field (one line naming it).
@@ -135,6 +138,7 @@ class ContactAdaptation:
     seat_speed_m_s: float = 0.002
     seat_radius_m: float = 0.005
     seat_force_n: float = 5.0
+    insertion: bool = True
 
     def __post_init__(self) -> None:
         for name in ("push_limit_m", "frame_limit_m", "frame_limit_deg", "radius_m", "search_amplitude_m",
@@ -146,6 +150,8 @@ class ContactAdaptation:
             raise EnvError(f"contact adaptation push_leak_s={self.push_leak_s!r} must be > 0")
         if not (isinstance(self.search_push_scale, (int, float)) and 0.0 <= self.search_push_scale <= 1.0):
             raise EnvError(f"contact adaptation search_push_scale={self.search_push_scale!r} must be in [0, 1]")
+        if not isinstance(self.insertion, bool):
+            raise EnvError(f"contact adaptation insertion={self.insertion!r} must be True or False")
         if not (isinstance(self.search_period_s, (int, float)) and np.isfinite(self.search_period_s)
                 and self.search_period_s > 0.0):
             raise EnvError(f"contact adaptation search_period_s={self.search_period_s!r} must be > 0")
@@ -156,7 +162,8 @@ class ContactAdaptation:
     def without(self, parts: Iterable[str]) -> "ContactAdaptation":
         """These settings with the named parts of `ADAPTATION_PARTS` off (the ablation of each hand-written part):
         "push" (the axial push), "frame" (the frame shift and turn), "compliance" (the lowered rotational
-        stiffness), "search" (the stall search), "seat" (the seat push). All five off is `off`.
+        stiffness), "search" (the stall search), "seat" (the seat push), "insertion" (the search and insertion from
+        the first touch, envs.policies.insertion). All six off is `off`.
 
         Raises:
             EnvError: an unknown or repeated part (`adaptation_parts`).
@@ -170,7 +177,7 @@ class ContactAdaptation:
     def off(cls) -> "ContactAdaptation":
         """No push, no frame shift or rotation, no search, the controller's rotational stiffness: the bare flow."""
         return cls(push_limit_m=0.0, frame_limit_m=0.0, frame_limit_deg=0.0, rotational_stiffness=None,
-                   search_amplitude_m=0.0, seat_speed_m_s=0.0)
+                   search_amplitude_m=0.0, seat_speed_m_s=0.0, insertion=False)
 
 
 class ContactAdapter:

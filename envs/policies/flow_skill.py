@@ -55,6 +55,7 @@ from envs.errors import EnvError
 from envs.policies import closed_loop_kernel as kernel
 from envs.policies.adaptation import ContactAdaptation, ContactAdapter
 from envs.policies.interface import Action, Observation
+from envs.policies.insertion import InsertionPolicy
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.policies.stiffness_schedule import expert_stiffness
 from envs.poses import Pose, quat_conj, quat_mul, quat_mul_one, quat_to_rotvec, quat_to_rotvec_one, rotate
@@ -547,15 +548,19 @@ class OpenLoopPolicy(_PoseSkillPolicy):
 
 def make_policy(skill: PoseSkill, mode: str, lookahead_s: float = DEFAULT_LOOKAHEAD_S,
                 duration_s: float = 20.0, speed: float = 1.0, stiffness: StiffnessSetting | None = None,
-                adaptation: ContactAdaptation = ContactAdaptation()) -> ClosedLoopPolicy | OpenLoopPolicy:
+                adaptation: ContactAdaptation = ContactAdaptation()) -> ClosedLoopPolicy | InsertionPolicy | OpenLoopPolicy:
     """The policy of ``mode`` ("closed-loop" or "open-loop"), commanding ``stiffness`` (None: the default);
-    closed loop with the contact ``adaptation`` (open loop plays the plan as generated).
+    closed loop with the contact ``adaptation`` (its insertion part wraps the closed loop in an `InsertionPolicy`,
+    envs.policies.insertion); open loop plays the plan as generated.
 
     Raises:
         EnvError: unknown mode, "learned" stiffness for a skill without one.
     """
     if mode == "closed-loop":
-        return ClosedLoopPolicy(skill, lookahead_s, speed, stiffness, adaptation)
+        closed = ClosedLoopPolicy(skill, lookahead_s, speed, stiffness, adaptation)
+        if not adaptation.insertion:
+            return closed
+        return InsertionPolicy(closed, Pose(pos=skill.goal_pos, quat=skill.goal_quat))
     if mode == "open-loop":
         return OpenLoopPolicy(skill, duration_s, speed, stiffness)
     raise EnvError(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")

@@ -52,6 +52,7 @@ from envs.poses import (Pose, format_pose, quat_from_rotvec_one, quat_mul_one, n
 from envs.sim.episode_config import EpisodeConfig
 from envs.sim.friction import EpisodeFriction
 from envs.sim.instability import InstabilityCheck
+from envs.sim.joint_friction import JointFriction
 from envs.sim.model_error import ActuatorNoise, ModelError
 from envs.sim.observation import (REASON_FORCE_LIMIT, REASON_INSTABILITY, REASON_SUCCESS, REASON_TIME_LIMIT,
                                   Observer, SimulatorState, StepResult, site_pose)
@@ -185,7 +186,9 @@ class PegInHoleEnv:
         self.contacts = PegContacts(self.model, ids.peg_geoms, ids.finger_geoms)
         self.friction = EpisodeFriction(self.model, ids.sorter_geoms, ids.finger_geoms if self.grasped else (),
                                         ids.peg_geoms)
-        self.model_error = ModelError(self.model, ids.peg_body, tuple(ids.arm_dof_adr))
+        self.model_error = ModelError(self.model, ids.peg_body)
+        self.joint_friction = JointFriction(self.model, tuple(ids.arm_dof_adr), self.controller,
+                                            episode_config.perturbations.joint_friction_model)
         self.actuator_noise = ActuatorNoise(self.controller, len(ids.arm_dof_adr), self.n_substeps)
         self.observer = Observer(self.model, self.data, ids, self._arm_dof, self.grasped, self.wrist, self.contacts)
         if self.grasped:  # the peg's weight, a known tool load compensated by the controller (module docstring)
@@ -340,6 +343,7 @@ class PegInHoleEnv:
         self._set_believed_hole(perturbation)
         self.friction.apply(perturbation)
         self.model_error.apply(perturbation)
+        self.joint_friction.apply(perturbation)
         self.actuator_noise.reset(perturbation)
         if self.grasped:
             self._place_peg_in_grasp(perturbation)
@@ -347,15 +351,17 @@ class PegInHoleEnv:
         depth = self._deepest_penetration()
         if depth > self.config.start_penetration_m:
             raise EnvError(f"start pose {format_pose(start)} is in collision ({depth * 1e3:.1f} mm penetration)")
+        self.sensing.reset(episode_generator(perturbation))
+        self._hand_joint_torque_sensors(settle=True)
         self.controller.start(data)
         q_ref = q.copy()
         self.nullspace.reset(q_ref)
         self.stability.reset()
         if self.grasped:
             self._settle_grasp(start, q_ref)
+        self.controller.settled()
         self.perturbation = perturbation
         self.tracker.reset()
-        self.sensing.reset(episode_generator(perturbation))
         self.nullspace_failures = 0
         self._steps = 0
         self._done = False
@@ -363,6 +369,18 @@ class PegInHoleEnv:
         self.start = start
         self._obs = self._observe()
         return self._obs
+
+    def _hand_joint_torque_sensors(self, settle: bool = False) -> None:
+        """Hand the controller what its link-side joint torque sensors add to what they read (its friction observer
+        reads them, controllers.joint_torque_kernel): the episode's bias and this control period's noise rows, those
+        the wrench estimate reads too (`EpisodeSensing.joint_torque_errors`); ``settle``: the rows of the grasp's
+        settle instead (at the episode's start)."""
+        hand = getattr(self.controller, "set_joint_torque_sensors", None)
+        if hand is not None:
+            n = len(self.q_nominal)
+            steps = int(round(self.config.grasp_settle_s / float(self.model.opt.timestep))) if settle else 0
+            bias, noise = self.sensing.joint_torque_errors(settle_steps=steps)
+            hand(bias[:n] if settle else None, None if noise is None else noise[:, :n])
 
     def _place_peg_in_grasp(self, perturbation: Perturbation) -> None:
         """Peg frame = tcp frame shifted by L back and the grasp offset out along the peg axis, then (the in-hand
@@ -428,6 +446,7 @@ class PegInHoleEnv:
             q_ref = self.nullspace.q
             self.nullspace_failures += 1
         self.sensing.start_period(self._steps * self.control_period_s)
+        self._hand_joint_torque_sensors()
         self.actuator_noise.start_period()
         period = PeriodCommand(pose, stiffness, q_ref)
         controller = self.controller

@@ -7,16 +7,10 @@
 - Payload centre of mass: the simulated peg's centre of mass is moved across its axis by c (its body's ipos), while
   the controller's tool load and the sensor's zeroing keep it on the axis: the zeroed wrist sensor reads the moment
   c x m g, and the compliant wrist turns by about |c| m g / K_rot.
-- Joint friction: each arm joint gets Coulomb friction with stiction of f N m (MuJoCo's dof frictionloss: a joint
-  stays at rest until its torque exceeds f, then slides against f), which the impedance law does not compensate;
-  a compliant arm stops short of its target by up to about J^-T f / K. And viscous friction b N m s/rad (added to
-  the dof's damping): a joint moving at qdot is held back by b qdot, so a compliant arm moving at a steady speed
-  lags its target by a further K^-1 J^-T b qdot.
-
 - Torque noise (`ActuatorNoise`): each arm joint delivers its commanded torque plus white noise of sigma N m per
   physics step (the controller's torque disturbance, controllers.impedance), which the law never sees.
 
-The payload and joint-friction errors are written into the environment's model at reset (environments built on one
+(The joints' friction: envs.sim.joint_friction.) The payload errors are written into the environment's model at reset (environments built on one
 Scene share them). A changed mass or centre of mass also changes the constants MuJoCo derives from them at compile
 time (the bodies' and dofs' inverse weights that scale the constraint solver's regularisation, the subtree masses,
 the dofs' M0): without them the contact solver worked with the nominal peg's weights and 10 of 300 episodes of the
@@ -44,22 +38,19 @@ them."""
 
 
 class ModelError:
-    """Writes an episode's payload and joint-friction errors into the model (module docstring)."""
+    """Writes an episode's payload errors into the model (module docstring)."""
 
-    def __init__(self, model: mujoco.MjModel, peg_body: int | None, arm_dofs: tuple[int, ...]) -> None:
+    def __init__(self, model: mujoco.MjModel, peg_body: int | None) -> None:
         self.model = model
         self._peg = peg_body
-        self._dofs = np.asarray(arm_dofs, dtype=np.int64)
         self.mass_kg = float(model.body_mass[peg_body]) if peg_body is not None else 0.0
-        self.frictionloss = model.dof_frictionloss[self._dofs].copy()
-        self.damping = model.dof_damping[self._dofs].copy()
         self._compiled = {name: getattr(model, name).copy() for name in MASS_CONSTANTS}
         self._scratch: mujoco.MjData | None = None
         self._payload = (1.0, 0.0, 0.0)  # (mass scale, centre-of-mass shift x, y) now in the model
 
     def apply(self, perturbation: Perturbation) -> None:
-        """Write the episode's payload mass (and inertia), centre of mass (and the constants derived from them) and
-        arm joint friction (Coulomb and viscous) into the model."""
+        """Write the episode's payload mass (and inertia) and centre of mass (and the constants derived from them)
+        into the model."""
         model = self.model
         payload = ((1.0 + perturbation.payload_mass_error, perturbation.payload_com_x_m, perturbation.payload_com_y_m)
                    if self._peg is not None else (1.0, 0.0, 0.0))
@@ -75,9 +66,6 @@ class ModelError:
                     self._scratch = mujoco.MjData(model)
                 mujoco.mj_setConst(model, self._scratch)
             self._payload = payload
-        friction = perturbation.joint_friction_nm
-        model.dof_frictionloss[self._dofs] = friction if friction > 0.0 else self.frictionloss
-        model.dof_damping[self._dofs] = self.damping + perturbation.joint_damping_nm_s
 
 
 ACTUATOR_NOISE_SALT: int = 0x70_71_75_65

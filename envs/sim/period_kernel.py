@@ -30,8 +30,9 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
                       params: np.ndarray, last_tau: np.ndarray, ctrl: np.ndarray, work: np.ndarray, vec: np.ndarray,
                       tool: np.ndarray, tool_point: np.ndarray, jac_tool: np.ndarray, jac_tool_arm: np.ndarray,
                       applied: np.ndarray, disturbance: np.ndarray, disturbance_state: np.ndarray,
-                      layout: np.ndarray, rot: np.ndarray, wrist_pos: np.ndarray,
-                      xipos: np.ndarray, force: np.ndarray, torque: np.ndarray, bodies: np.ndarray, load: np.ndarray,
+                      smooth: np.ndarray, feedback: np.ndarray, sensor_noise: np.ndarray, feedback_layout: np.ndarray,
+                      qfrc_passive: np.ndarray, reading: np.ndarray, layout: np.ndarray, rot: np.ndarray,
+                      wrist_pos: np.ndarray, xipos: np.ndarray, force: np.ndarray, torque: np.ndarray, bodies: np.ndarray, load: np.ndarray,
                       counted: np.ndarray, scratch: np.ndarray, limits: np.ndarray, sensor: np.ndarray,
                       noise: np.ndarray, state: np.ndarray, sense_fns: np.ndarray, sense_m: int,
                       jt_index: np.ndarray, jt_jac: np.ndarray, qfrc_constraint: np.ndarray, jt_bodies: np.ndarray,
@@ -41,8 +42,7 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
 
     Args:
         n_substeps: physics steps of the period.
-        fns .. disturbance_state: ``CartesianImpedanceController.substep_arguments`` (the arguments of
-            impedance_substep).
+        fns .. reading: ``CartesianImpedanceController.substep_arguments`` (the arguments of impedance_substep).
         layout .. jt_estimate: ``EpisodeSensing.period_arguments`` (those of sense_substep_at after the data's
             address).
 
@@ -52,7 +52,8 @@ def controlled_period(n_substeps: int, fns: np.ndarray, m: int, d: int, site: in
     for done in range(n_substeps):
         status = impedance_substep(fns, m, d, site, jac, jac_minv, qpos, qvel, qfrc_bias, site_pos, site_mat, target,
                                    stiffness, params, last_tau, ctrl, work, vec, tool, tool_point, jac_tool,
-                                   jac_tool_arm, applied, disturbance, disturbance_state)
+                                   jac_tool_arm, applied, disturbance, disturbance_state, smooth, feedback,
+                                   sensor_noise, feedback_layout, qfrc_passive, reading)
         if status != STATUS_OK:
             return done, status, False
         if sense_substep_at(d, layout, rot, wrist_pos, xipos, force, torque, bodies, load, counted, scratch, limits,

@@ -350,6 +350,20 @@ class EpisodeSensing:
             noise[:] = self._rng.standard_normal(noise.shape) * self.sensor.joint_torque_noise_nm
             self.inputs.state[kernel.SUBSTEP] = 0.0
 
+    def joint_torque_errors(self, settle_steps: int = 0) -> tuple[FloatArray, FloatArray | None]:
+        """What the arm's joint torque sensors add to the torque they read: (the episode's bias per joint (7,), the
+        noise rows (R, 7) of this control period or None when they have none). Their noise and bias are the task's
+        only with ``sensor_mode = "joint_torque"`` (the wrench estimate reads the same); in the other modes the joint
+        sensors read exactly. ``settle_steps`` > 0: rows for that many physics steps of the grasp's settle instead,
+        drawn from the episode's generator after its bias (before the first control period's)."""
+        inputs = self.inputs
+        bias = inputs.sensor[SENSOR_JOINT_BIAS:SENSOR_JOINT_BIAS + MAX_ARM_JOINTS]
+        if inputs.sensor[SENSOR_ON] != SENSOR_JOINT_TORQUE or self.sensor.joint_torque_noise_nm == 0.0:
+            return bias, None
+        if settle_steps > 0:
+            return bias, self._rng.standard_normal((settle_steps, MAX_ARM_JOINTS)) * self.sensor.joint_torque_noise_nm
+        return bias, inputs.jt_noise
+
     def sensed_wrench(self, true_wrench: FloatArray) -> FloatArray:
         """What the cell's sensor reads now: ``true_wrench`` itself when ideal, else the sensed y (a new array)."""
         if not self.inputs.sensor[SENSOR_ON]:

@@ -274,9 +274,9 @@ def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, forc
         state[PEAK_TORQUE] = t
     if sensor[0] == SENSOR_JOINT_TORQUE:  # y <- y + alpha (W_hat - y); the limit reads |y_F|
         alpha = sensor[1]
-        for j in range(6):
+        for j in range(6):  # alpha = 1: no low-pass, the reading itself (y + (x - y) is not x to the bit)
             y = state[SENSED + j]
-            state[SENSED + j] = y + alpha * (estimate[j] - y)
+            state[SENSED + j] = estimate[j] if alpha == 1.0 else y + alpha * (estimate[j] - y)
         y0, y1, y2 = state[SENSED], state[SENSED + 1], state[SENSED + 2]
         f = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
     elif sensor[0] != 0.0:  # the wrist sensor: y <- y + alpha (w + b + n - y); the limit reads |y_F|
@@ -285,7 +285,8 @@ def sense_substep(rot: np.ndarray, site_pos: np.ndarray, xipos: np.ndarray, forc
         alpha = sensor[1]
         for j in range(6):
             y = state[SENSED + j]
-            state[SENSED + j] = y + alpha * ((wrench[j] + sensor[2 + j] + noise[row, j]) - y)
+            x = (wrench[j] + sensor[2 + j]) + noise[row, j]
+            state[SENSED + j] = x if alpha == 1.0 else y + alpha * (x - y)
         y0, y1, y2 = state[SENSED], state[SENSED + 1], state[SENSED + 2]
         f = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
     window = state[WINDOW:]

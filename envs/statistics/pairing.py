@@ -20,9 +20,9 @@ FloatArray = npt.NDArray[np.float64]
 PAIRING_TOLERANCE: float = 1e-9
 """Start poses (m, quaternion components) and perturbations (mm, deg) of a pair agree to this much."""
 IMPERFECTION_KEYS: frozenset[str] = frozenset({"hole_friction", "pad_friction", "grasp_lateral_mm", "grasp_tilt_deg",
-                                               "grasp_yaw_deg", "payload_mass_error", "joint_friction_nm",
+                                               "grasp_yaw_deg", "payload_mass_error", "joint_friction_scale",
                                                "observed_hole_dx_mm", "observed_hole_dy_mm", "observed_hole_yaw_deg",
-                                               "payload_com_x_mm", "payload_com_y_mm", "joint_damping_nm_s",
+                                               "payload_com_x_mm", "payload_com_y_mm",
                                                "actuator_noise_nm", "observed_hole_tilt_deg",
                                                "observed_hole_tilt_dir_deg"})
 """Perturbation keys of the cell's imperfections (envs.task.perturbation), written only where set: what one side of a

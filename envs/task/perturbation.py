@@ -21,9 +21,11 @@ The cell's imperfections (issue #25), each off at 0:
   wrist sensor's zeroing keep the nominal m (a payload the cell's model gets wrong);
 - payload centre of mass: the simulated peg's centre of mass is moved across its axis by (cx, cy) uniform in the
   disk of radius C (in the peg's frame), while the controller and the sensor's zeroing keep it on the axis;
-- joint friction: Coulomb friction with stiction (MuJoCo's frictionloss) of f uniform in [min, max] N m on each
-  arm joint, which the controller does not know, and viscous friction b uniform in [0, B] N m s/rad on each (on
-  top of the model's own joint damping);
+- joint friction: each arm joint's transmission friction, the Panda's identified friction (envs.sim.joint_friction:
+  Gaz et al., RA-L 2019) scaled by s uniform in [min, max] per episode, as stick-slip (MuJoCo's frictionloss, the
+  identified Coulomb friction, plus the identified viscous friction on top of the model's joint damping) or as the
+  identified smooth law (no stiction); which of the two is ``joint_friction_model``; the controller knows neither
+  the law nor s;
 - torque noise: each arm joint delivers its commanded torque plus white noise of sigma N m per physics step
   (drawn per control period from the episode's own generator, envs.sim.model_error.ActuatorNoise), which the
   controller does not know;
@@ -58,16 +60,19 @@ MAX_FRICTION: float = 2.0
 MAX_GRASP_LATERAL_M: float = 0.005
 MAX_GRASP_ANGLE_DEG: float = 5.0
 MAX_PAYLOAD_ERROR: float = 0.5
-MAX_JOINT_FRICTION_NM: float = 5.0
+MAX_JOINT_FRICTION_SCALE: float = 5.0
 MAX_COM_ERROR_M: float = 0.01
-MAX_JOINT_DAMPING_NM_S: float = 10.0
 MAX_ACTUATOR_NOISE_NM: float = 5.0
 MAX_OBSERVATION_ERROR_M: float = 0.01
 MAX_OBSERVATION_ERROR_DEG: float = 10.0
 IMPERFECTION_DRAWS: int = 15
 """Uniform draws of the imperfections' generator per episode (their order: mu_hole, mu_pad, l, t, y, e, f, then the
-observation's radius, polar angle and yaw, then the centre of mass's radius and polar angle and b, then the
-observation's tilt and its direction; new imperfections are appended, so earlier ones keep their draws)."""
+observation's radius, polar angle and yaw, then the centre of mass's radius and polar angle and one draw no longer
+used, then the observation's tilt and its direction; new imperfections are appended, so earlier ones keep their
+draws; f is the joint friction's scale s)."""
+JOINT_FRICTION_MODELS: tuple[str, ...] = ("stick_slip", "smooth")
+"""How the joints' friction depends on their speed (envs.sim.joint_friction): stick-slip (Coulomb with stiction plus
+viscous) or the identified smooth law."""
 HOLE_OBSERVATIONS: tuple[str, ...] = ("nominal", "measured")
 """What the observed hole is the error of (module docstring): the nominal hole, or the true one measured."""
 
@@ -93,15 +98,15 @@ class PerturbationRanges:
         grasp_tilt_deg, grasp_yaw_deg: bounds T, Y of its tilt about the closing axis and turn about its own axis,
             in [0, 5 deg].
         payload_mass_error: bound E of the simulated peg's relative mass error, in [0, 0.5].
-        joint_friction_min_nm, joint_friction_max_nm: range of each arm joint's Coulomb friction (both 0: none);
-            0 < min <= max <= 5 N m.
+        joint_friction_scale_min, joint_friction_scale_max: range of the scale s of the arm joints' identified
+            friction per episode (both 0: none; 1: the Panda's as identified); 0 < min <= max <= 5.
+        joint_friction_model: "stick_slip" or "smooth" (`JOINT_FRICTION_MODELS`, envs.sim.joint_friction).
         hole_observation_error_m, hole_observation_error_deg: R_o and A_o of the observed hole's error, in
             [0, 10 mm] and [0, 10 deg].
         hole_observation: "nominal" (the observed hole is the nominal one with that error) or "measured" (the true,
             perturbed hole with that error: a sensor that sees the part).
         hole_observation_tilt_deg: T_o, the bound of the observed hole's tilt error, in [0, 10 deg].
         payload_com_error_m: bound C of the simulated peg's centre-of-mass shift across its axis, in [0, 10 mm].
-        joint_damping_nm_s: bound B of each arm joint's extra viscous friction, in [0, 10] N m s/rad.
         actuator_noise_nm: sigma of the white noise on each arm joint's delivered torque per physics step, in
             [0, 5] N m (not drawn: every episode has it).
 
@@ -121,19 +126,22 @@ class PerturbationRanges:
     grasp_tilt_deg: float = 0.0
     grasp_yaw_deg: float = 0.0
     payload_mass_error: float = 0.0
-    joint_friction_min_nm: float = 0.0
-    joint_friction_max_nm: float = 0.0
+    joint_friction_scale_min: float = 0.0
+    joint_friction_scale_max: float = 0.0
     hole_observation_error_m: float = 0.0
     hole_observation_error_deg: float = 0.0
     payload_com_error_m: float = 0.0
-    joint_damping_nm_s: float = 0.0
     actuator_noise_nm: float = 0.0
     hole_observation: str = "nominal"
     hole_observation_tilt_deg: float = 0.0
+    joint_friction_model: str = "stick_slip"
 
     def __post_init__(self) -> None:
         if self.hole_observation not in HOLE_OBSERVATIONS:
             raise EnvError(f"hole_observation={self.hole_observation!r} must be one of {', '.join(HOLE_OBSERVATIONS)}")
+        if self.joint_friction_model not in JOINT_FRICTION_MODELS:
+            raise EnvError(f"joint_friction_model={self.joint_friction_model!r} must be one of "
+                           f"{', '.join(JOINT_FRICTION_MODELS)}")
         _check_range("hole_error_m", self.hole_error_m, MAX_HOLE_ERROR_M)
         _check_range("hole_error_deg", self.hole_error_deg, MAX_HOLE_ERROR_DEG)
         _check_range("grasp_offset_m", self.grasp_offset_m, MAX_GRASP_OFFSET_M)
@@ -142,14 +150,14 @@ class PerturbationRanges:
         _check_range("grasp_yaw_deg", self.grasp_yaw_deg, MAX_GRASP_ANGLE_DEG)
         _check_range("payload_mass_error", self.payload_mass_error, MAX_PAYLOAD_ERROR)
         _check_range("payload_com_error_m", self.payload_com_error_m, MAX_COM_ERROR_M)
-        _check_range("joint_damping_nm_s", self.joint_damping_nm_s, MAX_JOINT_DAMPING_NM_S)
         _check_range("actuator_noise_nm", self.actuator_noise_nm, MAX_ACTUATOR_NOISE_NM)
         _check_range("hole_observation_error_m", self.hole_observation_error_m, MAX_OBSERVATION_ERROR_M)
         _check_range("hole_observation_error_deg", self.hole_observation_error_deg, MAX_OBSERVATION_ERROR_DEG)
         _check_range("hole_observation_tilt_deg", self.hole_observation_tilt_deg, MAX_OBSERVATION_ERROR_DEG)
         for low_name, high_name, top in (("hole_friction_min", "hole_friction_max", MAX_FRICTION),
                                          ("pad_friction_min", "pad_friction_max", MAX_FRICTION),
-                                         ("joint_friction_min_nm", "joint_friction_max_nm", MAX_JOINT_FRICTION_NM)):
+                                         ("joint_friction_scale_min", "joint_friction_scale_max",
+                                          MAX_JOINT_FRICTION_SCALE)):
             low = _check_range(low_name, getattr(self, low_name), top)
             high = _check_range(high_name, getattr(self, high_name), top)
             if (low, high) != (0.0, 0.0) and not 0.0 < low <= high:
@@ -161,8 +169,8 @@ class PerturbationRanges:
         """Some imperfection of the cell is set (its draws are made)."""
         return any(getattr(self, name) > 0.0 for name in (
             "hole_friction_max", "pad_friction_max", "grasp_lateral_m", "grasp_tilt_deg", "grasp_yaw_deg",
-            "payload_mass_error", "joint_friction_max_nm", "hole_observation_error_m", "hole_observation_error_deg",
-            "payload_com_error_m", "joint_damping_nm_s", "actuator_noise_nm", "hole_observation_tilt_deg"))
+            "payload_mass_error", "joint_friction_scale_max", "hole_observation_error_m", "hole_observation_error_deg",
+            "payload_com_error_m", "actuator_noise_nm", "hole_observation_tilt_deg"))
 
 
 @dataclass(frozen=True)
@@ -179,12 +187,11 @@ class Perturbation:
             scene's).
         grasp_lateral_m, grasp_tilt_deg, grasp_yaw_deg: the peg's in-hand pose error (module docstring).
         payload_mass_error: relative error e of the simulated peg's mass.
-        joint_friction_nm: Coulomb friction of each arm joint (N m).
+        joint_friction_scale: the scale s of the arm joints' identified friction (0: none).
         observed_hole_dx_m, observed_hole_dy_m, observed_hole_yaw_deg, observed_hole_tilt_deg,
             observed_hole_tilt_dir_deg: the observed hole's error in the frame of the hole it is the error of
             (`PerturbationRanges.hole_observation`), as the hole-pose error's fields.
         payload_com_x_m, payload_com_y_m: the simulated peg's centre-of-mass shift in its own frame (m).
-        joint_damping_nm_s: extra viscous friction of each arm joint (N m s/rad).
         actuator_noise_nm: sigma of the noise on each arm joint's delivered torque (N m).
     """
 
@@ -200,13 +207,12 @@ class Perturbation:
     grasp_tilt_deg: float = 0.0
     grasp_yaw_deg: float = 0.0
     payload_mass_error: float = 0.0
-    joint_friction_nm: float = 0.0
+    joint_friction_scale: float = 0.0
     observed_hole_dx_m: float = 0.0
     observed_hole_dy_m: float = 0.0
     observed_hole_yaw_deg: float = 0.0
     payload_com_x_m: float = 0.0
     payload_com_y_m: float = 0.0
-    joint_damping_nm_s: float = 0.0
     actuator_noise_nm: float = 0.0
     observed_hole_tilt_deg: float = 0.0
     observed_hole_tilt_dir_deg: float = 0.0
@@ -215,10 +221,9 @@ class Perturbation:
         for name, value in asdict(self).items():
             if not np.isfinite(value):
                 raise EnvError(f"Perturbation.{name}={value!r} must be finite")
-        if min(self.hole_friction, self.pad_friction, self.joint_friction_nm, self.joint_damping_nm_s,
-               self.actuator_noise_nm) < 0.0:
-            raise EnvError(f"Perturbation frictions ({self.hole_friction}, {self.pad_friction}, "
-                           f"{self.joint_friction_nm} N m) must be >= 0")
+        if min(self.hole_friction, self.pad_friction, self.joint_friction_scale, self.actuator_noise_nm) < 0.0:
+            raise EnvError(f"Perturbation frictions ({self.hole_friction}, {self.pad_friction}, joint scale "
+                           f"{self.joint_friction_scale}) and torque noise {self.actuator_noise_nm} N m must be >= 0")
         if self.payload_mass_error <= -1.0:
             raise EnvError(f"Perturbation.payload_mass_error={self.payload_mass_error} must be > -1 (a mass > 0)")
 
@@ -258,13 +263,13 @@ class Perturbation:
             ("hole_friction", self.hole_friction), ("pad_friction", self.pad_friction),
             ("grasp_lateral_mm", self.grasp_lateral_m * 1e3), ("grasp_tilt_deg", self.grasp_tilt_deg),
             ("grasp_yaw_deg", self.grasp_yaw_deg), ("payload_mass_error", self.payload_mass_error),
-            ("joint_friction_nm", self.joint_friction_nm), ("observed_hole_dx_mm", self.observed_hole_dx_m * 1e3),
+            ("joint_friction_scale", self.joint_friction_scale), ("observed_hole_dx_mm", self.observed_hole_dx_m * 1e3),
             ("observed_hole_dy_mm", self.observed_hole_dy_m * 1e3),
             ("observed_hole_yaw_deg", self.observed_hole_yaw_deg),
             ("observed_hole_tilt_deg", self.observed_hole_tilt_deg),
             ("observed_hole_tilt_dir_deg", self.observed_hole_tilt_dir_deg),
             ("payload_com_x_mm", self.payload_com_x_m * 1e3), ("payload_com_y_mm", self.payload_com_y_m * 1e3),
-            ("joint_damping_nm_s", self.joint_damping_nm_s), ("actuator_noise_nm", self.actuator_noise_nm))
+            ("actuator_noise_nm", self.actuator_noise_nm))
             if v != 0.0}
         return {
             "hole_dx_mm": self.hole_dx_m * 1e3,
@@ -313,13 +318,12 @@ def sample_perturbation(ranges: PerturbationRanges, rng: np.random.Generator) ->
         grasp_tilt_deg=float(ranges.grasp_tilt_deg * (2.0 * v[3] - 1.0)),
         grasp_yaw_deg=float(ranges.grasp_yaw_deg * (2.0 * v[4] - 1.0)),
         payload_mass_error=float(ranges.payload_mass_error * (2.0 * v[5] - 1.0)),
-        joint_friction_nm=within(ranges.joint_friction_min_nm, ranges.joint_friction_max_nm, v[6]),
+        joint_friction_scale=within(ranges.joint_friction_scale_min, ranges.joint_friction_scale_max, v[6]),
         observed_hole_dx_m=float(observed_radius * np.cos(2.0 * np.pi * v[8])),
         observed_hole_dy_m=float(observed_radius * np.sin(2.0 * np.pi * v[8])),
         observed_hole_yaw_deg=float(ranges.hole_observation_error_deg * (2.0 * v[9] - 1.0)),
         payload_com_x_m=float(com_radius * np.cos(2.0 * np.pi * v[11])),
         payload_com_y_m=float(com_radius * np.sin(2.0 * np.pi * v[11])),
-        joint_damping_nm_s=float(ranges.joint_damping_nm_s * v[12]),
         actuator_noise_nm=float(ranges.actuator_noise_nm),
         observed_hole_tilt_deg=float(ranges.hole_observation_tilt_deg * v[13]),
         observed_hole_tilt_dir_deg=float(360.0 * v[14]) if ranges.hole_observation_tilt_deg > 0.0 else 0.0,

@@ -54,12 +54,16 @@ from envs.task.sensor_config import WristSensorConfig
 if TYPE_CHECKING:
     from envs.cell.scene_config import SceneConfig
 
-TASK_VERSION: int = 1
+TASK_VERSION: int = 2
+"""Version 2 replaced version 1's uniform joint friction (``joint_friction_min_nm``, ``joint_friction_max_nm``,
+``joint_damping_nm_s``) by the Panda's identified friction, scaled (``joint_friction_scale_min``, ``_max``,
+``joint_friction_model``); a version-1 record without joint friction reads as version 2."""
+_VERSION_1_JOINT_FRICTION: tuple[str, ...] = ("joint_friction_min_nm", "joint_friction_max_nm", "joint_damping_nm_s")
 """Version of the task record (files, checkpoints, result JSON); a reader refuses another."""
 TASK_PEG_MODES: tuple[str, ...] = tuple(m for m in PEG_MODES if m != "free")
 AROUND: tuple[str, ...] = ("mean", "demo")
 """Centres of an evaluation's start perturbations: the mean demo start, or a random demo's start."""
-PRESET_NAMES: tuple[str, ...] = ("contact", "paper", "factory", "realistic")
+PRESET_NAMES: tuple[str, ...] = ("contact", "paper", "factory", "realistic", "harsh")
 DEFAULT_PRESET: str = "contact"
 
 
@@ -273,8 +277,10 @@ class Task:
         version = values.get("version")
         if version is None:
             raise EnvError(f"{source}: missing key 'version' (write version = {TASK_VERSION})")
-        if isinstance(version, bool) or version != TASK_VERSION:
+        if isinstance(version, bool) or version not in (1, TASK_VERSION):
             raise EnvError(f"{source}: version = {version!r} is not one this pih reads ({TASK_VERSION})")
+        if version == 1:
+            values = _from_version_1(values, source)
         default = cls()
         changes: dict[str, Any] = {}
         for key, value in values.items():
@@ -366,6 +372,26 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, float):
         return repr(value)  # "inf" and exponents like 2e-05 are TOML floats
     return str(value)
+
+
+def _from_version_1(values: Mapping[str, Any], source: str) -> dict[str, Any]:
+    """A version-1 record as version 2: its joint friction fields dropped when they are all 0.
+
+    Raises:
+        EnvError: a version-1 joint friction that is set (version 2 has no uniform joint friction).
+    """
+    values = dict(values)
+    perturbations = values.get("perturbations")
+    if isinstance(perturbations, Mapping):
+        perturbations = dict(perturbations)
+        for key in _VERSION_1_JOINT_FRICTION:
+            value = perturbations.pop(key, 0.0)
+            if value != 0.0:
+                raise EnvError(f"{source}: perturbations.{key} = {value!r} is version 1's uniform joint friction; "
+                               f"version {TASK_VERSION} scales the Panda's identified friction instead "
+                               f"(joint_friction_scale_min, joint_friction_scale_max, joint_friction_model)")
+        values["perturbations"] = perturbations
+    return values
 
 
 def parse_toml(text: str, source: str) -> Task:

@@ -57,7 +57,7 @@ def test_kernel_torque_equals_numpy_law(seed):
     work, vec = kernel.work_buffers(N_JOINTS)
     ctrl, last_tau = np.zeros(N_JOINTS), last.copy()
     status = kernel.impedance_torque(jac, jac_minv, qpos, qvel, bias, site_pos, site_rot.ravel(), target, k,
-                                     params, last_tau, ctrl, work, vec)
+                                     params, last_tau, ctrl, work, vec, np.zeros(N_JOINTS))
     assert status == kernel.STATUS_OK
     np.testing.assert_allclose(ctrl, want, rtol=1e-9, atol=1e-9)
     np.testing.assert_array_equal(last_tau, ctrl)
@@ -70,7 +70,7 @@ def test_kernel_reports_a_singular_inertia_and_writes_nothing():
     ctrl = np.full(N_JOINTS, 7.0)
     status = kernel.impedance_torque(jac, jac, np.zeros(N_JOINTS), np.zeros(NV), np.zeros(N_JOINTS), np.zeros(3),
                                      np.eye(3).ravel(), np.r_[np.zeros(3), 1.0, np.zeros(N_JOINTS + 4)],
-                                     np.eye(6), params, np.zeros(N_JOINTS), ctrl, work, vec)
+                                     np.eye(6), params, np.zeros(N_JOINTS), ctrl, work, vec, np.zeros(N_JOINTS))
     assert status == kernel.STATUS_NOT_POSITIVE_DEFINITE
     assert np.all(ctrl == 7.0)
 

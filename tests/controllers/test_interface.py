@@ -33,6 +33,9 @@ class JointHold:
     def start(self, data: mujoco.MjData) -> None:
         self.q_hold = data.qpos[self.qpos].copy()
 
+    def settled(self) -> None:
+        pass  # nothing to calibrate
+
     def set_tool_load(self, mass_kg: float, depth_m: float) -> None:
         self.tool_load = (mass_kg, depth_m)
 

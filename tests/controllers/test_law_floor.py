@@ -7,6 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from controllers.impedance import ImpedanceConfig
 from controllers.impedance_kernel import pose_error_into
 from controllers.law_floor import (LAW_HELD_FACTORS, LAW_OF_RECORD, LAW_SPRING_DAMPER, reference_period,
                                    spring_damper_torque)
@@ -22,8 +23,9 @@ from envs.task.perturbation import Perturbation
 @pytest.fixture(scope="module")
 def periods():
     """The env in the middle of a descent onto the chamfer beside the hole (walls in contact), and the prepared
-    arguments of its next period."""
-    env = PegInHoleEnv(episode_config=EpisodeConfig(time_limit_s=1.5), scene=build_scene(SceneConfig()))
+    arguments of its next period; its controller without the friction observer, which the reference laws leave out."""
+    env = PegInHoleEnv(episode_config=EpisodeConfig(time_limit_s=1.5), scene=build_scene(SceneConfig()),
+                       controller_config=ImpedanceConfig(friction_observer_time_s=0.0))
     env.reset(start_pose=Pose(env.nominal_goal.pos + 0.006 * env.hole_axis, env.nominal_goal.quat),
               perturbation=Perturbation(hole_dx_m=0.001))
     for k in range(12):

@@ -1,13 +1,12 @@
-"""The short evaluation whose episode records pin the RiemannianFlow skill's behaviour across the Policy refactor.
+"""The short evaluation whose episode records pin the RiemannianFlow skill's behaviour, so that a refactor that means
+to change nothing can show it changed nothing.
 
 `record_cases()` runs the tiny skill (tests/helpers/skill_fixtures.py) closed loop (controller stiffness and a constant
 500 N/m) and open loop from two starts 45 mm above the goal with a 1 mm / 1 deg hole-pose error, so that the episodes
-reach the chamfer and the contact adaptation acts. It uses only names that exist before and after the refactor
-(`make_policy`, `run_episode`, `sample_starts`), so the same function generated the first fixture at commit a767f0d
-(the old loop plus the contact adaptation's frame rotation) and the stored one at ec6ea04 (the contact adaptation's
-stall search, which changes the closed-loop episodes on purpose; the open-loop ones are bit for bit those of a767f0d)
-(`python -m tests.helpers.policy_record_cases OUT.json` from the repository's root, with that commit's code on
-PYTHONPATH), and runs on today's code in tests/envs/policies/test_policy_records.py.
+reach the chamfer and the contact adaptation and the insertion act; tests/envs/policies/test_policy_records.py runs it
+and compares with the stored records. A change that means to change the skill's episodes writes the fixture again
+(`python -m tests.helpers.policy_record_cases tests/data/policy_records.json` from the repository's root) and says so
+in its commit message.
 """
 
 from __future__ import annotations
@@ -18,12 +17,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from numerics.cpu_dispatch import pin_cpu_dispatch
+
+pin_cpu_dispatch()  # before numpy loads, when this runs as a script: the records of pih, not of the host's loops
+
+import numpy as np  # noqa: E402
 
 CASES: tuple[tuple[str, str | None], ...] = (("closed-loop", None), ("closed-loop", "constant:500"), ("open-loop", None))
 TIME_LIMIT_S = 3.0
 FIXTURE = Path(__file__).resolve().parents[1] / "data" / "policy_records.json"
-"""The stored records (written at the commit named in the module docstring)."""
+"""The stored records."""
 
 
 def trace_sha256(trace: Any) -> str:

@@ -253,8 +253,8 @@ def test_a_bad_stiffness_is_one_line_and_exit_2_with_nothing_written(model, tmp_
     assert list(tmp_path.iterdir()) == []
 
 
-def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(model, tmp_path, capsys):
-    """`--adaptation-off` turns off the named parts (ContactAdaptation.without); all five are --no-contact-adaptation
+def test_adaptation_parts_turn_off_one_at_a_time_and_all_of_them_are_the_bare_flow(model, tmp_path, capsys):
+    """`--adaptation-off` turns off the named parts (ContactAdaptation.without); all of them are --no-contact-adaptation
     to the last bit of every record; an unknown part is a one-line error, exit 2, nothing written."""
     from envs.errors import EnvError
     from envs.evaluation.evaluate import _policy_for
@@ -271,8 +271,8 @@ def test_adaptation_parts_turn_off_one_at_a_time_and_all_five_are_the_bare_flow(
         with pytest.raises(EnvError, match="adaptation_off"):
             EvaluationConfig(adaptation_off=bad)
     skill = load_skill(model)  # the evaluation's policy gets the config's parts off
-    assert _policy_for(skill, EvaluationConfig(adaptation_off=("compliance",))).adapter.config == \
-        full.without(["compliance"])
+    assert _policy_for(skill, EvaluationConfig(adaptation_off=("compliance",))).inner.adapter.config == \
+        full.without(["compliance"])  # (the insertion wraps the closed loop)
     assert _policy_for(skill, EvaluationConfig(adaptation_off=tuple(ADAPTATION_PARTS))).adapter.config == \
         ContactAdaptation.off()
     common = ["evaluate", "--model", str(model), "--episodes", "2", "--time-limit-s", "0.3", "--quiet"]

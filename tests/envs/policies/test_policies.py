@@ -127,3 +127,26 @@ def test_replaying_a_demo_from_its_start_seats_the_peg() -> None:
     assert np.allclose(trace.stiffness[1], demos.stiffness[0, 1], rtol=0.05)  # the demo's stiffness was commanded
     task = policy_task(env)
     assert task.control_period_s == env.control_period_s and task.nominal_goal is env.nominal_goal
+
+
+def test_in_the_realistic_cell_a_policy_sees_neither_the_true_hole_nor_the_peg_in_the_hand() -> None:
+    """The realistic preset moves the hole and the peg in the hand: the observation's tcp is the arm's kinematic tcp
+    (the nominal peg tip), not the peg's own tip, and its hole is the believed one, not the true one; no field is
+    the truth."""
+    from envs.task.task import preset
+
+    task = preset("realistic")
+    env = PegInHoleEnv(scene_config=task.scene_config(),
+                       episode_config=dataclasses.replace(EpisodeConfig.from_task(task), time_limit_s=1.0))
+    perturbation = Perturbation(hole_dx_m=0.0008, hole_yaw_deg=0.9, grasp_lateral_m=0.0009, grasp_tilt_deg=0.9,
+                                grasp_yaw_deg=0.8, observed_hole_dx_m=-0.0005)
+    probe = _Probe()
+    run_episode(env, probe, StartPose(0, -1, env.nominal_start(), perturbation))
+    tcp_site = env.data.site_xpos[env.tcp_site]
+    tip = env.data.site_xpos[env.peg_tip_site]
+    obs = probe.seen[-1]
+    assert np.allclose(obs.tcp.pos, tcp_site) and np.linalg.norm(tip - tcp_site) > 1e-3  # the tip is 1+ mm away
+    assert np.linalg.norm(env.hole.pos - obs.nominal_hole.pos) > 7e-4 and obs.privileged is None
+    values = [np.asarray(getattr(obs, f.name).pos) for f in dataclasses.fields(Observation)
+              if isinstance(getattr(obs, f.name), Pose)]
+    assert not any(np.allclose(v, env.hole.pos, atol=1e-5) or np.allclose(v, tip, atol=1e-5) for v in values)

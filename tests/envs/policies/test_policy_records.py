@@ -1,17 +1,13 @@
-"""The RiemannianFlow skill's episodes are unchanged by the Policy protocol, field for field.
+"""The RiemannianFlow skill's episodes are the stored ones, field for field.
 
-The fixture tests/data/policy_records.json was written by `tests/helpers/policy_record_cases.py` running on the code
-of commit ec6ea04 (the contact adaptation's stall search); the first fixture, written at a767f0d on the loop before
-the Policy protocol (when the episode loop called ``policy.command(step, tcp_pose)``), pinned the protocol refactor,
-and its open-loop records are still equal bit for bit:
-three settings (closed loop with the controller's stiffness, closed loop at 500 N/m, open loop) x two starts that
-reach the chamfer under a 1 mm / 1 deg hole-pose error. The same function runs here on today's loop, which drives
-the skill through ``reset(observation, period_s)`` / ``act(observation)``. Every record field but the wall time must
-be equal (floats exactly, as JSON writes them) and every trace array bit for bit (SHA-256).
+The fixture tests/data/policy_records.json holds the records tests/helpers/policy_record_cases.py writes: three
+settings (closed loop with the controller's stiffness, closed loop at 500 N/m, open loop) x two starts that reach the
+chamfer under a 1 mm / 1 deg hole-pose error. The same function runs here on the code as it is. Every record field
+but the wall time must be equal (floats exactly, as JSON writes them) and every trace array bit for bit (SHA-256).
 
 The skill is the tiny one of tests/helpers/skill_fixtures.py, trained in the test; if it trains to other weights on this
 machine (another CPU's floating point), its flow fingerprint differs from the fixture's and the comparison is
-skipped with that reason rather than failing on something the refactor did not change.
+skipped with that reason rather than failing on something the code did not change.
 """
 
 from __future__ import annotations

@@ -85,7 +85,7 @@ def test_the_batched_flow_query_equals_each_policy_s_own(skill, starts):
             t.act(observe(e))
             e.step(action.pose)
     for _ in range(3):
-        batch = ClosedLoopPolicy.act_many(policies, [observe(e) for e in envs])
+        batch = type(policies[0]).act_many(policies, [observe(e) for e in envs])  # the insertion's, then the flow's
         own = [t.act(observe(e)) for t, e in zip(twins, envs)]
         for a, b in zip(batch, own):
             for name in ("pose", "anchor"):
@@ -171,7 +171,7 @@ def test_a_policy_whose_own_part_fails_in_a_batched_query_ends_only_its_episode(
     def boom(*args):
         raise RuntimeError("adaptation broke on purpose")
 
-    policies[1].adapter.update = boom  # the second: the first has already taken its step when it fails
+    policies[1].inner.adapter.update = boom  # the second: the first has already taken its step when it fails
     actions = act_for(runs)
     assert actions[1] is None and runs[1].record.failure == "error" and "on purpose" in runs[1].record.reason
-    assert actions[0] is not None and runs[0].running and policies[0]._step == 1  # one step, not one per try
+    assert actions[0] is not None and runs[0].running and policies[0].inner._step == 1  # one step, not one per try

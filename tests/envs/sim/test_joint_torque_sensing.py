@@ -36,11 +36,11 @@ def _above(env: PegInHoleEnv) -> Pose:
     return Pose(env.nominal_goal.pos + 0.06 * env.hole_axis, env.nominal_goal.quat)
 
 
-@pytest.mark.parametrize("friction_nm", [0.0, 0.2])
-def test_a_noiseless_estimate_reads_the_wrist_wrench_pressed_into_the_sorter(scene, friction_nm) -> None:
+@pytest.mark.parametrize("friction_scale", [0.0, 1.0])
+def test_a_noiseless_estimate_reads_the_wrist_wrench_pressed_into_the_sorter(scene, friction_scale) -> None:
     env = _env(scene, WristSensorConfig(sensor_mode="joint_torque"))
     start = _above(env)
-    env.reset(start_pose=start, perturbation=Perturbation(joint_friction_nm=friction_nm))
+    env.reset(start_pose=start, perturbation=Perturbation(joint_friction_scale=friction_scale))
     beside = Pose(start.pos + np.array([0.03, 0.0, 0.0]), start.quat)  # over the sorter's top, beside the hole
     for _ in range(50):
         env.step(beside)

@@ -33,6 +33,9 @@ class PerStep:
     def start(self, data: mujoco.MjData) -> None:
         self.inner.start(data)
 
+    def settled(self) -> None:
+        self.inner.settled()
+
     def set_tool_load(self, mass_kg: float, depth_m: float) -> None:
         self.inner.set_tool_load(mass_kg, depth_m)
 

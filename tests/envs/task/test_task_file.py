@@ -22,9 +22,11 @@ from tests.helpers import REPO
 
 MINE = Task(shape="triangle", peg_mode="welded", clearance_m=0.0005, chamfer_m=0.0, grasp_force_n=50.0,
             pad_stiffness_nm_rad=40.0,
-            hole_depth_m=0.05, perturbations=PerturbationRanges(0.002, 0.5, 0.001, 0.3, 0.8, 0.6, 1.2, 0.001, 1.0, 0.5, 0.1,
-                                                                     0.1, 0.3, 0.002, 3.0, 0.001, 0.4, 0.2, "measured",
-                                                                     0.7),
+            hole_depth_m=0.05, perturbations=PerturbationRanges(
+                0.002, 0.5, 0.001, 0.3, 0.8, 0.6, 1.2, 0.001, 1.0, 0.5, 0.1, joint_friction_scale_min=0.5,
+                joint_friction_scale_max=1.5, hole_observation_error_m=0.002, hole_observation_error_deg=3.0,
+                payload_com_error_m=0.001, actuator_noise_nm=0.2, hole_observation="measured",
+                hole_observation_tilt_deg=0.7, joint_friction_model="smooth"),
             sensing=WristSensorConfig("wrist", 0.1, 0.005, 0.5, 0.02, 200.0),
             force_limit_n=math.inf,
             time_limit_s=7.5, success=SuccessConfig(seat_tolerance_m=0.002, hold_s=0.1),
@@ -117,7 +119,7 @@ def test_a_key_left_out_keeps_the_default_value(tmp_path: Path) -> None:
     ("version = 1\n[success]\nhold_s = -1\n", "hold_s=-1.0 must be a finite number >= 0"),
     ('version = 1\nshape = "blob"\n', "shape='blob' is unknown"),
     ("clearance_m = 0.001\n", "missing key 'version'"),
-    ("version = 2\n", "version = 2 is not one this pih reads"),
+    ("version = 3\n", "version = 3 is not one this pih reads"),
     ("version = 1\nclearance_m = \n", "not valid TOML"),
 ])
 def test_a_bad_file_is_one_line_naming_the_file_and_the_key(tmp_path: Path, text: str, words: str) -> None:
