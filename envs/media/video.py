@@ -11,10 +11,12 @@ ffmpeg wrote a whole file; a full disk or a dead ffmpeg is an OSError, never a t
 
 from __future__ import annotations
 
+import atexit
 import errno
 import os
 import struct
 import time
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -92,10 +94,25 @@ class VideoConfig:
             raise EnvError(f"VideoConfig: multisamples must be an integer in [0, 16], got {self.multisamples!r}")
 
 
+class _CloseAtExit:
+    """Closes a renderer that is still open when the interpreter exits, before the GL library's own exit handler
+    (EGL's ``eglTerminate``, registered when its first context was made, so it runs after this one) tears the display
+    down: a context freed after that prints an EGLError traceback from its ``__del__``."""
+
+    def __init__(self, renderer: OffscreenRenderer):
+        self.renderer = weakref.ref(renderer)
+
+    def __call__(self) -> None:
+        renderer = self.renderer()
+        if renderer is not None:
+            renderer.close()
+
+
 class OffscreenRenderer:
     """Renders RGB frames of ``model`` from a named camera into an offscreen buffer.
 
-    Raises EnvError when no OpenGL context can be created. Call :meth:`close` (or use ``with``).
+    Raises EnvError when no OpenGL context can be created. Call :meth:`close` (or use ``with``); one left open is
+    closed at the interpreter's exit (quietly, `_CloseAtExit`).
     The model's offscreen buffer size (``vis.global_.offwidth/offheight``) is raised to the frame
     size if smaller, and its multisampling (``vis.quality.offsamples``) set to ``multisamples`` (render settings
     only: physics does not read them).
@@ -109,6 +126,8 @@ class OffscreenRenderer:
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
         model.vis.quality.offsamples = int(multisamples)
         self._gl, self.backend = gl_context(self.width, self.height)
+        self._at_exit = _CloseAtExit(self)
+        atexit.register(self._at_exit)  # after the context: it runs before the GL library's own exit handler
         self._context: mujoco.MjrContext | None = None
         try:
             self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
@@ -165,6 +184,7 @@ class OffscreenRenderer:
         if self._gl is not None:
             self._gl.free()
             self._gl = None
+            atexit.unregister(self._at_exit)
 
     def __enter__(self) -> OffscreenRenderer:
         return self
