@@ -7,7 +7,8 @@
 Every export has an integer frame rate (--fps, default the control rate 100): the demos' poses (4000 samples over
 7 s) and their control signals (joints, wrench, commands), or the replayed episodes' control steps, are resampled onto
 its frames. An evaluation JSON holds no per-step data, so its episodes are replayed from its checkpoint and config
-(physics is deterministic) and each replay is checked against its record. What each layout holds: envs/datasets/ (features.py, lerobot.py, robomimic.py).
+(physics is deterministic) and each replay is checked against its record. What each layout holds: envs/datasets/
+(features.py, lerobot.py, robomimic.py).
 Read back with `pih demos --import DIR --format lerobot|robomimic --out demos.npz`.
 """
 
@@ -29,6 +30,10 @@ DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x12
 VIDEO_BYTES = 500 * MiB
 """Generous room for the frames of --video (a LeRobot MP4 stream or robomimic image arrays)."""
 
+
+EXAMPLES: tuple[str, ...] = ('pih export --demos demos.npz --format lerobot --fps 50 --out ds/',
+                             'pih export --episodes eval.json --select 0,3 --format robomimic --video --out ds_eval/')
+"""Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih export`."""

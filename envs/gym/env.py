@@ -210,7 +210,8 @@ class PegInHoleGymEnv(gymnasium.Env[dict[str, Any], np.ndarray]):
         for name, flag in (("stiffness_action", stiffness_action), ("privileged", privileged)):
             if not isinstance(flag, (bool, np.bool_)):  # "no" would count as true
                 raise EnvError(f"{ENV_ID}: {name}={flag!r} must be True or False")
-        if isinstance(evaluation_seed, bool) or not isinstance(evaluation_seed, (int, np.integer)) or evaluation_seed < 0:
+        if isinstance(evaluation_seed, bool) or not isinstance(evaluation_seed, (int, np.integer)) or \
+                evaluation_seed < 0:
             raise EnvError(f"{ENV_ID}: evaluation_seed={evaluation_seed!r} must be an integer >= 0")
         self._evaluation: tuple[dict[str, Any], Task] | None = None
         base = None
