@@ -17,6 +17,7 @@ k of `pih evaluate --policy ... --demos FILE`: the same start, perturbation and 
 from __future__ import annotations
 
 import inspect
+import os
 from typing import Any
 
 import numpy as np
@@ -115,16 +116,33 @@ def sb3(task: PolicyTask, model: str = "", algorithm: str = "PPO", deterministic
         raise EnvError(f"envs.gym.agent:sb3: algorithm={algorithm!r} must be one of {', '.join(SB3_ALGORITHMS)}")
     if deterministic not in ("true", "false"):
         raise EnvError(f"envs.gym.agent:sb3: deterministic={deterministic!r} must be true or false")
+    return AgentPolicy.for_task(_load_sb3(algorithm, model), task, deterministic == "true")
+
+
+_LOADED: dict[tuple[str, str, int, int], Any] = {}
+"""The stable-baselines3 models loaded in this process, by (algorithm, path, mtime, size): the evaluation calls the
+factory for every lockstep slot of a worker, and a feed-forward agent's predict keeps no state, so they share one."""
+
+
+def _load_sb3(algorithm: str, model: str) -> Any:
+    """The stable-baselines3 ``algorithm`` model in the file ``model``, on the CPU (loaded once per process and file).
+
+    Raises:
+        EnvError: stable-baselines3 missing, or a file that does not load as such a model.
+    """
     try:
         import stable_baselines3
     except ModuleNotFoundError:
         raise EnvError("envs.gym.agent:sb3 needs stable-baselines3: pip install stable-baselines3") from None
     try:
-        agent = getattr(stable_baselines3, algorithm).load(model, device="cpu")
+        stat = os.stat(model)
+        key = (algorithm, os.path.realpath(model), stat.st_mtime_ns, stat.st_size)
+        if key not in _LOADED:
+            _LOADED[key] = getattr(stable_baselines3, algorithm).load(model, device="cpu")
     except (OSError, ValueError, KeyError) as err:
         raise EnvError(f"envs.gym.agent:sb3: cannot load {model} as a {algorithm} model ({type(err).__name__}: "
                        f"{err})") from None
-    return AgentPolicy.for_task(agent, task, deterministic == "true")
+    return _LOADED[key]
 
 
 def run_policy(env: Any, policy: Policy, seed: int | None = None,

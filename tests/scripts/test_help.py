@@ -28,7 +28,8 @@ def help_text(command: str) -> str:
     return build_parser(command)._subparsers._group_actions[0].choices[command].format_help()
 
 
-def test_evaluate_help_fits_in_80_lines_with_an_example() -> None:
+def test_evaluate_help_fits_in_80_lines_with_an_example(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("COLUMNS", "80")  # an 80-column terminal
     text = help_text("evaluate")
     assert len(text.splitlines()) <= 80, len(text.splitlines())
     assert "examples:\n  pih evaluate --model" in text
