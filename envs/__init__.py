@@ -4,7 +4,7 @@ Sub-packages, each with one job, from the bottom up (a sub-package imports only 
 tests/test_architecture.py): `io` (pih's file outputs), `cell` (the scene built in MJCF), `task` (what is asked:
 the task, its presets, perturbations, sensing and success check), `sim` (the simulator at 1 kHz), `policies` (what
 acts each control period), `rollout` (one episode, episodes in lockstep), then `demos`, `media`, `statistics`, and on
-top `evaluation`, `datasets` and the Gymnasium environment `gym_env`. `errors`, `geometry` and `poses` are the shared
+top `evaluation`, `datasets` and the Gymnasium environment `gym` (registered by `gym_env`). `errors`, `geometry` and `poses` are the shared
 base modules.
 
 The project's public surface is re-exported here lazily (PEP 562): ``from envs import Task, PegInHoleEnv`` imports
@@ -14,6 +14,10 @@ only the modules that define them, so ``import envs`` stays cheap.
 from numerics.cpu_dispatch import pin_cpu_dispatch
 
 pin_cpu_dispatch()  # first, before numpy or torch load: numpy's, torch's and MKL's kernel choices as `pih` pins them
+
+from envs.media.rendering import headless_without_display  # noqa: E402
+
+headless_without_display()  # no display: a headless GL for MuJoCo before dm_control picks GLFW (which prints)
 
 from pihutil.lazy import lazy_exports  # noqa: E402
 

@@ -40,7 +40,7 @@ from envs.cell.scene_config import SceneConfig
 from envs.demos.record import demo_episode_config
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output, write_json
-from envs.media.video import EpisodeVideo, VideoConfig
+from envs.media.video import EpisodeVideo, VideoConfig, episode_overlay
 from envs.policies.expert_plan import ExpertConfig, plan_expert_path
 from envs.sim.env import PegInHoleEnv
 
@@ -239,15 +239,23 @@ def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
 
 
 def bench_render(quick: bool) -> dict[str, Any]:
-    """A scripted episode (10 s, 3 s with --quick) rendered at 640x480, 30 fps, to MP4."""
+    """A scripted episode (10 s, 3 s with --quick) rendered at 640x480, 30 fps, to MP4 (with the overlay of `pih
+    evaluate --video`), and the same episode's physics without video: "video_over_physics" is what the video adds
+    (rendering and encoding) over the wall time of the episode's own physics, a ratio that compares across machines
+    (`pih evaluate --video` of realistic episodes costs about this much more than without)."""
     expert = ExpertConfig()
     seconds = 3.0 if quick else 10.0
     episode = dataclasses.replace(demo_episode_config(expert), time_limit_s=seconds + 1.0)
     env = PegInHoleEnv(episode_config=episode)
-    env.reset(seed=0)
     steps = int(round(seconds / env.control_period_s))
     times = env.control_period_s * np.arange(1, steps + 1)
+    env.reset(seed=0)
     path_pos, path_quat = plan_expert_path(env.start, env.hole.pos, env.hole_axis, env.goal, expert, times)
+    start = time.perf_counter()
+    for k in range(steps):
+        env.step((path_pos[k], path_quat[k]))
+    physics_s = time.perf_counter() - start
+    env.reset(seed=0)
     with tempfile.TemporaryDirectory() as folder:
         start = time.perf_counter()
         with EpisodeVideo(env.model, Path(folder) / "bench.mp4", VideoConfig(), goal=env.goal,
@@ -255,12 +263,16 @@ def bench_render(quick: bool) -> dict[str, Any]:
             video.capture(env.data, 0.0)
             for k in range(steps):
                 result = env.step((path_pos[k], path_quat[k]))
-                video.capture(env.data, result.obs.time_s)
+                video.capture(env.data, result.obs.time_s, text=lambda: episode_overlay(
+                    "episode 0", None, result.obs.time_s, float(np.linalg.norm(result.obs.wrist_wrench[:3]))))
         wall = time.perf_counter() - start
         size = (Path(folder) / "bench.mp4").stat().st_size
     render_encode_fps = video.frames / (video.render_s + video.encode_s)
     return {
         "episode_s": seconds,
+        "physics_s": physics_s,
+        "video_s": video.render_s + video.encode_s,
+        "video_over_physics": (video.render_s + video.encode_s) / physics_s,
         "frames": video.frames,
         "render_encode_fps": render_encode_fps,
         "end_to_end_fps": video.frames / wall,
@@ -379,6 +391,10 @@ def _format(value: Any) -> str:
         return f"{value:,.1f}" if abs(value) >= 10 else f"{value:.3g}"
     return str(value)
 
+
+EXAMPLES: tuple[str, ...] = ('pih bench --model runs/default/model --json bench.json',
+                             'pih bench --only render --quick')
+"""Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih bench`."""

@@ -31,13 +31,16 @@ from envs.evaluation.benchmark import (
     summary_lines,
 )
 from scripts.evaluate import adaptation_parts, add_adaptation_options
-from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, count, seed
+from scripts.options import DEFAULT_WORKERS, MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_WORKERS, count, seed
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
 MAX_SEEDS = 1000
 REPLICATE_BYTES = 200 * 2**20
 """Generous size of one replicate's folder (demos, a checkpoint, the record and its journal)."""
 
+
+EXAMPLES: tuple[str, ...] = ('pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/',)
+"""Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih benchmark`."""
@@ -49,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--demos", type=count(MAX_DEMOS), default=7, help="demos per replicate (default 7, as the paper)")
     run.add_argument("--shape", help="peg and hole shape (default: the task's, else square)")
     run.add_argument("--epochs", type=count(MAX_EPOCHS), default=None, help="training epochs (default: `pih train`'s)")
-    run.add_argument("--workers", type=int, default=2, help="training and evaluation processes (default 2)")
+    run.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS,
+                     help="training and evaluation processes")
     run.add_argument("--demo-noise", metavar="SPEC",
                      help="record each replicate's demos as a real cell would (`pih demos --noise`, e.g. 'realistic'); "
                           "the hole is then placed at the demos' mean goal")

@@ -1,9 +1,10 @@
 """`pih`: one console command, one subcommand per module in `scripts/`.
 
-Each subcommand module exposes ``add_arguments(parser)`` and ``main(args) -> int``. Exit statuses: 2 for bad
-input (a bad option value, a bad file, an output that may not be written: the project's own exception types),
-1 for an operating-system error while working (a read-only folder, a full disk), each as one line on stderr
-``pih COMMAND: error: ...``; 130 when interrupted. Every option's help shows its default.
+Each subcommand module exposes ``add_arguments(parser)``, ``main(args) -> int`` and ``EXAMPLES`` (command lines
+shown at the end of its --help). Exit statuses: 2 for bad input (a bad option value, a bad file, an output that may
+not be written: the project's own exception types), 1 for an operating-system error while working (a read-only folder,
+a full disk), each as one line on stderr ``pih COMMAND: error: ...``; 130 when interrupted. Every option's help shows
+its default; a command's usage line names what it requires and "[options]" for the rest (the options follow).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import ctypes
 import importlib
 import os
 import sys
+import textwrap
 import threading
 from typing import NoReturn, Sequence
 
@@ -69,13 +71,23 @@ class UsageError(Exception):
         self.prog = prog
 
 
+HELP_COLUMN = 26
+"""Where an option's help starts (argparse: 24): room for "--adaptation-off PARTS" and its help on one line."""
+
+
 class HelpFormatter(argparse.HelpFormatter):
-    """Appends "(default X)" to an option's help unless the help already states its default or there is none."""
+    """Appends "(default X)" to an option's help unless the help already states its default or there is none; keeps
+    the lines of a text that has several (the examples of an epilog) as they are."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if "\n" in text:
+            return "\n".join(indent + line if line else line for line in text.splitlines())
+        return super()._fill_text(text, width, indent)
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
         if (not action.option_strings or "default" in text or action.default is None or action.default is False
-                or action.default == argparse.SUPPRESS):
+                or action.default == argparse.SUPPRESS or action.default == []):
             return text
         return f"{text} (default %(default)s)"
 
@@ -85,7 +97,7 @@ class Parser(argparse.ArgumentParser):
     which takes no abbreviated option (an old spelling whose unit changed would match the new one)."""
 
     def __init__(self, *args: object, **kwargs: object) -> None:
-        kwargs.setdefault("formatter_class", HelpFormatter)
+        kwargs.setdefault("formatter_class", lambda prog: HelpFormatter(prog, max_help_position=HELP_COLUMN))
         kwargs.setdefault("allow_abbrev", False)  # a renamed option (--pos-range, now --pos-range-mm) must not match
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
 
@@ -109,10 +121,49 @@ def build_parser(command: str = "") -> argparse.ArgumentParser:
             if err.name != module_name:
                 raise
             continue  # subcommand not built yet
-        sp = sub.add_parser(name, help=help_text, description=help_text)
+        examples = getattr(module, "EXAMPLES", ())
+        sp = sub.add_parser(name, help=help_text, description=help_text,
+                            epilog="examples:\n" + "\n".join(f"  {line}" for line in examples) if examples else None)
         module.add_arguments(sp)
+        usage = getattr(module, "USAGE", None)
+        sp.usage = _wrapped(usage) if usage else compact_usage(sp)
         sp.set_defaults(_main=module.main)
     return parser
+
+
+def compact_usage(parser: argparse.ArgumentParser) -> str:
+    """``pih COMMAND`` with its positional arguments, its required options (a required choice of options as
+    (A | B)) and "[options]": the options themselves are listed below it, one by one."""
+    words = []
+    grouped = {id(a) for g in parser._mutually_exclusive_groups if g.required for a in g._group_actions}
+    for group in parser._mutually_exclusive_groups:
+        if group.required:
+            words.append("(" + " | ".join(f"{a.option_strings[0]} {_metavar(a)}".strip()
+                                          for a in group._group_actions) + ")")
+    for action in parser._actions:
+        if id(action) in grouped or action.help == argparse.SUPPRESS:
+            continue
+        if not action.option_strings:
+            words.append(_metavar(action) + (" ..." if action.nargs in ("*", "+") else ""))
+        elif action.required:
+            words.append(f"{action.option_strings[0]} {_metavar(action)}".strip())
+    return _wrapped(" ".join([parser.prog, *words, "[options]"]))
+
+
+def _wrapped(usage: str) -> str:
+    """A usage line wrapped to fit 80 columns after argparse's "usage: "."""
+    return textwrap.fill(usage, width=72, subsequent_indent="    ", break_on_hyphens=False)
+
+
+def _metavar(action: argparse.Action) -> str:
+    """The word an option's value is shown as (none for a flag)."""
+    if action.nargs == 0:
+        return ""
+    if action.metavar is not None:
+        return action.metavar if isinstance(action.metavar, str) else " ".join(action.metavar)
+    if action.choices is not None:
+        return "{" + ",".join(map(str, action.choices)) + "}"
+    return action.dest.upper() if action.option_strings else action.dest
 
 
 def chosen_command(argv: Sequence[str]) -> str:

@@ -51,6 +51,10 @@ PAIRED_OPTIONS = ("margin", "alpha", "json", "overwrite", "sequential")
 """The options that apply when two evaluation files are compared (the rest are the sequential mode's)."""
 
 
+EXAMPLES: tuple[str, ...] = ('pih compare base.json cand.json --margin 0.02',
+                             'pih compare --sequential --base-model base/ --cand-model cand/ --seed 3000')
+"""Shown at the end of --help (scripts.cli)."""
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih compare`."""
     parser.add_argument("evaluations", nargs="*", type=Path, metavar="EVAL.json",
@@ -224,4 +228,4 @@ def sequential_summary(test: SequentialComparison, episodes_run: int, max_pairs:
             f"{thresholds})")
 
 
-__all__ = ["add_arguments", "main"]
+__all__ = ["EXAMPLES", "add_arguments", "main"]

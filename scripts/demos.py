@@ -43,6 +43,11 @@ def expert_stiffness(text: str) -> Any:
         raise argparse.ArgumentTypeError(f"{text!r}: {err}") from None
 
 
+EXAMPLES: tuple[str, ...] = ('pih demos --num 7 --seed 0 --out demos.npz',
+                             'pih demos --num 7 --seed 0 --task realistic --video demos.mp4 --out demos.npz',
+                             'pih demos --import rec.npz --tool-offset franka-tcp --dt-s 0.001 --out demos.npz')
+"""Shown at the end of --help (scripts.cli)."""
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih demos`, in groups: demos, output, import, task."""
     demos = parser.add_argument_group("demos")

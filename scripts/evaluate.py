@@ -16,7 +16,8 @@ peg_tip pose. Prints a summary table.
 
 Long runs: each finished episode is appended to a journal (--journal, default <json>.journal.jsonl), so
 after Ctrl-C (exit 130) the same command with --resume runs only the missing episodes and writes the same
-JSON. An episode over --unit-timeout-s is a failed episode ("wall_timeout"). An episode whose worker dies runs
+JSON. The default journal is removed once the run is complete (its JSON holds every record); one named with
+--journal is kept. An episode over --unit-timeout-s is a failed episode ("wall_timeout"). An episode whose worker dies runs
 again on another one; only when all its tries are lost is it an infrastructure error: not scored, listed
 apart, and run again by --resume. Infrastructure events go to stderr and the JSON. Exit status: 0 when every
 episode has a record (failed episodes are results), 3 when the batch is incomplete (infrastructure errors),
@@ -27,6 +28,7 @@ outputs are checked before any episode, envs/io/owned_output.py), 1 also on an o
 from __future__ import annotations
 
 import argparse
+import math
 import shlex
 import sys
 import time
@@ -39,7 +41,8 @@ from envs.evaluation.config import MAX_LOCKSTEP, MAX_SPEED, EvaluationConfig  # 
 from envs.io.owned_output import MiB, check_distinct, check_output  # noqa: E402
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
-from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, refuse_unused, seed  # noqa: E402
+from scripts.options import (CAMERA_NAMES, DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS,  # noqa: E402
+                             check_camera, count, number, refuse_unused, seed)
 from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
@@ -57,39 +60,35 @@ VIDEO_EPISODE_BYTES = 20 * MiB
 FIGURE_BYTES = 4 * MiB
 
 
+USAGE = "pih evaluate (--model DIR | --policy MODULE:FACTORY --demos FILE.npz) [options]"
+"""The usage line of --help (scripts.cli): one of the two sources, then the options."""
+EXAMPLES: tuple[str, ...] = ('pih evaluate --model model/ --episodes 100 --json eval.json --video eval.mp4',
+                             'pih evaluate --policy mymodule:make --demos demos.npz --json mine.json')
+"""Shown at the end of --help (scripts.cli)."""
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih evaluate`, in groups: skill, starts and run, output, task."""
     d = EvaluationConfig()
     skill = parser.add_argument_group("skill")
-    skill.add_argument("--model", type=Path, help="checkpoint directory from `pih train` (or give --policy)")
+    skill.add_argument("--model", type=Path, metavar="DIR", help="a `pih train` checkpoint (or --policy)")
     add_policy_arguments(parser)
     run = parser.add_argument_group("starts and run")
-    run.add_argument("--episodes", type=count(MAX_EPISODES), default=d.episodes,
+    run.add_argument("--episodes", type=count(MAX_EPISODES), default=d.episodes, metavar="N",
                      help=f"perturbed starts, 1..{MAX_EPISODES:,}")
-    run.add_argument("--journal", type=Path,
-                     help="append each finished episode here (JSON Lines; default <json>.journal.jsonl with --json)")
-    run.add_argument("--resume", action="store_true",
-                     help="continue the run recorded in --journal: only its missing episodes are run")
+    run.add_argument("--journal", type=Path, metavar="FILE",
+                     help="journal of finished episodes (default <json>.journal.jsonl, removed once complete)")
+    run.add_argument("--resume", action="store_true", help="run only the episodes --journal lacks")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     out = parser.add_argument_group("output")
-    out.add_argument("--json", type=Path,
-                     help="write the full record (config, the task it ran, rate, CI, per episode) here")
-    out.add_argument("--video", type=Path, help="render the chosen episodes (--video-episodes) to this MP4")
-    out.add_argument("--video-episodes", default="auto",
-                     help="comma-separated episode indices for --video/--figure, or 'auto' "
-                          "(the first three successes and the first failure)")
-    out.add_argument("--camera", default="front", help="camera of --video (front, side, top, closeup, wrist)")
-    out.add_argument("--figure", type=Path,
-                     help="write the demos / generated / executed figure of the chosen episodes here (PNG)")
-    out.add_argument("--stiffness-figure", type=Path,
-                     help="write the eigenvalues of the stiffness commanded in the chosen episodes against time, "
-                          "beside the demos' (PNG)")
-    out.add_argument("--force-figure", type=Path,
-                     help="write the wrist force against time of the chosen episodes (--video-episodes; 'auto' "
-                          "includes the first failure) with the force limit (PNG)")
-    out.add_argument("--overwrite", action="store_true",
-                     help="replace outputs (--json, --video, --figure, --stiffness-figure, the journal) that an "
-                          "earlier pih run wrote; a file pih did not write is never replaced")
+    out.add_argument("--json", type=Path, metavar="FILE", help="the record: config, task, rate, every episode")
+    out.add_argument("--video", type=Path, metavar="FILE.mp4", help="video of the chosen episodes")
+    out.add_argument("--video-episodes", default="auto", metavar="I,J|auto",
+                     help="episodes of --video and figures; auto: 3 successes, 1 failure")
+    out.add_argument("--camera", default="front", metavar="NAME", help=f"camera of --video: {CAMERA_NAMES}")
+    out.add_argument("--figure", type=Path, metavar="PNG", help="demos, generated and executed poses")
+    out.add_argument("--stiffness-figure", type=Path, metavar="PNG", help="commanded stiffness against time")
+    out.add_argument("--force-figure", type=Path, metavar="PNG", help="wrist force against time, with the limit")
+    out.add_argument("--overwrite", action="store_true", help="replace outputs an earlier pih run wrote")
     add_evaluation_options(parser, skill, run)
 
 
@@ -100,37 +99,30 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     skill = parser.add_argument_group("skill") if skill is None else skill
     run = parser.add_argument_group("starts and run") if run is None else run
     skill.add_argument("--mode", choices=MODES, default=d.mode,
-                       help="closed-loop: query the flow at the measured pose every 10 ms; "
-                            "open-loop: generate the trajectory first and track it in time")
-    skill.add_argument("--lookahead-s", type=number(above=0.0), default=DEFAULT_LOOKAHEAD_S,
-                       help="closed loop: flow time of the velocity query, s")
-    skill.add_argument("--feedforward", type=number(minimum=0.0), default=d.feedforward_gain,
-                       help="gain of the impedance velocity feed-forward, 0 = off")
-    skill.add_argument("--speed", type=number(above=0.0, maximum=MAX_SPEED), default=d.speed,
-                       help="time scaling of the learned flow, both modes")
-    skill.add_argument("--stiffness",
-                       help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`), "
-                            "'constant:K' (K I, K > 0 in N/m) or 'schedule[:FREE/LATERAL/AXIAL]' (closed loop: the "
-                            "expert's schedule, N/m, at the measured height above the nominal hole) (default: the "
+                       help="query the flow at the measured pose every 10 ms, or track its trajectory")
+    skill.add_argument("--lookahead-s", type=number(above=0.0), default=DEFAULT_LOOKAHEAD_S, metavar="S",
+                       help="closed loop: flow time ahead of the measured pose")
+    skill.add_argument("--feedforward", type=number(minimum=0.0), default=d.feedforward_gain, metavar="GAIN",
+                       help="velocity feed-forward, 0 = off")
+    skill.add_argument("--speed", type=number(above=0.0, maximum=MAX_SPEED), default=d.speed, metavar="X",
+                       help="time scaling of the learned flow")
+    skill.add_argument("--stiffness", metavar="SPEC",
+                       help="learned, constant:K (N/m) or schedule[:FREE/LATERAL/AXIAL] (default: the "
                             "controller's)")
     add_adaptation_options(skill)
-    run.add_argument("--seed", type=seed, default=d.seed, help="seed of the start poses, 0..2**32-1")
+    run.add_argument("--seed", type=seed, default=d.seed, metavar="S", help="seed of the starts, 0..2**32-1")
     add_start_arguments(run)  # the task's start range and time limit
-    run.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel processes")
-    run.add_argument("--lockstep", type=count(MAX_LOCKSTEP), default=d.lockstep,
-                     help="episodes each worker runs side by side, one control period at a time for all (the flow "
-                          "queried once for them); the records do not depend on it")
-    run.add_argument("--backend", choices=BACKENDS, default=d.backend,
-                     help="process: local worker processes; ray: Ray actors (pip install -e '.[cluster]')")
-    run.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray on all cores)")
-    run.add_argument("--unit-timeout-s", type=number(minimum=0.0), default=d.unit_timeout_s,
-                     help="wall-clock seconds per episode before its worker is killed and the episode recorded "
-                          "'wall_timeout'; 0 = no limit")
+    run.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS, metavar="N",
+                     help="worker processes")
+    run.add_argument("--lockstep", type=count(MAX_LOCKSTEP), default=d.lockstep, metavar="K",
+                     help="episodes a worker runs side by side (records alike)")
+    run.add_argument("--backend", choices=BACKENDS, default=d.backend, help="local processes or Ray actors")
+    run.add_argument("--ray-address", metavar="HOST:PORT", help="a Ray cluster's head (default: a local Ray)")
+    run.add_argument("--unit-timeout-s", type=number(minimum=0.0), default=d.unit_timeout_s, metavar="S",
+                     help="wall time per episode, 0 = no limit")
     task = add_task_arguments(parser)
-    task.add_argument("--shape", help="the scene's peg/hole shape (default: the task's, else the demos'; must match "
-                                      "them)")
-    task.add_argument("--hole-at-goal", action="store_true",
-                      help="place the target hole at the demos' goal pose (demos recorded elsewhere)")
+    task.add_argument("--shape", help="peg/hole shape (default: the task's, else the demos')")
+    task.add_argument("--hole-at-goal", action="store_true", help="the hole at the demos' goal (foreign demos)")
 
 
 def add_adaptation_options(skill: Any) -> None:
@@ -138,14 +130,11 @@ def add_adaptation_options(skill: Any) -> None:
     `pih evaluate`, `pih compare --sequential` and `pih benchmark`)."""
     ablation = skill.add_mutually_exclusive_group()  # all parts off, or some: not both
     ablation.add_argument("--no-contact-adaptation", action="store_true",
-                          help="closed loop: run the bare learned flow, without the axial push, frame shift and "
-                               "rotational compliance near the hole (envs/policies/adaptation.py; the ablation)")
+                          help="the bare learned flow (the ablation)")
     ablation.add_argument("--adaptation-off", metavar="PARTS",
-                          help="closed loop: turn these parts of the contact adaptation off, comma-separated, of push, "
-                               "frame, compliance, search, seat (the ablation of each; default: none)")
+                          help="parts off: push,frame,compliance,search,seat")
     skill.add_argument("--follow-observed-hole", action="store_true",
-                       help="run the skill in the frame of the hole the cell observes (the task's hole observation, "
-                            "e.g. --hole-observation measured) instead of where the demonstrations' hole was")
+                       help="run in the frame of the hole the cell observes")
 
 
 def adaptation_parts(text: str | None) -> tuple[str, ...]:
@@ -379,7 +368,7 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     """
     from envs.evaluation.evaluate import replay_episodes
     from envs.evaluation.starts import evaluation_starts
-    from envs.media.video import EpisodeVideo, VideoConfig
+    from envs.media.video import EpisodeVideo, VideoConfig, episode_overlay
     from envs.policies.flow_skill import generate_plan
     from rflow.skill_io import load_skill
 
@@ -391,6 +380,7 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     meta = skill.metadata["demo_starts"]
     starts_all = evaluation_starts(meta, config)
     starts = [starts_all[i] for i in episodes]
+    outcomes = {r.index: "success" if r.success else (r.failure or "failed") for r in result.records}
     holder: dict[str, Any] = {}
 
     def on_episode(start: StartPose, env: Any) -> None:
@@ -401,10 +391,14 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         holder["video"].new_episode()
         holder["video"].set_commanded_path(generate_plan(skill, start.pose, config.task.time_limit_s,
                                                          env.control_period_s).pos)
+        holder["episode"] = start.index
 
     def on_step(env: Any) -> None:
         if "video" in holder:
-            holder["video"].capture(env.data, env.observation.time_s)
+            obs = env.observation
+            holder["video"].capture(env.data, obs.time_s, text=lambda: episode_overlay(
+                f"episode {holder['episode']}", outcomes.get(holder["episode"]), obs.time_s,
+                math.hypot(*obs.wrist_wrench[:3])))
 
     try:
         replays = replay_episodes(model_dir, config, starts, on_step=on_step, on_episode=on_episode)
@@ -512,6 +506,8 @@ def main(args: argparse.Namespace) -> int:
         if result.fault is not None:
             return EXIT_FAULT
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
+    if args.journal is None and journal_path(args) is not None:  # the run's own journal, of a complete run: the JSON
+        journal_path(args).unlink(missing_ok=True)                # holds every record, nothing is left to resume
     if args.policy is not None:  # no video or figures for a policy (check_policy_args refuses them)
         if not args.quiet:
             print(f"total {time.perf_counter() - wall:.1f} s")

@@ -30,20 +30,12 @@ SKILL_ONLY: tuple[str, ...] = ("--mode", "--lookahead-s", "--speed", "--stiffnes
 
 def add_policy_arguments(parser: argparse.ArgumentParser) -> None:
     """The "policy" option group of `pih evaluate`."""
-    group = parser.add_argument_group("policy (instead of --model)")
-    group.add_argument("--policy", metavar="MODULE:FACTORY",
-                       help="score your own policy: package.module:factory, called as factory(task, **options) -> "
-                            "Policy (envs/policies/interface.py); imported with the current folder first on "
-                            "the path")
-    group.add_argument("--demos", type=Path, metavar="FILE.npz",
-                       help="with --policy: the demo file whose scene and start poses the episodes use (the skill "
-                            "trained on it meets the same starts)")
+    group = parser.add_argument_group("policy (instead of --model; docs/policy.md)")
+    group.add_argument("--policy", metavar="MODULE:FACTORY", help="factory(task, **options) -> Policy")
+    group.add_argument("--demos", type=Path, metavar="FILE.npz", help="the demos whose scene and starts to run")
     group.add_argument("--policy-option", action="append", default=[], metavar="KEY=VALUE",
-                       help="with --policy: a keyword argument (a string) for the factory; repeatable (default: "
-                            "none)")
-    group.add_argument("--privileged", action="store_true",
-                       help="with --policy: the observations carry the true hole (a teacher such as "
-                            "envs.policies.expert:make), recorded in the JSON")
+                       help="a string for the factory; repeatable")
+    group.add_argument("--privileged", action="store_true", help="observations carry the true hole (a teacher)")
 
 
 def policy_spec(args: argparse.Namespace) -> PolicySpec:

@@ -4,9 +4,11 @@
     pih export --episodes runs/default/eval.json --format robomimic --out datasets/eval-robomimic [--video]
     pih export --episodes eval.json --select 0,3,7 --format lerobot --video --camera side --out ds/
 
-A demo file holds the measured tcp pose (and the commanded stiffness) only; an evaluation JSON holds no per-step
-data, so its episodes are replayed from its checkpoint and config (physics is deterministic) and each replay is
-checked against its record. What each layout holds: envs/datasets/ (features.py, lerobot.py, robomimic.py).
+Every export has an integer frame rate (--fps, default the control rate 100): the demos' poses (4000 samples over
+7 s) and their control signals (joints, wrench, commands), or the replayed episodes' control steps, are resampled onto
+its frames. An evaluation JSON holds no per-step data, so its episodes are replayed from its checkpoint and config
+(physics is deterministic) and each replay is checked against its record. What each layout holds: envs/datasets/
+(features.py, lerobot.py, robomimic.py).
 Read back with `pih demos --import DIR --format lerobot|robomimic --out demos.npz`.
 """
 
@@ -18,15 +20,20 @@ from pathlib import Path
 
 from envs.datasets import LAYOUTS, require_layout
 from envs.datasets.export_folder import check_export_folder, staged_folder
-from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demos
+from envs.datasets.features import DEFAULT_FPS, ExportEpisode, ExportMeta, episodes_from_demos
+from envs.datasets.resample import MAX_FPS
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output_folder
-from scripts.options import refuse_unused
+from scripts.options import count, refuse_unused
 
 DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x128"}
 VIDEO_BYTES = 500 * MiB
 """Generous room for the frames of --video (a LeRobot MP4 stream or robomimic image arrays)."""
 
+
+EXAMPLES: tuple[str, ...] = ('pih export --demos demos.npz --format lerobot --fps 50 --out ds/',
+                             'pih export --episodes eval.json --select 0,3 --format robomimic --video --out ds_eval/')
+"""Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih export`."""
@@ -35,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--episodes", type=Path, metavar="EVAL.json",
                         help="an evaluation from `pih evaluate --json`: its episodes are replayed with per-step traces")
     parser.add_argument("--format", choices=LAYOUTS, required=True, help="dataset layout")
+    parser.add_argument("--fps", type=count(MAX_FPS),
+                        help=f"frames per second of the dataset, an integer: every signal is resampled onto its frames "
+                             f"(default {DEFAULT_FPS}, the control rate: a frame per control step)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (new, empty, or an export to replace)")
     parser.add_argument("--overwrite", action="store_true", help="replace --out when it holds an earlier export")
     parser.add_argument("--model", type=Path, help="with --episodes: the checkpoint (default: the one the JSON names)")
@@ -109,7 +119,8 @@ def export_episodes(args: argparse.Namespace, root: Path) -> tuple[int, dict[int
 
     evaluation = load_evaluation(args.episodes, args.model)
     size = parse_size(args.video_size or DEFAULT_VIDEO_SIZE[args.format])
-    job = EpisodeExport(root, args.format, str(args.episodes), evaluation, args.camera if args.video else None, size)
+    job = EpisodeExport(root, args.format, str(args.episodes), evaluation, args.camera if args.video else None, size,
+                        args.fps or DEFAULT_FPS)
     try:
         replayed, skipped = replay_evaluation(evaluation, parse_select(args.select), on_step=job.on_step,
                                               on_episode=job.on_episode, on_trace=job.on_trace)
@@ -140,7 +151,7 @@ def main(args: argparse.Namespace) -> int:
         from envs.media.video import VideoConfig
 
         width, height = parse_size(args.video_size or DEFAULT_VIDEO_SIZE[args.format])
-        VideoConfig(width=width, height=height, camera=args.camera)  # H.264 needs multiples of 8
+        VideoConfig(width=width, height=height, camera=args.camera, fps=args.fps or DEFAULT_FPS)  # H.264: multiples of 8
     elif args.video_size is not None:
         parse_size(args.video_size)
     start = time.perf_counter()
@@ -148,17 +159,17 @@ def main(args: argparse.Namespace) -> int:
         if args.demos is not None:
             from envs.demos.file import load_demos
 
-            meta, episodes = episodes_from_demos(load_demos(args.demos), str(args.demos))
+            meta, episodes = episodes_from_demos(load_demos(args.demos), str(args.demos), args.fps or DEFAULT_FPS)
             _write_all(root, args.format, meta, episodes)
             count, skipped, absent = len(episodes), {}, meta.absent
         else:
             count, skipped = export_episodes(args, root)
             absent = {}
     wall = time.perf_counter() - start
-    print(f"wrote {args.out} ({args.format}): {count} {'demos' if args.demos is not None else 'episodes'} in "
-          f"{wall:.2f} s")
+    print(f"wrote {args.out} ({args.format}, {args.fps or DEFAULT_FPS} fps): {count} "
+          f"{'demos' if args.demos is not None else 'episodes'} in {wall:.2f} s")
     for index, reason in skipped.items():
         print(f"skipped episode {index}: {reason} (no trajectory)")
     if absent:
-        print("absent (a demo file does not record them): " + ", ".join(sorted(absent)))
+        print("absent (this demo file does not record them): " + ", ".join(sorted(absent)))
     return 0

@@ -46,7 +46,7 @@ from rflow.lasa import (
 from rflow.model import ModelConfig
 from rflow.train import TrainConfig
 from scripts.lasa_report import MANIFOLD_LABELS, METHOD_LABELS, gains, markdown_table, plot_comparison, plot_results
-from scripts.options import MAX_EPOCHS, MAX_WORKERS, count, number, refuse_unused, seed
+from scripts.options import DEFAULT_WORKERS, MAX_EPOCHS, MAX_WORKERS, count, number, refuse_unused, seed
 
 JOURNAL = "journal.jsonl"
 EXIT_FAILED_UNITS = 1
@@ -56,6 +56,10 @@ _HYPERPARAMETERS = ("epochs", "layers", "lr", "batch_size")  # the options --con
 UNIT_BYTES = 256 * 1024
 """Generous size of one unit of --all on disk (its trajectories, journal line and share of the figures)."""
 
+
+EXAMPLES: tuple[str, ...] = ('pih lasa --shape NShape --manifold spd --json nshape.json',
+                             'pih lasa --all --out lasa/')
+"""Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih lasa`."""
@@ -70,7 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replace outputs an earlier pih lasa wrote (--all: start its run again); never a file "
                              "pih did not write")
     parser.add_argument("--all", action="store_true", help="run all 30 shapes x spd, uq x the four methods")
-    parser.add_argument("--workers", type=count(MAX_WORKERS), default=1, help="parallel worker processes for --all")
+    parser.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS,
+                        help="parallel worker processes for --all")
     parser.add_argument("--out", type=Path, help="output folder of --all: results.json, results.md, comparison.png, "
                                                  "figures/, trajectories/, journal.jsonl")
     parser.add_argument("--resume", action="store_true",

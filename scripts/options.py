@@ -21,6 +21,10 @@ MAX_SAMPLES = 100_000
 MAX_WORKERS = 1_024
 MAX_EPOCHS = 1_000_000
 MAX_TRIALS = 100_000
+DEFAULT_WORKERS = 2
+"""Worker processes of every command that runs episodes or trains in parallel (one default for all of them)."""
+CAMERA_NAMES = "front, side, top, closeup, wrist, cutaway"
+"""The scene's cameras (envs.cell.scene.CAMERAS, named here so that --help loads no MuJoCo; a test keeps them equal)."""
 
 
 def seed(text: str) -> int:

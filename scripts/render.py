@@ -1,15 +1,20 @@
-"""`pih render`: execute a pose trajectory in physics and render it to MP4.
+"""`pih render`: a demo or an evaluation's episode executed in physics and rendered to MP4.
 
     pih render --demos runs/demos.npz --index 0 --out runs/demo0.mp4 [--camera front] [--overwrite]
+    pih render --episodes runs/eval.json --index 3 --out runs/episode3.mp4 [--camera cutaway]
 
-The demo's recorded peg_tip trajectory is replayed: the arm starts at its first pose and the impedance
-controller tracks it (resampled to the 100 Hz command rate); the commanded path and the goal frame are
-drawn. Other trajectory sources (e.g. a trained model) plug in through ``TrajectorySource``.
+--demos: the demo's recorded peg_tip trajectory is replayed: the arm starts at its first pose and the impedance
+controller tracks it (resampled to the 100 Hz command rate); the commanded path and the goal frame are drawn. Other
+trajectory sources plug in through ``TrajectorySource``. --episodes: the evaluation's episode is replayed as `pih
+export` replays it (its start and perturbation drawn again from the JSON's seed, the skill run from the checkpoint it
+names, the replay checked against the record; envs.evaluation.replay); an evaluation of --policy cannot be replayed
+(its policy is not in the JSON). Every frame carries the episode (or demo), its outcome, the time and the wrist force.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,13 +27,13 @@ from envs.demos.file import load_demos
 from envs.demos.record import scene_config_from_demos
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output
-from envs.media.video import EpisodeVideo, VideoConfig
+from envs.media.video import EpisodeVideo, VideoConfig, episode_overlay
 from envs.poses import Pose
 from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
 from envs.sim.observation import StepResult
 from envs.sim.trajectory import replay_trajectory
-from scripts.options import MAX_DEMOS, check_camera, count, number
+from scripts.options import CAMERA_NAMES, MAX_EPISODES, check_camera, count, number, refuse_unused
 
 VIDEO_BYTES = 100 * MiB
 """Generous size of one rendered demo (640x480 H.264, a 10-20 s demo takes a few MiB)."""
@@ -50,19 +55,29 @@ class TrajectorySource:
     label: str
 
 
+EXAMPLES: tuple[str, ...] = ('pih render --demos demos.npz --index 0 --out demo.mp4 --camera side',
+                             'pih render --episodes eval.json --index 3 --out episode3.mp4 --camera cutaway')
+"""Shown at the end of --help (scripts.cli)."""
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih render`."""
-    parser.add_argument("--demos", type=Path, required=True, help="demo file (.npz) written by `pih demos`")
-    parser.add_argument("--index", type=count(MAX_DEMOS - 1, minimum=0), default=0, help="which demo to execute")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--demos", type=Path, metavar="FILE.npz", help="a demo file of `pih demos`")
+    source.add_argument("--episodes", type=Path, metavar="EVAL.json",
+                        help="an evaluation of a trained skill (`pih evaluate --model ... --json`), replayed")
+    parser.add_argument("--index", type=count(MAX_EPISODES - 1, minimum=0), default=0,
+                        help="which demo, or which episode (its index in the evaluation)")
+    parser.add_argument("--model", type=Path, metavar="DIR",
+                        help="with --episodes: the checkpoint (default: the one the JSON names)")
     parser.add_argument("--out", type=Path, required=True, help="output video (.mp4)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace --out when an earlier pih run wrote it (never a file pih did not write)")
-    parser.add_argument("--camera", default="front", help="camera: front, side, top, closeup or wrist")
+    parser.add_argument("--camera", default="front", help=f"camera: {CAMERA_NAMES}")
     parser.add_argument("--width-px", type=count(4096, minimum=16), default=640, help="frame width, pixels")
     parser.add_argument("--height-px", type=count(4096, minimum=16), default=480, help="frame height, pixels")
     parser.add_argument("--fps", type=count(240), default=30, help="frames per second of simulated time")
     parser.add_argument("--hold-s", type=number(minimum=0.0, maximum=60.0), default=0.5,
-                        help="seconds to hold the final pose")
+                        help="with --demos: seconds to hold the final pose")
 
 
 def demo_source(path: Path, index: int) -> TrajectorySource:
@@ -98,10 +113,11 @@ def render_trajectory(source: TrajectorySource, out: Path, video: VideoConfig, h
     env.reset(start_pose=Pose(source.pos[0], source.quat[0]))
     start = time.perf_counter()
     with EpisodeVideo(env.model, out, video, goal=env.goal, commanded_path=source.pos) as recorder:
-        recorder.capture(env.data, 0.0)
+        recorder.capture(env.data, 0.0, text=_overlay(source.label.split(" of ")[0], None, env.observation))
 
         def on_step(result: StepResult) -> None:
-            recorder.capture(env.data, result.obs.time_s)
+            recorder.capture(env.data, result.obs.time_s,
+                             text=lambda: _overlay(source.label.split(" of ")[0], None, result.obs))
 
         last = replay_trajectory(env, source.pos, source.quat, source.dt, on_step=on_step, hold_s=hold_s)
     obs = env.observation
@@ -117,14 +133,71 @@ def render_trajectory(source: TrajectorySource, out: Path, video: VideoConfig, h
     }
 
 
+def _overlay(label: str, outcome: str | None, obs: object) -> str:
+    """The frame's text: the label, the outcome, the time and the wrist force of the observation."""
+    return episode_overlay(label, outcome, obs.time_s, math.hypot(*obs.wrist_wrench[:3]))
+
+
+def render_episode(path: Path, index: int, model: Path | None, out: Path, video: VideoConfig) -> dict[str, object]:
+    """Replay episode ``index`` of an evaluation JSON (as `pih export` replays it) while recording ``out``.
+
+    Returns:
+        {"frames", "wall_s", "success", "reason"} of the replayed episode.
+
+    Raises:
+        EnvError: an evaluation that cannot be replayed (of a --policy, or its checkpoint not found), no episode
+            ``index``, an episode without a trajectory (an unreachable start, a lost worker), a replay that differs
+            from its record.
+    """
+    from envs.evaluation.replay import NO_TRAJECTORY, load_evaluation, replay_evaluation
+
+    evaluation = load_evaluation(path, model)
+    record = next((r for r in evaluation.records if r.get("index") == index), None)
+    if record is None:
+        raise EnvError(f"--index {index}: {path} has no episode {index} (it holds {len(evaluation.records)})")
+    if str(record.get("reason", "")).startswith(NO_TRAJECTORY):
+        raise EnvError(f"--index {index}: episode {index} has no trajectory to render ({record.get('reason')})")
+    outcome = "success" if record.get("success") else record.get("failure") or "failed"
+    holder: dict[str, EpisodeVideo] = {}
+    start = time.perf_counter()
+
+    def on_episode(_start: object, env: PegInHoleEnv) -> None:
+        holder["video"] = EpisodeVideo(env.model, out, video, goal=env.goal)
+
+    def on_step(env: PegInHoleEnv) -> None:
+        obs = env.observation
+        holder["video"].capture(env.data, obs.time_s, text=lambda: _overlay(f"episode {index}", outcome, obs))
+
+    try:
+        replay_evaluation(evaluation, [index], on_step=on_step, on_episode=on_episode)
+    except BaseException:
+        if "video" in holder:
+            holder["video"].abort()
+        raise
+    recorder = holder["video"]
+    recorder.close()
+    return {"frames": recorder.frames, "wall_s": time.perf_counter() - start, "success": bool(record.get("success")),
+            "reason": record.get("reason")}
+
+
 def main(args: argparse.Namespace) -> int:
-    """Render the requested trajectory; returns the exit status."""
+    """Render the requested demo or episode; returns the exit status."""
     for option, value in (("--width-px", args.width_px), ("--height-px", args.height_px)):
         if value % 8:
             raise EnvError(f"{option} {value}: must be a multiple of 8 (H.264 frames)")
     video = VideoConfig(width=args.width_px, height=args.height_px, fps=args.fps, camera=args.camera)
     check_camera(args.camera)
-    check_output("--out", args.out, args.overwrite, suffix=".mp4", inputs=[args.demos], estimate_bytes=VIDEO_BYTES)
+    if args.demos is not None:
+        refuse_unused(args, add_arguments, ["model"], "applies to --episodes only")
+    else:
+        refuse_unused(args, add_arguments, ["hold_s"], "applies to --demos only")
+    check_output("--out", args.out, args.overwrite, suffix=".mp4", inputs=[args.demos, args.episodes, args.model],
+                 estimate_bytes=VIDEO_BYTES)
+    if args.episodes is not None:
+        stats = render_episode(args.episodes, args.index, args.model, args.out, video)
+        print(f"wrote {args.out}: episode {args.index} of {args.episodes}, {stats['frames']} frames in "
+              f"{stats['wall_s']:.1f} s; {stats['reason']}")
+        return 0
     source = trajectory_source(args)
     stats = render_trajectory(source, args.out, video, hold_s=args.hold_s)
     print(f"wrote {args.out}: {source.label}, {stats['frames']} frames ({stats['sim_s']:.2f} s simulated) in "

@@ -22,7 +22,7 @@ from typing import Any
 
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output, check_output_folder, write_json
-from scripts.options import MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed
+from scripts.options import DEFAULT_WORKERS, MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "forces.png", "episodes.mp4",
@@ -32,6 +32,10 @@ envs/io/owned_output.py)."""
 RUN_BYTES = 200 * MiB
 """Generous size of a run folder (a checkpoint, the demos, the record and a video of four episodes)."""
 
+
+EXAMPLES: tuple[str, ...] = ('pih run',
+                             'pih run --name realistic --task realistic --overwrite')
+"""Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih run`, in groups: output, demos, training, evaluation, task."""
@@ -55,7 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     evaluation.add_argument("--episodes", type=count(MAX_EPISODES), default=50,
                             help=f"evaluation episodes, 1..{MAX_EPISODES:,}")
     evaluation.add_argument("--seed", type=seed, default=0, help="seed of the evaluation starts, 0..2**32-1")
-    evaluation.add_argument("--workers", type=count(MAX_WORKERS), default=2, help="training and evaluation processes")
+    evaluation.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS,
+                            help="training and evaluation processes")
     add_start_arguments(evaluation)
     add_task_arguments(parser)
 

@@ -26,6 +26,9 @@ OUTPUT_BYTES_PER_TRIAL = 64 * 1024
 """Generous size of one trial in search.json and the SQLite study."""
 
 
+EXAMPLES: tuple[str, ...] = ('pih search --shape NShape --manifold spd --trials 40 --out search/',)
+"""Shown at the end of --help (scripts.cli)."""
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih search`."""
     d = TrainConfig()

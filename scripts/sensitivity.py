@@ -20,7 +20,7 @@ from pathlib import Path
 
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output, check_output_folder
-from scripts.options import MAX_EPISODES, MAX_WORKERS, count, seed
+from scripts.options import DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS, count, seed
 from scripts.task_options import add_task_file_arguments, task_from_args
 
 IMPERFECTION_NAMES = ("friction", "compliant_pads", "in_hand_pose", "grasp_offset", "payload", "joint_friction",
@@ -30,6 +30,9 @@ simulator)."""
 OUTPUTS = {"table": "sensitivity.md", "json": "sensitivity.json", "figure": "sensitivity.png"}
 
 
+EXAMPLES: tuple[str, ...] = ('pih sensitivity --model model/ --out sens/ --episodes 100 --seed 1000',)
+"""Shown at the end of --help (scripts.cli)."""
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih sensitivity`."""
     parser.add_argument("--model", type=Path, required=True, help="checkpoint directory from `pih train`")
@@ -37,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="replace outputs an earlier pih run wrote there")
     parser.add_argument("--episodes", type=count(MAX_EPISODES), default=100, help="episodes per variant")
     parser.add_argument("--seed", type=seed, default=1000, help="seed of the starts (keep it apart from demo seeds)")
-    parser.add_argument("--workers", type=count(MAX_WORKERS), default=2, help="evaluation processes")
+    parser.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS, help="evaluation processes")
     parser.add_argument("--only", nargs="+", choices=IMPERFECTION_NAMES, default=list(IMPERFECTION_NAMES),
                         metavar="NAME", help=f"imperfections to run, of {', '.join(IMPERFECTION_NAMES)} (default all)")
     add_task_file_arguments(parser.add_argument_group("task (the ideal cell; default the contact preset)"))
@@ -78,4 +81,4 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_arguments", "main"]
+__all__ = ["EXAMPLES", "add_arguments", "main"]

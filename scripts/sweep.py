@@ -26,7 +26,7 @@ from envs.errors import EnvError
 from envs.evaluation.config import EvaluationConfig
 from envs.io.owned_output import MiB, check_output, check_output_folder, write_json
 from envs.policies.skill_settings import MODES
-from scripts.options import MAX_EPISODES, MAX_WORKERS, count, number, seed
+from scripts.options import DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS, count, number, seed
 from scripts.task_options import add_task_file_arguments, check_option_value, scene_from_task, task_from_args
 
 AXIS_OPTIONS: dict[str, tuple[str, float]] = {
@@ -40,6 +40,10 @@ OUTPUTS: tuple[str, ...] = ("sweep.json", "sweep.png", "journal.jsonl")
 RECORD_BYTES = 8 * 1024
 """Generous size of one episode in sweep.json and in the journal (a record is ~2 KB)."""
 
+
+EXAMPLES: tuple[str, ...] = (
+    "pih sweep --model model/ --clearance-mm 1,0.5,0.2 --hole-error-mm 0,1,2 --episodes 30 --out sweep/",)
+"""Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih sweep`, in groups: skill, axes, run, output, task."""
@@ -64,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--seed", type=seed, default=0, help="seed of the starts and perturbations, 0..2**32-1")
     run.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0),
                      help=f"simulated seconds per episode (default: the task's, {d.task.time_limit_s:g})")
-    run.add_argument("--workers", type=count(MAX_WORKERS), default=2, help="parallel workers")
+    run.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS, help="parallel workers")
     run.add_argument("--backend", choices=BACKENDS, default=d.backend, help="process or ray")
     run.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray)")
     run.add_argument("--unit-timeout-s", type=number(minimum=0.0), default=d.unit_timeout_s,

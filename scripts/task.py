@@ -1,4 +1,5 @@
-"""`pih task show`: print a task as a task file, to start your own from.
+"""`pih task show`: print a task as a task file, to start your own from; `pih task --help` documents every single task
+option, which the other commands accept without listing them.
 
     pih task show [--task NAME|FILE.toml] [task options] > my_task.toml
 
@@ -17,9 +18,9 @@ from scripts.task_options import add_start_arguments, add_task_arguments, task_f
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih task`: the action and every task option."""
     parser.add_argument("action", choices=("show",), help="show: print the task as TOML")
-    group = add_task_arguments(parser)
+    group = add_task_arguments(parser, expanded=True)
     group.add_argument("--shape", help="peg and hole shape (default: the task's; left out: the demos')")
-    add_start_arguments(group)
+    add_start_arguments(group, expanded=True)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -28,4 +29,7 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_arguments", "main"]
+EXAMPLES: tuple[str, ...] = ("pih task show --task contact > my_task.toml",
+                             "pih task show --task realistic --clearance-mm 0.5 --hole-error-mm 2 > loose.toml")
+
+__all__ = ["EXAMPLES", "add_arguments", "main"]

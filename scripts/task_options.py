@@ -8,6 +8,9 @@
 The task is --task's (a preset of envs/task/presets/ or a TOML file; default: the contact preset) with each single
 option given replacing its field (envs.task.task.Task.override validates them, one line naming the field). Every option
 defaults to None ("not given"), so a command can tell an explicit choice from the task's value.
+
+Help: the single options are documented once, by `pih task --help` (``expanded``); every other command accepts them
+all but shows --task and one line pointing there (COLLAPSED_HELP), so its --help stays short.
 """
 
 from __future__ import annotations
@@ -42,74 +45,89 @@ OPTION_FIELDS: dict[str, tuple[str, float | None]] = {
 """Option (argparse dest) -> the task field it sets (envs.task.task.Task.override) and the scale to the field's unit."""
 
 
-def add_task_file_arguments(group: Any) -> None:
-    """--task and its alias --preset, into ``group``."""
+COLLAPSED_HELP = ("single options (--clearance-mm, --time-limit-s, ...) replace fields of --task: `pih task --help` "
+                  "lists them")
+"""What a command's --help says of the single task options it accepts without listing them."""
+
+
+def add_task_file_arguments(group: Any, expanded: bool = True) -> None:
+    """--task and its alias --preset, into ``group`` (--preset listed only when ``expanded``)."""
     group.add_argument("--task", metavar="NAME|FILE.toml",
-                       help=f"the task: a preset ({', '.join(PRESET_NAMES)}; envs/task/presets/) or a task file "
-                            f"(`pih task show` prints one to start from); single options below replace its fields "
-                            f"(default {DEFAULT_PRESET})")
-    group.add_argument("--preset", choices=PRESET_NAMES, help="the same as --task NAME")
+                       help=f"a preset ({', '.join(PRESET_NAMES)}) or a task file (default {DEFAULT_PRESET})")
+    group.add_argument("--preset", choices=PRESET_NAMES,
+                       help="the same as --task NAME" if expanded else argparse.SUPPRESS)
 
 
-def add_task_arguments(parser: argparse.ArgumentParser, episode: bool = True) -> Any:
+def _shown(text: str, expanded: bool) -> str:
+    return text if expanded else argparse.SUPPRESS
+
+
+def add_task_arguments(parser: argparse.ArgumentParser, episode: bool = True, expanded: bool = False) -> Any:
     """Add --task, --preset and the single task options (``episode``: also the per-episode perturbations and the
     force limit) in a group "task", returned so a command can add its own task options to it. The defaults shown are
-    the default task's."""
+    the default task's. Unless ``expanded`` (`pih task --help`), the single options are accepted but left out of the
+    help, which says so in one line (COLLAPSED_HELP)."""
     default = Task()
-    group = parser.add_argument_group("task (default: the values of --task)")
-    add_task_file_arguments(group)
+    group = parser.add_argument_group("task", None if expanded else COLLAPSED_HELP)
+    add_task_file_arguments(group, expanded)
     group.add_argument("--peg-mount", choices=("grasped", "welded"),
-                       help="grasped: a free peg held by the fingers with the grasp force; welded: rigid "
-                            f"(default {default.peg_mode})")
-    group.add_argument("--clearance-mm", type=number(),
-                       help=f"hole-minus-peg clearance, mm, 0.1-5 (default {default.clearance_m * 1e3:g})")
-    group.add_argument("--chamfer-mm", type=number(),
-                       help=f"45 deg chamfer at every hole mouth, mm, 0-3, 0 = none (default {default.chamfer_m * 1e3:g})")
-    group.add_argument("--grasp-force-n", type=number(),
-                       help=f"grasp force per finger, N (default {default.grasp_force_n:g}, the Franka hand's)")
+                       help=_shown("grasped: a free peg held by the fingers with the grasp force; welded: rigid "
+                                   f"(default {default.peg_mode})", expanded))
+    group.add_argument("--clearance-mm", type=number(), metavar="MM",
+                       help=_shown(f"hole-minus-peg clearance, mm, 0.1-5 (default {default.clearance_m * 1e3:g})",
+                                   expanded))
+    group.add_argument("--chamfer-mm", type=number(), metavar="MM",
+                       help=_shown("45 deg chamfer at every hole mouth, mm, 0-3, 0 = none (default "
+                                   f"{default.chamfer_m * 1e3:g})", expanded))
+    group.add_argument("--grasp-force-n", type=number(), metavar="N",
+                       help=_shown(f"grasp force per finger, N (default {default.grasp_force_n:g}, the Franka hand's)",
+                                   expanded))
     if episode:
         ranges = default.perturbations
-        group.add_argument("--hole-error-mm", type=number(),
-                           help="the real hole is moved by up to this much horizontally, mm (seeded, per episode; "
-                                f"default {ranges.hole_error_m * 1e3:g})")
-        group.add_argument("--hole-error-deg", type=number(),
-                           help="and turned about its axis and tilted by up to this much, deg (seeded, per episode; "
-                                f"default {ranges.hole_error_deg:g})")
-        group.add_argument("--grasp-offset-mm", type=number(),
-                           help="the peg sits in the grasp shifted along its axis by up to this much, mm (per "
-                                f"episode; default {ranges.grasp_offset_m * 1e3:g})")
+        group.add_argument("--hole-error-mm", type=number(), metavar="MM",
+                           help=_shown("the real hole is moved by up to this much horizontally, mm (seeded, per "
+                                       f"episode; default {ranges.hole_error_m * 1e3:g})", expanded))
+        group.add_argument("--hole-error-deg", type=number(), metavar="DEG",
+                           help=_shown("and turned about its axis and tilted by up to this much, deg (seeded, per "
+                                       f"episode; default {ranges.hole_error_deg:g})", expanded))
+        group.add_argument("--grasp-offset-mm", type=number(), metavar="MM",
+                           help=_shown("the peg sits in the grasp shifted along its axis by up to this much, mm (per "
+                                       f"episode; default {ranges.grasp_offset_m * 1e3:g})", expanded))
         group.add_argument("--hole-observation", choices=HOLE_OBSERVATIONS,
-                           help="where the cell believes the hole is (the policy's nominal hole): the nominal hole "
-                                "(nominal) or the true one measured by a sensor that sees the part (measured), each "
-                                f"moved by the observation error below (default {ranges.hole_observation})")
-        group.add_argument("--hole-observation-error-mm", type=number(),
-                           help="that belief is off by up to this much horizontally, mm (seeded, per episode; "
-                                f"default {ranges.hole_observation_error_m * 1e3:g})")
-        group.add_argument("--hole-observation-error-deg", type=number(),
-                           help="and turned about the hole's axis by up to this much, deg (seeded, per episode; "
-                                f"default {ranges.hole_observation_error_deg:g})")
-        group.add_argument("--hole-observation-tilt-deg", type=number(),
-                           help="and tilted by up to this much, deg (seeded, per episode; default "
-                                f"{ranges.hole_observation_tilt_deg:g})")
-        group.add_argument("--force-limit-n", type=number(infinite=True),
-                           help="an episode whose wrist force stays above this many N for 5 ms fails, inf = none "
-                                f"(default {default.force_limit_n:g})")
+                           help=_shown("where the cell believes the hole is (the policy's nominal hole): the nominal "
+                                       "hole (nominal) or the true one measured by a sensor that sees the part "
+                                       "(measured), each moved by the observation error below (default "
+                                       f"{ranges.hole_observation})", expanded))
+        group.add_argument("--hole-observation-error-mm", type=number(), metavar="MM",
+                           help=_shown("that belief is off by up to this much horizontally, mm (seeded, per episode; "
+                                       f"default {ranges.hole_observation_error_m * 1e3:g})", expanded))
+        group.add_argument("--hole-observation-error-deg", type=number(), metavar="DEG",
+                           help=_shown("and turned about the hole's axis by up to this much, deg (seeded, per "
+                                       f"episode; default {ranges.hole_observation_error_deg:g})", expanded))
+        group.add_argument("--hole-observation-tilt-deg", type=number(), metavar="DEG",
+                           help=_shown("and tilted by up to this much, deg (seeded, per episode; default "
+                                       f"{ranges.hole_observation_tilt_deg:g})", expanded))
+        group.add_argument("--force-limit-n", type=number(infinite=True), metavar="N",
+                           help=_shown("an episode whose wrist force stays above this many N for 5 ms fails, inf = "
+                                       f"none (default {default.force_limit_n:g})", expanded))
     return group
 
 
-def add_start_arguments(group: Any) -> None:
+def add_start_arguments(group: Any, expanded: bool = False) -> None:
     """The task's start range and time limit (--pos-range-mm, --rot-range-deg, --around, --time-limit-s), into
-    ``group`` (a command's "starts and run")."""
+    ``group`` (a command's "starts and run"); listed in the help only when ``expanded`` (`add_task_arguments`)."""
     start, limit = Task().start, Task().time_limit_s
-    group.add_argument("--pos-range-mm", type=number(minimum=0.0),
-                       help=f"the task's start position half-width, mm (default {start.pos_range_m * 1e3})")
-    group.add_argument("--rot-range-deg", type=number(minimum=0.0, maximum=179.0),
-                       help=f"the task's start orientation radius, deg (default {start.rot_range_deg})")
+    group.add_argument("--pos-range-mm", type=number(minimum=0.0), metavar="MM",
+                       help=_shown(f"the task's start position half-width, mm (default {start.pos_range_m * 1e3})",
+                                   expanded))
+    group.add_argument("--rot-range-deg", type=number(minimum=0.0, maximum=179.0), metavar="DEG",
+                       help=_shown(f"the task's start orientation radius, deg (default {start.rot_range_deg})",
+                                   expanded))
     group.add_argument("--around", choices=AROUND,
-                       help="the task's centre of the start perturbations: the mean demo start or a random demo's "
-                            f"start (default {start.around})")
-    group.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0),
-                       help=f"the task's time limit: simulated seconds per episode (default {limit})")
+                       help=_shown("the task's centre of the start perturbations: the mean demo start or a random "
+                                   f"demo's start (default {start.around})", expanded))
+    group.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0), metavar="S",
+                       help=_shown(f"the task's time limit: simulated seconds per episode (default {limit})", expanded))
 
 
 def task_from_args(args: argparse.Namespace, base: Task | None = None) -> Task:

@@ -45,10 +45,14 @@ SCENE_METADATA: tuple[str, ...] = ("goal_pos", "goal_yaw_deg", "hole_depth_m", "
 """The demos' scene settings a checkpoint keeps, so `pih evaluate` rebuilds the scene the skill was taught in."""
 
 
+EXAMPLES: tuple[str, ...] = ('pih train --demos demos.npz --out model/',
+                             'pih train --demos demos.npz --stiffness expert --joint --out joint/')
+"""Shown at the end of --help (scripts.cli)."""
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the options of `pih train`, in groups: input, output, skill, training, run."""
     from rflow.model import MAX_WIDTH
-    from scripts.options import MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, number, seed
+    from scripts.options import DEFAULT_WORKERS, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, number, seed
 
     d = skill_train_config()  # the defaults train the skill `pih run` and `pih benchmark` train
     given = parser.add_argument_group("input")
@@ -97,7 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--seed", type=seed, default=d.seed, help="training seed, 0..2**32-1")
     run.add_argument("--threads", type=count(256), default=1,
                      help="torch threads (default 1: deterministic and polite on a shared 2-core machine)")
-    run.add_argument("--workers", type=count(MAX_WORKERS), default=2,
+    run.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS,
                      help="processes training the position and orientation models at the same time (default 2; "
                           "1 trains them one after the other; same weights either way)")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -281,4 +285,4 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_arguments", "main", "train_skill", "train_config_from_args"]
+__all__ = ["EXAMPLES", "add_arguments", "main", "train_skill", "train_config_from_args"]

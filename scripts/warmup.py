@@ -17,6 +17,9 @@ import argparse
 import time
 
 
+EXAMPLES: tuple[str, ...] = ('pih warmup',)
+"""Shown at the end of --help (scripts.cli)."""
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`pih warmup` has no options."""
 
@@ -50,4 +53,4 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["add_arguments", "main"]
+__all__ = ["EXAMPLES", "add_arguments", "main"]

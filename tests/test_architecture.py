@@ -59,14 +59,16 @@ ENVS_ALLOWED: dict[str, set[str]] = {
     "statistics": {"base", "io"},
     "evaluation": {"base", "io", "cell", "task", "sim", "policies", "rollout", "demos", "media", "statistics"},
     "datasets": {"base", "io", "cell", "task", "sim", "policies", "rollout", "demos", "media"},
-    "gym_env": {"base", "io", "cell", "task", "sim", "policies", "rollout", "media"},
+    "gym": {"base", "io", "cell", "task", "sim", "policies", "rollout", "media", "evaluation"},
+    "gym_env": {"gym"},
 }
 """Which rooms of envs each may import (docs/architecture.md): io/base <- cell <- task <- sim <- policies <- rollout
-<- demos/media/statistics <- evaluation/datasets/gym_env."""
+<- demos/media/statistics <- evaluation/datasets <- gym (it runs `pih evaluate --policy`'s episodes) <- gym_env (the
+registration)."""
 
 ENVS_LAYERS: tuple[tuple[str, ...], ...] = (("base",), ("io",), ("cell",), ("task",), ("sim",), ("policies",),
                                             ("rollout",), ("demos", "media", "statistics"),
-                                            ("evaluation", "datasets", "gym_env"))
+                                            ("evaluation", "datasets"), ("gym",), ("gym_env",))
 """The rooms of envs from the bottom up; a room imports only rooms of lower layers (none beside it)."""
 
 MAX_ROOM_SHARE = 0.20

@@ -54,7 +54,9 @@ ROBOT_KEEP_OUT_RADIUS_M: float = 0.15
 """The table must stay this far (horizontally) from the robot base axis."""
 ARM_JOINTS: tuple[str, ...] = tuple(f"joint{i}" for i in range(1, 8))
 ARM_ACTUATORS: tuple[str, ...] = tuple(f"actuator{i}" for i in range(1, 8))
-CAMERAS: tuple[str, ...] = ("front", "side", "top", "closeup", "wrist")
+CAMERAS: tuple[str, ...] = ("front", "side", "top", "closeup", "wrist", "cutaway")
+"""The named cameras; "cutaway" looks at the goal hole from the side at its depth, and the renderer draws the sorter
+translucent from it (envs.media.video), so that the peg is seen inside the hole: seated, or jammed on the chamfer."""
 
 
 def nominal_flange_to_peg_tip(shape: str) -> tuple[FloatArray, FloatArray]:
@@ -235,13 +237,15 @@ def _add_environment(root: mjcf.RootElement, layout: SorterLayout, sorter_pos: F
 
 def _add_cameras(root: mjcf.RootElement, goal_pos: FloatArray) -> None:
     """Named cameras: front, side and closeup look at the goal hole, top looks down on robot and sorter,
-    wrist rides on the hand looking down the peg."""
+    wrist rides on the hand looking down the peg, cutaway looks at the hole from the side at its depth (the renderer
+    draws the sorter translucent from it)."""
     gx, gy, gz = goal_pos
     world_views = {  # name: (position, target, up hint)
         "front": ([gx + 0.75, gy + 0.35, gz + 0.45], [gx - 0.25, gy, gz + 0.15], [0, 0, 1]),
         "side": ([gx - 0.2, gy - 1.15, gz + 0.35], [gx - 0.2, gy, gz + 0.15], [0, 0, 1]),
         "top": ([0.55 * gx, gy, gz + 1.4], [0.55 * gx, gy, 0.0], [1, 0, 0]),
         "closeup": ([gx + 0.16, gy - 0.16, gz + 0.12], [gx, gy, gz + 0.03], [0, 0, 1]),
+        "cutaway": ([gx + 0.09, gy - 0.12, gz + 0.06], [gx, gy, gz + 0.02], [0, 0, 1]),
     }
     for name, (pos, target, up) in world_views.items():
         root.worldbody.add("camera", name=name, pos=pos, xyaxes=look_at_xyaxes(pos, target, up), fovy=45)

@@ -1,19 +1,23 @@
 """Evaluation episodes exported while they are replayed (envs.evaluation.replay.replay_evaluation calls the
-``on_episode``, ``on_step`` and ``on_trace`` methods): the camera frames captured after the reset and every step
-(LeRobot: one MP4 at the control rate, a frame per data row; robomimic: (T, H, W, 3) arrays per episode; both
-without the drawn path and goal of the figures' videos), and each episode written as it ends (robomimic) or kept
-for the tables written at the end (LeRobot; small arrays).
+``on_episode``, ``on_step`` and ``on_trace`` methods) at the export's frame rate: the data resampled onto the frames
+t_j = j / fps (envs.datasets.resample), and with a camera the frames rendered as the control steps reach them (frame j:
+the state of the first control step at or after t_j, the exact one when fps divides the control rate; LeRobot: one MP4
+at fps, a frame per data row; robomimic: (T, H, W, 3) arrays per episode; both without the drawn path and goal of the
+figures' videos), and each episode written as it ends (robomimic) or kept for the tables written at the end (LeRobot;
+small arrays).
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from envs.datasets.features import ExportEpisode, ExportMeta, episode_from_trace, evaluation_meta, fps_of
+from envs.datasets.features import DEFAULT_FPS, ExportEpisode, ExportMeta, episode_from_trace, evaluation_meta
 from envs.datasets.frame_sample import FrameSample
+from envs.datasets.resample import SNAP
 from envs.errors import EnvError
 from envs.io.jsonable import to_jsonable
 
@@ -23,9 +27,10 @@ class EpisodeExport:
     or kept (LeRobot, small arrays) as each ends."""
 
     def __init__(self, root: Path, layout: str, source: str, evaluation: Any, camera: str | None,
-                 size: tuple[int, int]):
+                 size: tuple[int, int], fps: int = DEFAULT_FPS):
         self.root, self.layout, self.source, self.evaluation = root, layout, source, evaluation
-        self.camera, self.size = camera, size
+        self.camera, self.size, self.fps = camera, size, int(fps)
+        self._emitted = 0  # frames of the current episode rendered so far
         self.meta: ExportMeta | None = None
         self.episodes: list[ExportEpisode] = []  # LeRobot: every episode; robomimic: none (written at once)
         self.count = 0
@@ -43,7 +48,7 @@ class EpisodeExport:
             evaluation = self.evaluation.config
             config = {"evaluation": to_jsonable(evaluation.settings()), "task": to_jsonable(evaluation.task.to_dict()),
                       "scene": scene, "skill": self.evaluation.skill, "model": str(self.evaluation.model_dir)}
-            self.meta = evaluation_meta(self.source, env.control_period_s, str(scene.get("shape", env.shape)),
+            self.meta = evaluation_meta(self.source, 1.0 / self.fps, str(scene.get("shape", env.shape)),
                                         float(scene.get("clearance_m", env.scene.config.clearance_m)), config,
                                         self.camera)
             if self.camera is not None:
@@ -53,6 +58,7 @@ class EpisodeExport:
 
                 self.writer = RobomimicWriter(self.root, self.meta)
         self.frames = []
+        self._emitted = 0
         if self.layout == "lerobot" and self.video is not None:
             self._frames_before = self.video.frames
 
@@ -62,13 +68,9 @@ class EpisodeExport:
             from envs.datasets.lerobot import video_file, video_key
             from envs.media.video import EpisodeVideo, VideoConfig
 
-            fps = fps_of(env.control_period_s)
-            if not isinstance(fps, int):
-                raise EnvError(f"--video: the control rate {1.0 / env.control_period_s:g} Hz is not a whole number of "
-                               "frames per second")
             path = video_file(self.root, video_key(self.camera))
             path.parent.mkdir(parents=True)
-            self.video = EpisodeVideo(env.model, path, VideoConfig(width=width, height=height, fps=fps,
+            self.video = EpisodeVideo(env.model, path, VideoConfig(width=width, height=height, fps=self.fps,
                                                                    camera=self.camera, draw_path=False,
                                                                    goal_axis_length_m=0.0),
                                       on_frame=self.sample.add)
@@ -79,18 +81,26 @@ class EpisodeExport:
             self.video.set_camera(self.camera)
 
     def on_step(self, env: Any) -> None:
-        """After the reset and every step: one frame."""
+        """After the reset and every step: the frames whose time this step reached (none, one, or with fps above the
+        control rate several of the same state)."""
         if self.video is None:
             return
+        time_s = env.observation.time_s
+        due = math.floor(time_s * self.fps + SNAP) + 1 - self._emitted  # as envs.datasets.resample.frame_times counts
+        if due <= 0:
+            return
+        self._emitted += due
         if self.layout == "lerobot":
-            self.video.capture(env.data, env.observation.time_s, force=True)
+            for _ in range(due):
+                self.video.capture(env.data, time_s, force=True)
         else:
             self.video.update_scene(env.data)
-            self.frames.append(self.video.render().copy())
+            frame = self.video.render().copy()
+            self.frames.extend([frame] * due)
 
     def on_trace(self, record: dict[str, Any], _replayed: Any, trace: Any) -> None:
         """After each episode: its export episode, written (robomimic) or kept (LeRobot)."""
-        episode = episode_from_trace(record, trace)
+        episode = episode_from_trace(record, trace, self.fps)
         self.count += 1
         if self.layout == "lerobot":
             if self.video is not None:

@@ -4,17 +4,24 @@ One table, FEATURES, names every per-step quantity once with its meaning and uni
 Poses are [x, y, z, qw, qx, qy, qz] (metres, unit quaternion w, x, y, z) in the world (robot base) frame, stored
 as float64, so a pose survives an export and an import bit for bit.
 
-Episodes (`episode_from_trace`, from a replayed evaluation) hold every feature. The action at frame t is what
-was commanded after observing frame t (the command of the step from t to t + 1); the last frame, after which
-nothing was commanded, repeats the last command:
-    action_pose[t] = cmd_pose[t + 1],  action_stiffness[t] = K[t + 1]   (t < T),   row T repeats row T - 1's.
+Frames. An export has an integer frame rate ``fps`` (default: the control rate, 100): every signal is resampled onto
+the frames t_j = j / fps (envs.datasets.resample: measurements interpolated, commands held), so a dataset of demos,
+recorded at 4000 samples over 7 s, has the frame rate of a dataset of episodes.
 
-Demonstrations (`episodes_from_demos`, from a demo file) hold only what a demo file stores: ``tcp_pose`` and,
-when the file has it, ``action_stiffness`` (the stiffness the scripted expert commanded at each sample, as is)
-and ``done``. Absent, and listed under "absent" in the export's metadata (ABSENT_IN_DEMOS): ``peg_tip_pose``,
-``joint_pos``, ``joint_vel``, ``wrist_wrench`` (a demo file records no joint or force signal), ``action_pose``
-(it records the measured pose, not the commanded one) and ``success`` per step (a kept demo ends inserted,
-which is its per-episode ``success``).
+Actions. ``action`` is the whole command of a control period, what a trainer regresses: the commanded tcp pose (7),
+the commanded translational stiffness (9, 3x3 row-major, N/m) and rotational stiffness (1, N m/rad), ACTION_NAMES;
+``action_stiffness`` is the translational stiffness alone (what `pih demos --import` reads back). The action at a
+control step is what was commanded after observing it (the command of the step from t to t + dt); the last step,
+after which nothing was commanded, repeats the last command:
+    action[t] = [cmd_pose[t + 1], K[t + 1], k_r[t + 1]]   (t < T),   row T repeats row T - 1's.
+
+Episodes (`episode_from_trace`, from a replayed evaluation) hold every feature. Demonstrations (`episodes_from_demos`,
+from a demo file) hold ``tcp_pose`` (the demo's poses) and ``done``; a demo file recorded with its control signals
+(envs.demos.file.ControlSignals) also the joints, the wrench and the action as the robot ran them. Absent, and listed
+under "absent" in the export's metadata: ``peg_tip_pose`` (the peg's own pose, simulator truth a demo does not keep),
+``success`` per step (a kept demo ends inserted, which is its per-episode ``success``), and for a demo file without
+control signals (of before them, imported or made noisy) the joints, the wrench and the action
+(ABSENT_WITHOUT_CONTROL).
 """
 
 from __future__ import annotations
@@ -38,6 +45,9 @@ POSE_NAMES: tuple[str, ...] = ("x", "y", "z", "qw", "qx", "qy", "qz")
 JOINT_NAMES: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
 WRENCH_NAMES: tuple[str, ...] = ("fx", "fy", "fz", "tx", "ty", "tz")
 STIFFNESS_NAMES: tuple[str, ...] = tuple(f"k_{r}{c}" for r in "xyz" for c in "xyz")
+ACTION_NAMES: tuple[str, ...] = POSE_NAMES + STIFFNESS_NAMES + ("k_rot",)
+#: The frame rate of an export unless the user picks one: the control rate (one frame per control step).
+DEFAULT_FPS: int = 100
 
 #: The format version of the metadata this package writes (``ExportMeta.to_json``).
 EXPORT_VERSION: int = 1
@@ -75,9 +85,11 @@ FEATURES: tuple[Feature, ...] = (
     Feature("joint_vel", "observation.joint_vel", "obs/joint_vel", JOINT_NAMES, "float64",
             "arm joint velocities, rad/s"),
     Feature("wrist_wrench", "observation.wrist_wrench", "obs/wrist_wrench", WRENCH_NAMES, "float64",
-            "wrist F/T reading [N; N m] in the sensor frame, tool load removed"),
-    Feature("action_pose", "action", "actions", POSE_NAMES, "float64",
-            "commanded tcp pose sent to the impedance controller after this frame, m and (w, x, y, z)"),
+            "wrist F/T reading [N; N m] as the cell's sensor reads it (what a policy sees), sensor frame, tool load "
+            "removed"),
+    Feature("action", "action", "actions", ACTION_NAMES, "float64",
+            "the command after this frame: the tcp pose sent to the impedance controller (m, w x y z), the "
+            "translational stiffness (3x3 row-major, N/m, world frame) and the rotational stiffness (N m/rad)"),
     Feature("action_stiffness", "action.stiffness", "action_stiffness", STIFFNESS_NAMES, "float64",
             "commanded translational stiffness after this frame, 3x3 row-major, N/m, world frame"),
     Feature("success", "next.success", "rewards", ("success",), "bool",
@@ -87,12 +99,14 @@ FEATURES: tuple[Feature, ...] = (
 FEATURE_BY_KEY: dict[str, Feature] = {f.key: f for f in FEATURES}
 
 ABSENT_IN_DEMOS: dict[str, str] = {
-    "peg_tip_pose": "a demo file records the tcp pose only",
-    "joint_pos": "a demo file records no joint signal",
-    "joint_vel": "a demo file records no joint signal",
-    "wrist_wrench": "a demo file records no force signal",
-    "action_pose": "a demo file records the measured pose, not the commanded one",
+    "peg_tip_pose": "a demo file records the tcp pose, not the peg's own (simulator truth)",
     "success": "a demo file records no per-step success (every kept demo ends inserted)",
+}
+ABSENT_WITHOUT_CONTROL: dict[str, str] = {
+    "joint_pos": "this demo file has no control signals (recorded before them, imported or made noisy)",
+    "joint_vel": "this demo file has no control signals",
+    "wrist_wrench": "this demo file has no control signals",
+    "action": "this demo file has no control signals (the command of each step)",
 }
 
 
@@ -130,7 +144,7 @@ class ExportMeta:
     Attributes:
         kind: "demos" or "episodes".
         source: the file it was made from.
-        dt_s: seconds between frames (exact; LeRobot's ``fps`` is 1 / dt_s).
+        dt_s: seconds between frames, 1 / fps (LeRobot's ``fps``, an integer, is 1 / dt_s).
         task: the task in words (LeRobot's task table).
         shape, clearance_m: the peg/hole shape and clearance (m).
         features: the feature keys present.
@@ -172,24 +186,53 @@ def _done(num_frames: int) -> npt.NDArray[np.bool_]:
     return done
 
 
-def episodes_from_demos(demos: DemoSet, source: str) -> tuple[ExportMeta, list[ExportEpisode]]:
-    """A demo file's demos as episodes (what a demo file holds; module docstring)."""
+def _action(pos: np.ndarray, quat: np.ndarray, stiffness: np.ndarray, rot_stiffness: np.ndarray) -> np.ndarray:
+    """The (T, 17) ``action`` rows: pose, translational stiffness (row-major), rotational stiffness."""
+    return np.concatenate([pos, quat, np.asarray(stiffness).reshape(len(pos), 9),
+                           np.asarray(rot_stiffness).reshape(len(pos), 1)], axis=-1)
+
+
+def episodes_from_demos(demos: DemoSet, source: str, fps: int | None = DEFAULT_FPS) -> tuple[ExportMeta,
+                                                                                           list[ExportEpisode]]:
+    """A demo file's demos as episodes at ``fps`` frames per second (None: the demo file's own samples, dt apart),
+    what a demo file holds (module docstring)."""
+    from envs.datasets.resample import frame_times, held, interpolated, interpolated_pose
+
+    control = demos.control
     features = ["tcp_pose", "done"] + (["action_stiffness"] if demos.stiffness is not None else [])
     absent = dict(ABSENT_IN_DEMOS)
+    if control is not None:
+        features += ["joint_pos", "joint_vel", "wrist_wrench", "action"]
+    else:
+        absent.update(ABSENT_WITHOUT_CONTROL)
     if demos.stiffness is None:
         absent["action_stiffness"] = "this demo file has no stiffness"
+    times = frame_times(demos.duration_s, fps) if fps is not None else None
+    dt = demos.dt if fps is None else 1.0 / fps
     episodes = []
     for n in range(demos.num_demos):
-        data: dict[str, np.ndarray] = {"tcp_pose": np.concatenate([demos.pos[n], demos.quat[n]], axis=-1),
-                                       "done": _done(demos.num_samples)}
+        pose = np.concatenate([demos.pos[n], demos.quat[n]], axis=-1)
+        data: dict[str, np.ndarray] = {"tcp_pose": pose if times is None else interpolated_pose(pose, demos.dt, times)}
+        rows = len(data["tcp_pose"])
+        data["done"] = _done(rows)
         if demos.stiffness is not None:
-            data["action_stiffness"] = np.asarray(demos.stiffness[n]).reshape(demos.num_samples, 9)
+            k = np.asarray(demos.stiffness[n]).reshape(demos.num_samples, 9)
+            data["action_stiffness"] = k if times is None else held(k, demos.dt, times)
+        if control is not None:
+            at = times if times is not None else np.arange(rows) * demos.dt
+            for name in ("joint_pos", "joint_vel", "wrist_wrench"):
+                data[name] = interpolated(getattr(control, name)[n], control.dt, at)
+            command = _action(control.action_pos[n], control.action_quat[n], control.action_stiffness[n],
+                              control.action_rot_stiffness[n])
+            data["action"] = held(command, control.dt, at)
+            if "action_stiffness" in data:  # the command's stiffness, as in the action: one dataset, one command
+                data["action_stiffness"] = data["action"][:, 7:16].copy()
         extra = {}
         if demos.residual_pos_m is not None and demos.residual_rot_deg is not None:
             extra = {"residual_pos_mm": float(demos.residual_pos_m[n]) * 1e3,
                      "residual_rot_deg": float(demos.residual_rot_deg[n])}
         episodes.append(ExportEpisode(n, data, True, "demonstration", extra))
-    meta = ExportMeta("demos", source, demos.dt, task_text(demos.shape, demos.clearance_m), demos.shape,
+    meta = ExportMeta("demos", source, dt, task_text(demos.shape, demos.clearance_m), demos.shape,
                       demos.clearance_m, tuple(f.key for f in FEATURES if f.key in features), absent,
                       dict(demos.config))
     return meta, episodes
@@ -200,25 +243,32 @@ def _shifted(values: np.ndarray) -> np.ndarray:
     return np.concatenate([values[1:], values[-1:]], axis=0)
 
 
-def episode_from_trace(record: dict[str, Any], trace: Any) -> ExportEpisode:
-    """An evaluation episode from its record (a dict of the evaluation JSON) and its replayed trace.
+def episode_from_trace(record: dict[str, Any], trace: Any, fps: int | None = DEFAULT_FPS) -> ExportEpisode:
+    """An evaluation episode from its record (a dict of the evaluation JSON) and its replayed trace, at ``fps``
+    frames per second (None: one frame per control step).
 
     Args:
         record: the episode's record (index, demo_index, success, reason, perturbation).
         trace: an envs.rollout.episode.EpisodeTrace (times_s, tcp_pos, tcp_quat, pos, quat, qpos, qvel,
-            wrist_wrench, cmd_pos, cmd_quat, stiffness, success).
+            sensed_wrench, cmd_pos, cmd_quat, stiffness, rot_stiffness, success), a row per control step.
+        fps: the frame rate.
     """
+    from envs.datasets.resample import frame_times, held, interpolated, interpolated_pose
+
     num = len(trace.times_s)
+    dt = float(trace.times_s[1] - trace.times_s[0]) if num > 1 else 1.0
+    times = frame_times(float(trace.times_s[-1]), fps) if fps is not None else np.asarray(trace.times_s, dtype=float)
+    command = _shifted(_action(trace.cmd_pos, trace.cmd_quat, trace.stiffness, trace.rot_stiffness))
     data = {
-        "tcp_pose": np.concatenate([trace.tcp_pos, trace.tcp_quat], axis=-1),
-        "peg_tip_pose": np.concatenate([trace.pos, trace.quat], axis=-1),
-        "joint_pos": np.asarray(trace.qpos, dtype=float),
-        "joint_vel": np.asarray(trace.qvel, dtype=float),
-        "wrist_wrench": np.asarray(trace.wrist_wrench, dtype=float),
-        "action_pose": _shifted(np.concatenate([trace.cmd_pos, trace.cmd_quat], axis=-1)),
-        "action_stiffness": _shifted(np.asarray(trace.stiffness, dtype=float).reshape(num, 9)),
-        "success": np.asarray(trace.success, dtype=bool),
-        "done": _done(num),
+        "tcp_pose": interpolated_pose(np.concatenate([trace.tcp_pos, trace.tcp_quat], axis=-1), dt, times),
+        "peg_tip_pose": interpolated_pose(np.concatenate([trace.pos, trace.quat], axis=-1), dt, times),
+        "joint_pos": interpolated(trace.qpos, dt, times),
+        "joint_vel": interpolated(trace.qvel, dt, times),
+        "wrist_wrench": interpolated(trace.sensed_wrench, dt, times),
+        "action": held(command, dt, times),
+        "action_stiffness": held(command[:, 7:16], dt, times),
+        "success": held(np.asarray(trace.success, dtype=bool), dt, times),
+        "done": _done(len(times)),
     }
     extra: dict[str, Any] = {"demo_index": int(record.get("demo_index", -1))}
     perturbation = record.get("perturbation") or {}

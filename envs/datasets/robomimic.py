@@ -2,7 +2,7 @@
 it so):
 
     <kind>.hdf5                 kind = "demos" or "episodes"
-      data/                     attrs: total (frames of all demos), env_args (JSON: env_name "pih/PegInHole-v0",
+      data/                     attrs: total (frames of all demos), env_args (JSON: env_name "pih/PegInHole-v1",
                                 type 2 (robomimic's EnvType.GYM_TYPE), env_kwargs: the shape, clearance and the
                                 scene's other scalar settings, as `gymnasium.make` takes them), pih_export (JSON:
                                 our metadata, envs.datasets.features.ExportMeta)
@@ -35,7 +35,7 @@ from envs.demos.importing import RecordedDemos
 from envs.errors import EnvError
 from envs.io.owned_output import write_json
 
-ENV_NAME: str = "pih/PegInHole-v0"
+ENV_NAME: str = "pih/PegInHole-v1"
 GYM_TYPE: int = 2  # robomimic.envs.env_base.EnvType.GYM_TYPE
 
 

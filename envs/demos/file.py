@@ -16,6 +16,18 @@ Optional:
                             (to 1e-9 relative), positive definite and finite at every sample, and
                             stiffness[n, -1] == goal_stiffness for every n (to 1e-9 relative)
     goal_stiffness (3, 3)   the shared goal stiffness; present exactly when ``stiffness`` is
+    control_*               what the robot did at the control rate while each demo was recorded (`ControlSignals`;
+                            K samples, k control_dt apart from the demo's start, K = duration / control_dt + 1):
+      control_dt            ()             the control period, s (0.01)
+      control_joint_pos     (N, K, 7)      arm joint positions, rad
+      control_joint_vel     (N, K, 7)      arm joint velocities, rad/s
+      control_wrist_wrench  (N, K, 6)      the wrist F/T sensor's reading [N; N m], sensor frame, tool load removed
+      control_action_pos    (N, K, 3)      the tcp position commanded after sample k (the last repeats), m
+      control_action_quat   (N, K, 4)      the tcp orientation commanded after sample k (w, x, y, z)
+      control_action_stiffness (N, K, 3, 3) the translational stiffness commanded after sample k, N/m
+      control_action_rot_stiffness (N, K) the rotational stiffness commanded after sample k, N m/rad
+                            (all together or none: a file of before them, or of demos imported or made noisy,
+                            has none)
     ends_apart   () bool    the demos end apart, as recorded (real demonstrations rarely end in one pose): then
                             goal_pos / goal_quat are the mean of the last samples (position mean, quaternion mean),
                             each demo's end lies within END_SPREAD_M / END_SPREAD_DEG of it, and ``residual_pos_m``
@@ -33,7 +45,7 @@ import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -48,6 +60,7 @@ FloatArray = npt.NDArray[np.float64]
 REQUIRED_KEYS: tuple[str, ...] = ("pos", "quat", "dt", "goal_pos", "goal_quat", "shape", "clearance_m",
                                   "config_json")
 OPTIONAL_KEYS: tuple[str, ...] = ("residual_pos_m", "residual_rot_deg", "stiffness", "goal_stiffness")
+CONTROL_PREFIX = "control_"
 
 #: A demo "ends at the goal" when its last sample is this close to the stored goal.
 GOAL_TOL_M: float = 1e-6
@@ -63,6 +76,55 @@ END_SPREAD_DEG: float = 20.0
 #: ... and the stored goal must be their mean end to this tolerance.
 MEAN_GOAL_TOL_M: float = 1e-9
 MEAN_GOAL_TOL_RAD: float = 1e-9
+
+
+@dataclass(frozen=True)
+class ControlSignals:
+    """What the robot did at the control rate while the demos were recorded (the module docstring's control_*).
+
+    Attributes:
+        dt: the control period, s.
+        joint_pos, joint_vel: (N, K, 7) arm joint positions (rad) and velocities (rad/s).
+        wrist_wrench: (N, K, 6) the wrist sensor's reading [N; N m] (sensor frame, tool load removed).
+        action_pos, action_quat: (N, K, 3), (N, K, 4) the tcp pose commanded after each sample (the last repeats).
+        action_stiffness: (N, K, 3, 3) the translational stiffness commanded after each sample, N/m.
+        action_rot_stiffness: (N, K) the rotational stiffness commanded after each sample, N m/rad.
+    """
+
+    dt: float
+    joint_pos: FloatArray
+    joint_vel: FloatArray
+    wrist_wrench: FloatArray
+    action_pos: FloatArray
+    action_quat: FloatArray
+    action_stiffness: FloatArray
+    action_rot_stiffness: FloatArray
+
+    ARRAYS: ClassVar[tuple[tuple[str, tuple[int, ...]], ...]] = (
+        ("joint_pos", (7,)), ("joint_vel", (7,)), ("wrist_wrench", (6,)), ("action_pos", (3,)),
+        ("action_quat", (4,)), ("action_stiffness", (3, 3)), ("action_rot_stiffness", ()))
+
+    @property
+    def num_samples(self) -> int:
+        """K, the control samples per demo."""
+        return int(np.shape(self.joint_pos)[1])
+
+    def validate(self, num_demos: int, source: str) -> None:
+        """Check the shapes (N, K, ...) and finiteness.
+
+        Raises:
+            EnvError: one line naming ``source`` and the array.
+        """
+        if not (np.isfinite(self.dt) and self.dt > 0.0):
+            raise EnvError(f"{source}: 'control_dt' must be a finite positive number of seconds, got {self.dt}")
+        count = np.shape(self.joint_pos)[1] if np.ndim(self.joint_pos) >= 2 else 0
+        for name, tail in self.ARRAYS:
+            arr = np.asarray(getattr(self, name))
+            if arr.shape != (num_demos, count, *tail) or count < 2:
+                raise EnvError(f"{source}: '{CONTROL_PREFIX}{name}' must have shape {(num_demos, count, *tail)} "
+                               f"(N demos, K >= 2 control samples), got {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise EnvError(f"{source}: '{CONTROL_PREFIX}{name}' contains NaN or inf")
 
 
 @dataclass(frozen=True)
@@ -82,6 +144,7 @@ class DemoSet:
     stiffness: FloatArray | None = None
     goal_stiffness: FloatArray | None = None
     ends_apart: bool = False
+    control: ControlSignals | None = None
 
     @property
     def num_demos(self) -> int:
@@ -148,6 +211,8 @@ def validate_demos(demos: DemoSet, source: str = "demos") -> None:
         if arr is not None and np.asarray(arr).shape != (pos.shape[0],):
             raise EnvError(f"{source}: '{name}' must have shape ({pos.shape[0]},), got {np.asarray(arr).shape}")
     validate_stiffness(demos, source)
+    if demos.control is not None:
+        demos.control.validate(pos.shape[0], source)
 
 
 def _check_ends_apart(demos: DemoSet, pos_err: FloatArray, rot_err: FloatArray, source: str) -> None:
@@ -268,6 +333,10 @@ def save_demos(path: str | os.PathLike[str], demos: DemoSet) -> Path:
         arrays["goal_stiffness"] = np.asarray(demos.goal_stiffness, dtype=np.float64)
     if demos.ends_apart:
         arrays["ends_apart"] = np.bool_(True)
+    if demos.control is not None:
+        arrays[f"{CONTROL_PREFIX}dt"] = np.float64(demos.control.dt)
+        for name, _ in ControlSignals.ARRAYS:
+            arrays[CONTROL_PREFIX + name] = np.asarray(getattr(demos.control, name), dtype=np.float64)
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise EnvError(f"cannot write demos to {out}: folder {folder} does not exist")
@@ -318,6 +387,7 @@ def load_demos(path: str | os.PathLike[str]) -> DemoSet:
             config_text = _scalar(archive, "config_json", src, str)
             optional = {k: np.asarray(archive[k], dtype=float) for k in OPTIONAL_KEYS if k in archive.files}
             ends_apart = "ends_apart" in archive.files and _flag(archive, "ends_apart", src)
+            control = _control(archive, src)
     except EnvError:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as err:
@@ -342,6 +412,29 @@ def load_demos(path: str | os.PathLike[str]) -> DemoSet:
         stiffness=optional.get("stiffness"),
         goal_stiffness=optional.get("goal_stiffness"),
         ends_apart=bool(ends_apart),
+        control=control,
     )
     validate_demos(demos, source=src)
     return demos
+
+
+def _control(archive: Any, source: str) -> ControlSignals | None:
+    """The control signals of an open demo file: all of them, or None when it has none.
+
+    Raises:
+        EnvError: some of them only, or one that is not numeric.
+    """
+    names = [f"{CONTROL_PREFIX}dt"] + [CONTROL_PREFIX + name for name, _ in ControlSignals.ARRAYS]
+    present = [n for n in names if n in archive.files]
+    if not present:
+        return None
+    if len(present) != len(names):
+        raise EnvError(f"{source}: has {present[0]!r} but not {sorted(set(names) - set(present))} (the control "
+                       "signals come together)")
+    values = {}
+    for name, _ in ControlSignals.ARRAYS:
+        arr = archive[CONTROL_PREFIX + name]
+        if not np.issubdtype(arr.dtype, np.number):
+            raise EnvError(f"{source}: '{CONTROL_PREFIX}{name}' must be numeric, got dtype {arr.dtype}")
+        values[name] = np.asarray(arr, dtype=float)
+    return ControlSignals(dt=_scalar(archive, f"{CONTROL_PREFIX}dt", source, float), **values)

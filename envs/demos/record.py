@@ -12,6 +12,11 @@ it the peg reached the opening 0.3-0.4 mm beside the axis, a bias every learned 
 MEASURED tcp pose is recorded every control step
 and resampled to M samples on a uniform grid (positions linearly, quaternions by slerp).
 
+Beside the poses, what the robot did is recorded at the control rate, as it happened (not resampled, not snapped
+to the goal): the joint positions and velocities, the wrist sensor's reading and the command sent after each control
+sample (the tcp pose led by the feed-forward, the translational and rotational stiffness), the demo file's control
+signals (envs.demos.file.ControlSignals), from which `pih export` makes a dataset's observations and actions.
+
 A demo is kept only if the success tracker declared success and the settled pose (mean over the last
 ``settle_window_s``) is within ``goal_tol_m`` / ``goal_tol_deg`` of the nominal goal. The residual is then
 removed smoothly over the hold segment: with w(t) the minimum-jerk ramp from 0 at the start of the hold
@@ -46,7 +51,7 @@ import numpy.typing as npt
 from controllers.impedance import ImpedanceConfig, full_stiffness
 from envs.cell.contact import ContactConfig
 from envs.cell.scene_config import SceneConfig
-from envs.demos.file import DemoSet
+from envs.demos.file import ControlSignals, DemoSet
 from envs.errors import EnvError
 from envs.io.jsonable import to_jsonable
 from envs.policies.expert_plan import ExpertConfig, plan_expert_path, plan_twists
@@ -89,6 +94,10 @@ class DemoAttempt:
         wall_s: wall-clock seconds the attempt took.
         stiffness: (K, 3, 3) translational stiffness commanded from each measured sample (N/m, world frame;
             the last: the schedule at the final pose), or None when the expert has no schedule.
+        control: the signals of each control sample (envs.demos.file.ControlSignals' arrays, K rows each: joint_pos,
+            joint_vel, wrist_wrench as the sensor read it, and the command sent after the sample, action_pos,
+            action_quat, action_stiffness, action_rot_stiffness, the last row repeating the one before), or None
+            when the attempt did not run.
     """
 
     start: Pose
@@ -102,6 +111,7 @@ class DemoAttempt:
     residual_rot_deg: float
     wall_s: float
     stiffness: FloatArray | None = None
+    control: dict[str, FloatArray] | None = None
 
 
 def settled_pose(times: FloatArray, pos: FloatArray, quat: FloatArray, window_s: float) -> Pose:
@@ -144,6 +154,8 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
     except EnvError as err:
         return failed(f"{UNREACHABLE_PREFIX}: {err}")
     times, pos, quat = [0.0], [obs.tcp.pos], [obs.tcp.quat]
+    signals: dict[str, list] = {"joint_pos": [np.array(obs.qpos)], "joint_vel": [np.array(obs.qvel)],
+                                "wrist_wrench": [np.array(obs.sensed_wrench)], "action_pos": [], "action_quat": []}
     schedule = config.stiffness
     k_rot = env.controller.config.rotational_stiffness
     commanded: list[FloatArray] = []
@@ -156,12 +168,18 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
             stiffness = full_stiffness(commanded[-1], k_rot)
         lead = env.controller.pose_lead(env.data, twist[k], accel[k], stiffness)
         lead_quat = quat_mul(quat_from_rotvec(lead[3:]), cmd_quat[k])
-        result = env.step((cmd_pos[k] + lead[:3], lead_quat / norm(lead_quat)), stiffness)
+        sent = (cmd_pos[k] + lead[:3], lead_quat / norm(lead_quat))
+        result = env.step(sent, stiffness)
         if on_step is not None:
             on_step(result)
         times.append(result.obs.time_s)
         pos.append(result.obs.tcp.pos)
         quat.append(result.obs.tcp.quat)
+        signals["action_pos"].append(np.array(sent[0]))
+        signals["action_quat"].append(np.array(sent[1]))
+        for name, value in (("joint_pos", result.obs.qpos), ("joint_vel", result.obs.qvel),
+                            ("wrist_wrench", result.obs.sensed_wrench)):
+            signals[name].append(np.array(value))
         if result.done:
             break
     t_arr, p_arr, q_arr = np.asarray(times), np.asarray(pos), make_continuous(np.asarray(quat))
@@ -169,6 +187,7 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
     if schedule is not None:
         commanded.append(expert_stiffness(pos[-1], env.hole.pos, env.hole_axis, schedule))
         k_arr = np.stack(commanded)
+    control = _control_signals(signals, k_arr, env.controller.config.translational_stiffness, k_rot)
     if result is not None and result.done and result.reason != "success":
         return failed(f"episode ended early: {result.reason}", t_arr, p_arr, q_arr)
     if result is None or not result.obs.success:
@@ -187,7 +206,25 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
         if off > STIFFNESS_GOAL_RTOL:
             ok, reason = False, f"final stiffness {off:.2g} (relative) from the goal stiffness"
     return DemoAttempt(start, ok, reason, t_arr, p_arr, q_arr, cmd_pos, res_pos, res_rot, time.perf_counter() - wall,
-                       k_arr)
+                       k_arr, control)
+
+
+def _control_signals(signals: dict[str, list], stiffness: FloatArray | None, default_k_n_m: float,
+                     k_rot: float) -> dict[str, FloatArray] | None:
+    """The control samples of an attempt as arrays of K rows (`DemoAttempt.control`): the commands, sent after each
+    sample but the last, get a last row that repeats the one before; the stiffness is the commanded one (the
+    controller's default without a schedule)."""
+    rows = len(signals["joint_pos"])
+    if rows < 2 or len(signals["action_pos"]) != rows - 1:
+        return None
+    out = {name: np.stack(values) for name, values in signals.items()}
+    for name in ("action_pos", "action_quat"):
+        out[name] = np.concatenate([out[name], out[name][-1:]], axis=0)
+    out["action_quat"] = make_continuous(out["action_quat"])
+    out["action_stiffness"] = (np.array(stiffness) if stiffness is not None
+                               else np.broadcast_to(default_k_n_m * np.eye(3), (rows, 3, 3)).copy())
+    out["action_rot_stiffness"] = np.full(rows, float(k_rot))
+    return out
 
 
 def finalize_demo(attempt: DemoAttempt, goal: Pose, config: ExpertConfig,
@@ -317,6 +354,11 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
         if attempt.ok:
             kept.append(finalize_demo(attempt, goal, expert, goal_k))
     kept_attempts = [a for a in attempts if a.ok]
+    control = None
+    if all(a.control is not None for a in kept_attempts) and \
+            len({a.control["joint_pos"].shape[0] for a in kept_attempts}) == 1:
+        control = ControlSignals(dt=env.control_period_s, **{name: np.stack([a.control[name] for a in kept_attempts])
+                                                             for name, _ in ControlSignals.ARRAYS})
     config = {
         "scene": to_jsonable(env.scene.config),
         "controller": to_jsonable(env.controller.config),
@@ -344,6 +386,7 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
         residual_rot_deg=np.array([a.residual_rot_deg for a in kept_attempts]),
         stiffness=None if goal_k is None else np.stack([k for _, _, k in kept]),
         goal_stiffness=goal_k,
+        control=control,
     )
     return Collection(demos=demos, attempts=attempts, wall_s=time.perf_counter() - wall)
 

@@ -31,6 +31,28 @@ def use_headless_rendering() -> str:
     return os.environ.setdefault("MUJOCO_GL", DEFAULT_GL_BACKEND)
 
 
+def headless_without_display() -> str | None:
+    """Where there is no display (neither ``DISPLAY`` nor ``WAYLAND_DISPLAY``) and the user chose no backend, choose
+    a headless one for MuJoCo and dm_control: EGL when its library loads, else OSMesa when its library loads.
+
+    Without it dm_control picks GLFW when it is first imported, and GLFW prints "GLFWError: (65550) ... DISPLAY
+    environment variable is missing" on a server. With a display nothing changes (GLFW works there, and a viewer
+    may want it). ``envs`` calls it when imported, before any module loads dm_control. Returns ``MUJOCO_GL``.
+    """
+    if os.environ.get("MUJOCO_GL") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return os.environ.get("MUJOCO_GL")
+    import ctypes
+
+    for backend, libraries in (("egl", ("libEGL.so.1", "libEGL.so")), ("osmesa", ("libOSMesa.so.8", "libOSMesa.so"))):
+        for library in libraries:
+            try:
+                ctypes.CDLL(library)
+            except OSError:
+                continue
+            return os.environ.setdefault("MUJOCO_GL", backend)
+    return None
+
+
 def gl_context(width: int, height: int) -> tuple[Any, str]:
     """Create and make current a headless GL context of ``width`` x ``height``: the backend ``MUJOCO_GL`` names,
     or, when that is EGL (the default), EGL and then OSMesa.
@@ -65,4 +87,4 @@ def gl_context(width: int, height: int) -> tuple[Any, str]:
     raise EnvError(f"no headless OpenGL context (MUJOCO_GL={requested!r}): " + "; ".join(failures))
 
 
-__all__ = ["DEFAULT_GL_BACKEND", "gl_context", "use_headless_rendering"]
+__all__ = ["DEFAULT_GL_BACKEND", "gl_context", "headless_without_display", "use_headless_rendering"]

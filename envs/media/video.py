@@ -4,17 +4,21 @@ The OpenGL backend is chosen by envs.media.rendering (the one place): ``MUJOCO_G
 otherwise EGL with a fall-back to OSMesa. Frames are rendered at ``fps`` frames per second of
 SIMULATED time (not every physics step). The commanded peg_tip path is drawn as a polyline (line
 geoms, a few pixels wide: capsules cost far more with a software renderer) and the goal as an RGB
-frame (x red, y green, z blue), both as user geoms of the scene.
+frame (x red, y green, z blue), both as user geoms of the scene. From the "cutaway" camera the sorter is drawn
+translucent (CUTAWAY_ALPHA), so the peg shows inside the hole; a frame may carry a text overlay (MuJoCo's own font,
+top left: the episode, its outcome, the time and the wrist force, `episode_overlay`).
 The MP4 is written to a temporary file beside the target (envs.io.owned_output.AtomicOutput) and renamed only when
 ffmpeg wrote a whole file; a full disk or a dead ffmpeg is an OSError, never a truncated MP4.
 """
 
 from __future__ import annotations
 
+import atexit
 import errno
 import os
 import struct
 import time
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -43,6 +47,21 @@ GOAL_AXES_RGBA = (
     np.array([0.1, 0.8, 0.1, 1.0], dtype=np.float32),
     np.array([0.1, 0.2, 0.9, 1.0], dtype=np.float32),
 )
+
+
+CUTAWAY_CAMERA = "cutaway"
+"""The camera from which the sorter is drawn translucent (envs.cell.scene.CAMERAS)."""
+CUTAWAY_ALPHA: float = 0.18
+"""The sorter's opacity from the cutaway camera."""
+SORTER_BODY = "sorter/"
+"""The sorter's body in the scene (its geoms are what the cutaway makes translucent)."""
+
+
+def episode_overlay(label: str, outcome: str | None, time_s: float, wrist_force_n: float) -> str:
+    """The text over a frame: "episode 3: success" (the label and the outcome) on one line, "t 1.23 s   |F| 4.5 N"
+    (the episode's time and the wrist force) below."""
+    head = label + (f": {outcome}" if outcome else "")
+    return f"{head}\nt {time_s:5.2f} s   |F| {wrist_force_n:5.1f} N"
 
 
 @dataclass(frozen=True)
@@ -92,10 +111,25 @@ class VideoConfig:
             raise EnvError(f"VideoConfig: multisamples must be an integer in [0, 16], got {self.multisamples!r}")
 
 
+class _CloseAtExit:
+    """Closes a renderer that is still open when the interpreter exits, before the GL library's own exit handler
+    (EGL's ``eglTerminate``, registered when its first context was made, so it runs after this one) tears the display
+    down: a context freed after that prints an EGLError traceback from its ``__del__``."""
+
+    def __init__(self, renderer: OffscreenRenderer):
+        self.renderer = weakref.ref(renderer)
+
+    def __call__(self) -> None:
+        renderer = self.renderer()
+        if renderer is not None:
+            renderer.close()
+
+
 class OffscreenRenderer:
     """Renders RGB frames of ``model`` from a named camera into an offscreen buffer.
 
-    Raises EnvError when no OpenGL context can be created. Call :meth:`close` (or use ``with``).
+    Raises EnvError when no OpenGL context can be created. Call :meth:`close` (or use ``with``); one left open is
+    closed at the interpreter's exit (quietly, `_CloseAtExit`).
     The model's offscreen buffer size (``vis.global_.offwidth/offheight``) is raised to the frame
     size if smaller, and its multisampling (``vis.quality.offsamples``) set to ``multisamples`` (render settings
     only: physics does not read them).
@@ -109,6 +143,8 @@ class OffscreenRenderer:
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
         model.vis.quality.offsamples = int(multisamples)
         self._gl, self.backend = gl_context(self.width, self.height)
+        self._at_exit = _CloseAtExit(self)
+        atexit.register(self._at_exit)  # after the context: it runs before the GL library's own exit handler
         self._context: mujoco.MjrContext | None = None
         try:
             self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
@@ -120,6 +156,7 @@ class OffscreenRenderer:
         self.option = mujoco.MjvOption()
         self._perturb = mujoco.MjvPerturb()
         self._camera = mujoco.MjvCamera()
+        self._translucent: frozenset[int] = frozenset()  # geoms drawn translucent (from the cutaway camera)
         self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
         self._rgb = np.empty((self.height, self.width, 3), dtype=np.uint8)
 
@@ -139,21 +176,35 @@ class OffscreenRenderer:
             raise EnvError(f"camera {name!r} not in the scene (available: {self.camera_names()})")
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._camera.fixedcamid = cam_id
+        self._translucent = frozenset()
+        sorter = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, SORTER_BODY)
+        if name == CUTAWAY_CAMERA and sorter >= 0:
+            self._translucent = frozenset(int(g) for g in np.flatnonzero(self.model.geom_bodyid == sorter))
 
     def update_scene(self, data: mujoco.MjData) -> mujoco.MjvScene:
-        """Fill :attr:`scene` from ``data``; add user geoms to it afterwards, then call :meth:`render`."""
+        """Fill :attr:`scene` from ``data`` (from the cutaway camera with the sorter translucent); add user geoms to
+        it afterwards, then call :meth:`render`."""
         mujoco.mjv_updateScene(self.model, data, self.option, self._perturb, self._camera,
                                mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+        if self._translucent:
+            for i in range(self.scene.ngeom):
+                geom = self.scene.geoms[i]
+                if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM and geom.objid in self._translucent:
+                    geom.rgba[3] = CUTAWAY_ALPHA
         return self.scene
 
-    def render(self, shadows: bool = False) -> npt.NDArray[np.uint8]:
-        """Render :attr:`scene` and return the RGB image (height, width, 3), top row first (a view)."""
+    def render(self, shadows: bool = False, text: str | None = None) -> npt.NDArray[np.uint8]:
+        """Render :attr:`scene` (with ``text`` over its top left corner) and return the RGB image (height, width,
+        3), top row first (a view)."""
         if self._context is None:
             raise EnvError("renderer is closed")
         self._gl.make_current()
         self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = shadows
         self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = shadows
         mujoco.mjr_render(self._rect, self.scene, self._context)
+        if text:
+            mujoco.mjr_overlay(mujoco.mjtFont.mjFONT_NORMAL, mujoco.mjtGridPos.mjGRID_TOPLEFT, self._rect, text, "",
+                               self._context)
         mujoco.mjr_readPixels(self._rgb, None, self._rect, self._context)
         return self._rgb[::-1]
 
@@ -165,6 +216,7 @@ class OffscreenRenderer:
         if self._gl is not None:
             self._gl.free()
             self._gl = None
+            atexit.unregister(self._at_exit)
 
     def __enter__(self) -> OffscreenRenderer:
         return self
@@ -387,13 +439,16 @@ class EpisodeVideo:
         """Restart the frame clock: the next capture renders at once (for several episodes in one video)."""
         self._next_due_s = None
 
-    def capture(self, data: mujoco.MjData, time_s: float | None = None, force: bool = False) -> bool:
+    def capture(self, data: mujoco.MjData, time_s: float | None = None, force: bool = False,
+                text: str | Callable[[], str] | None = None) -> bool:
         """Render and encode a frame if one is due (or ``force``); True if a frame was written.
 
         Args:
             data: the simulation state to draw.
             time_s: episode time of ``data`` (default data.time).
             force: render regardless of the frame clock.
+            text: drawn over the frame's top left corner (`episode_overlay`), or a function making it (called only
+                when a frame is rendered).
         """
         if self._closed:
             raise EnvError("video is already closed")
@@ -410,7 +465,7 @@ class EpisodeVideo:
             add_segments(scene, self._path_segments, self.config.path_width_px, PATH_RGBA)
         if self.goal is not None and self.config.goal_axis_length_m > 0.0:
             add_frame(scene, self.goal, self.config.goal_axis_length_m, 2.0 * self.config.path_width_px)
-        frame = self._renderer.render(shadows=self.config.shadows)
+        frame = self._renderer.render(shadows=self.config.shadows, text=text() if callable(text) else text)
         mid = time.perf_counter()
         self._writer.append(frame)
         self.render_s += mid - start

@@ -156,8 +156,11 @@ class EpisodeTrace:
             first step's), N/m, world frame.
         tcp_pos, tcp_quat: the measured tcp (the nominal peg_tip through the arm's kinematics).
         qpos, qvel: (K, 7) arm joint positions (rad) and velocities (rad/s).
-        wrist_wrench: (K, 6) wrist F/T reading [N; N m], sensor frame, tool load removed.
+        wrist_wrench: (K, 6) the true wrist wrench [N; N m], sensor frame, tool load removed.
         success: (K,) the simulator's success flag at each row.
+        sensed_wrench: (K, 6) what the cell's sensor read of it (noise, bias, low-pass: what the policy saw).
+        rot_stiffness: (K,) rotational stiffness commanded for the step ending at each row (as ``stiffness``),
+            N m/rad (the mean of K_r's diagonal for a 6x6 stiffness).
     """
 
     times_s: FloatArray
@@ -173,6 +176,8 @@ class EpisodeTrace:
     qvel: FloatArray
     wrist_wrench: FloatArray
     success: npt.NDArray[np.bool_]
+    sensed_wrench: FloatArray | None = None
+    rot_stiffness: FloatArray | None = None
 
 
 # --------------------------------------------------------------------------------------------- episode
@@ -229,6 +234,7 @@ class EpisodeRun:
         self._wall = time.perf_counter()
         self._rows: list[tuple[Any, Pose]] = []  # (observation, commanded tcp pose) of every row
         self._commanded: list[FloatArray] = []  # translational stiffness of every step
+        self._rotational: list[float] = []  # rotational stiffness of every step (for the trace)
         self._progress: ProgressWindow | None = None
         self._default_k: FloatArray | None = None
         self._action: Action | None = None
@@ -255,6 +261,7 @@ class EpisodeRun:
             if self.on_step is not None:
                 self.on_step(env)
             self._default_k = env.controller.config.translational_stiffness * np.eye(3)
+            self._default_kr = float(env.controller.config.rotational_stiffness)
             self.running = not env.done
         except Exception as err:  # an episode must never abort the batch
             self.fail(err)
@@ -311,6 +318,8 @@ class EpisodeRun:
         try:
             result = env.finish_period(period)
             self._commanded.append(translational_stiffness(self._action, self._default_k))
+            if self.record_trace:
+                self._rotational.append(_rotational_stiffness(self._action, self._default_kr))
             _add_progress(self._progress, result.obs)
             self._steps += 1
             if self.record_trace:
@@ -335,7 +344,8 @@ class EpisodeRun:
         rows, commanded = self._rows, self._commanded
         if self.record_trace and rows:
             k = np.stack(commanded[:1] + commanded) if commanded else np.full((len(rows), 3, 3), np.nan)
-            trace = _trace_of(rows, k[:len(rows)])
+            kr = np.array(self._rotational[:1] + self._rotational) if self._rotational else np.full(len(rows), np.nan)
+            trace = _trace_of(rows, k[:len(rows)], kr[:len(rows)])
         return rec, trace
 
     def _score(self) -> None:
@@ -390,7 +400,17 @@ def _add_progress(progress: ProgressWindow, obs: Any) -> None:
     progress.add(obs.insertion.depth_m, obs.contact_force_n, norm(obs.peg_tip.pos - obs.tcp.pos))
 
 
-def _trace_of(rows: list[tuple[Any, Pose]], stiffness: FloatArray) -> EpisodeTrace:
+def _rotational_stiffness(action: Action, default: float) -> float:
+    """The rotational stiffness ``action`` commands, N m/rad: its own, the mean of K_r's diagonal of a (6, 6)
+    stiffness, or ``default`` (the controller's)."""
+    if action.rotational_stiffness is not None:
+        return float(action.rotational_stiffness)
+    if action.stiffness is not None and np.shape(action.stiffness) == (6, 6):
+        return float(np.trace(np.asarray(action.stiffness, dtype=float)[3:, 3:]) / 3.0)
+    return default
+
+
+def _trace_of(rows: list[tuple[Any, Pose]], stiffness: FloatArray, rot_stiffness: FloatArray) -> EpisodeTrace:
     """The EpisodeTrace of the (observation, commanded pose) rows of an episode."""
     obs = [o for o, _ in rows]
 
@@ -402,4 +422,5 @@ def _trace_of(rows: list[tuple[Any, Pose]], stiffness: FloatArray) -> EpisodeTra
         cmd_pos=np.array([c.pos for _, c in rows]), cmd_quat=np.array([c.quat for _, c in rows]),
         force_n=stack(lambda o: o.contact_force_n), stiffness=stiffness, tcp_pos=stack(lambda o: o.tcp.pos),
         tcp_quat=stack(lambda o: o.tcp.quat), qpos=stack(lambda o: o.qpos), qvel=stack(lambda o: o.qvel),
-        wrist_wrench=stack(lambda o: o.wrist_wrench), success=stack(lambda o: bool(o.success)))
+        wrist_wrench=stack(lambda o: o.wrist_wrench), success=stack(lambda o: bool(o.success)),
+        sensed_wrench=stack(lambda o: o.sensed_wrench), rot_stiffness=rot_stiffness)

@@ -33,15 +33,20 @@ def test_the_example_reads_the_demos_back_from_the_parquet(exported, monkeypatch
     monkeypatch.syspath_prepend(str(REPO))  # examples/ is not installed with the package
     from examples.nearest_demo_policy import read_demos
 
+    from envs.datasets.features import episodes_from_demos
+
     demos_path, dataset = exported
     demos = load_demos(demos_path)
     fps, read = read_demos(dataset)
-    assert fps == pytest.approx(1.0 / demos.dt) and len(read) == demos.num_demos
+    assert fps == 100 and len(read) == demos.num_demos  # the export's frame rate: the control rate
+    _, exported_episodes = episodes_from_demos(demos, str(demos_path), fps=100)
     for n, demo in enumerate(read):
-        np.testing.assert_array_equal(demo["pos"], demos.pos[n])
-        np.testing.assert_array_equal(demo["quat"], demos.quat[n])
-        np.testing.assert_allclose(demo["stiffness"], demos.stiffness[n])
-        np.testing.assert_allclose(demo["times"], demos.dt * np.arange(demos.num_samples), atol=1e-12)
+        frames = exported_episodes[n].data
+        np.testing.assert_array_equal(demo["pos"], frames["tcp_pose"][:, :3])
+        np.testing.assert_array_equal(demo["quat"], frames["tcp_pose"][:, 3:])
+        np.testing.assert_array_equal(demo["stiffness"].reshape(-1, 9), frames["action_stiffness"])
+        np.testing.assert_allclose(demo["times"], np.arange(round(demos.duration_s * 100) + 1) / 100, atol=1e-12)
+        np.testing.assert_array_equal(demo["pos"][[0, -1]], demos.pos[n][[0, -1]])  # the demo's ends, as recorded
 
 
 def test_the_readme_command_scores_the_example_policy_in_physics(exported, tmp_path, monkeypatch) -> None:

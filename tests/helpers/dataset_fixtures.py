@@ -16,7 +16,7 @@ def export_demos(root: Path, layout: str) -> tuple[DemoSet, Path]:
     """Three stiffness demos of 30 samples written as ``layout`` into the new folder ``root``; (demos, what was
     written: LeRobot's info.json or robomimic's HDF5 file)."""
     demos = stiffness_demos(n=3, m=30)
-    meta, episodes = episodes_from_demos(demos, "demos.npz")
+    meta, episodes = episodes_from_demos(demos, "demos.npz", fps=None)  # the demos' own samples: exact layouts
     root.mkdir()
     if layout == "lerobot":
         from envs.datasets.lerobot import write_lerobot

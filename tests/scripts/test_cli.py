@@ -45,8 +45,12 @@ def test_help_is_grouped_and_shows_units_and_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["evaluate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    for heading in ("skill:", "starts and run:", "output:", "task (default: the values of --task):"):
+    for heading in ("skill:", "starts and run:", "output:", "task:"):
         assert heading in text
+    assert "`pih task --help`" in text and "--force-limit-n" not in text  # the task options: documented once
+    with pytest.raises(SystemExit):
+        main(["task", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
     assert "--pos-range-mm" in text and "--time-limit-s" in text and "--force-limit-n" in text
     assert "(default 50.0)" in text and "(default 0.2)" in text  # the start range and the preset's clearance
 

@@ -28,7 +28,9 @@ def import_back(source: Path, layout: str, out: Path, *extra: str) -> int:
 
 @pytest.mark.parametrize("layout", ["lerobot", "robomimic"])
 def test_demos_survive_export_and_import(tmp_path: Path, demo_file: Path, layout: str) -> None:
-    assert main(["export", "--demos", str(demo_file), "--format", layout, "--out", str(tmp_path / "ds")]) == 0
+    """At the demos' own rate (20 fps: 40 samples 50 ms apart) the frames are the samples, bit for bit."""
+    assert main(["export", "--demos", str(demo_file), "--format", layout, "--fps", "20",
+                 "--out", str(tmp_path / "ds")]) == 0
     assert import_back(tmp_path / "ds", layout, tmp_path / "back.npz") == 0
     before, after = load_demos(demo_file), load_demos(tmp_path / "back.npz")
     np.testing.assert_allclose(after.pos, before.pos, rtol=0, atol=1e-15)  # the tcp frame: no tool conversion
@@ -125,6 +127,22 @@ def test_evaluation_episodes_are_exported_from_their_replay(tmp_path: Path) -> N
 
     reader = imageio.get_reader(tmp_path / "le" / "videos" / "observation.images.front" / "chunk-000" / "file-000.mp4")
     assert reader.count_frames() == len(data["index"])
+    reader.close()
+    # at 50 fps (every other control step): the frames are those steps' rows, the video a frame per row
+    assert main(["export", "--episodes", str(tmp_path / "eval.json"), "--format", "lerobot", "--fps", "50", "--video",
+                 "--video-size", "64x48", "--out", str(tmp_path / "le50")]) == 0
+    info = json.loads((tmp_path / "le50" / "meta" / "info.json").read_text())
+    assert info["fps"] == 50 and info["features"]["observation.images.front"]["info"]["video.fps"] == 50
+    half = pq.read_table(tmp_path / "le50" / "data" / "chunk-000" / "file-000.parquet").to_pydict()
+    for e, (record, trace) in enumerate(zip(ran, traces)):
+        rows = np.array(half["episode_index"]) == e
+        assert rows.sum() == record["steps"] // 2 + 1
+        np.testing.assert_array_equal(np.array(half["observation.joint_pos"])[rows], trace.qpos[::2])
+        np.testing.assert_array_equal(np.array(half["observation.wrist_wrench"])[rows], trace.sensed_wrench[::2])
+        np.testing.assert_array_equal(np.array(half["action"])[rows][:-1, :3], trace.cmd_pos[1::2][:rows.sum() - 1])
+    reader = imageio.get_reader(tmp_path / "le50" / "videos" / "observation.images.front" / "chunk-000" /
+                                "file-000.mp4")
+    assert reader.count_frames() == len(half["index"])
     reader.close()
 
 

@@ -119,8 +119,8 @@ def fake_episode(index: int, frames: int) -> ExportEpisode:
     data: dict[str, np.ndarray] = {}
     for f in FEATURES:
         data[f.key] = rng.random((frames, len(f.names))) if f.dtype == "float64" else np.zeros(frames, bool)
-    for key in ("tcp_pose", "peg_tip_pose", "action_pose"):
-        data[key][:, 3:] = [1.0, 0.0, 0.0, 0.0]
+    for key in ("tcp_pose", "peg_tip_pose", "action"):
+        data[key][:, 3:7] = [1.0, 0.0, 0.0, 0.0]
     return ExportEpisode(index, data, False, "time_limit", {"perturbation.hole_dx_mm": 0.5})
 
 

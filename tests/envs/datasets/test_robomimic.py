@@ -36,7 +36,7 @@ def test_env_metadata_reads_as_robomimic_reads_it(tmp_path: Path) -> None:
     demos, path = export_demos(tmp_path / "ds")
     with h5py.File(path, "r") as f:
         env_meta = json.loads(f["data"].attrs["env_args"])
-    assert env_meta["env_name"] == "pih/PegInHole-v0" and env_meta["type"] == GYM_TYPE
+    assert env_meta["env_name"] == "pih/PegInHole-v1" and env_meta["type"] == GYM_TYPE
     assert env_meta["env_kwargs"]["shape"] == demos.shape
     assert env_meta["env_kwargs"]["clearance_m"] == demos.clearance_m
 

@@ -196,3 +196,52 @@ def test_finalize_resamples_the_recorded_stiffness_and_ends_at_the_goal_stiffnes
     assert np.linalg.eigvalsh(k).min() >= 300.0 - 1e-9
     no_k = DemoAttempt(START, True, "ok", times, pos, quat, pos, 0.0, 0.0, 0.0)
     assert finalize_demo(no_k, GOAL, ExpertConfig(num_samples=101))[2] is None
+
+
+@pytest.mark.slow
+def test_a_demo_records_joints_wrench_and_commands_at_the_control_rate(collection, tmp_path: Path) -> None:
+    """The control signals (what `pih export --demos` makes observations and actions of): K = 7 s / 10 ms + 1 samples
+    per demo; the joints put the tcp where the demo's first pose measured it; the commands end at the goal with the
+    goal stiffness; the file keeps them."""
+    import mujoco
+
+    demos = collection.demos
+    control = demos.control
+    assert control is not None and control.dt == pytest.approx(0.01)
+    k = round(CONFIG.duration_s / control.dt) + 1
+    assert control.joint_pos.shape == control.joint_vel.shape == (2, k, 7)
+    assert control.wrist_wrench.shape == (2, k, 6) and control.action_quat.shape == (2, k, 4)
+    assert control.action_stiffness.shape == (2, k, 3, 3) and control.action_rot_stiffness.shape == (2, k)
+    env = PegInHoleEnv()
+    data = mujoco.MjData(env.model)
+    for n in range(2):
+        data.qpos[np.asarray(env.scene.ids.arm_qpos_adr)] = control.joint_pos[n, 0]
+        mujoco.mj_kinematics(env.model, data)
+        np.testing.assert_allclose(data.site_xpos[env.tcp_site], demos.pos[n, 0], atol=2e-6)
+    np.testing.assert_allclose(control.action_pos[:, -1], np.tile(demos.goal_pos, (2, 1)), atol=1e-9)
+    np.testing.assert_allclose(control.action_stiffness[:, -1], np.broadcast_to(demos.goal_stiffness, (2, 3, 3)))
+    assert np.all(control.action_rot_stiffness == 80.0)  # the controller's default, as the expert commands it
+    assert np.abs(control.wrist_wrench[:, 0]).max() < 0.01  # at rest in free space, the tool load removed
+    loaded = load_demos(save_demos(tmp_path / "demos.npz", demos))
+    for name, _ in type(control).ARRAYS:
+        np.testing.assert_array_equal(getattr(loaded.control, name), getattr(control, name))
+
+
+def test_a_demo_file_without_control_signals_still_loads_and_a_partial_one_is_refused(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from envs.demos.file import ControlSignals
+    from tests.helpers.skill_fixtures import synthetic_demos
+
+    old = load_demos(save_demos(tmp_path / "old.npz", synthetic_demos(n=2, m=30)))
+    assert old.control is None
+    k = 11
+    full = replace(old, control=ControlSignals(0.01, np.zeros((2, k, 7)), np.zeros((2, k, 7)), np.zeros((2, k, 6)),
+                                               np.zeros((2, k, 3)), np.tile([1.0, 0, 0, 0], (2, k, 1)),
+                                               np.tile(np.eye(3), (2, k, 1, 1)), np.full((2, k), 80.0)))
+    assert load_demos(save_demos(tmp_path / "new.npz", full)).control.num_samples == k
+    with np.load(tmp_path / "new.npz") as archive:
+        arrays = {key: archive[key] for key in archive.files if key != "control_joint_vel"}
+    np.savez(tmp_path / "partial.npz", **arrays)
+    with pytest.raises(EnvError, match="control_joint_vel"):
+        load_demos(tmp_path / "partial.npz")

@@ -89,8 +89,18 @@ def test_someone_elses_json_is_never_replaced(model, tmp_path, capsys):
     assert "not written by pih" in capsys.readouterr().err and out.read_text() == "someone's results"
 
 
+def test_a_complete_run_removes_its_own_journal_and_keeps_a_named_one(model, tmp_path):
+    assert pih(["evaluate", "--model", str(model), *FAST, "--json", str(tmp_path / "e.json")]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.json"]  # no e.json.journal.jsonl beside it
+    named = tmp_path / "named.jsonl"
+    assert pih(["evaluate", "--model", str(model), *FAST, "--json", str(tmp_path / "f.json"), "--journal",
+                str(named)]) == 0
+    assert len(named.read_text().splitlines()) == 1 + 4  # the header and every episode
+
+
 def test_existing_journal_needs_resume_or_overwrite(model, tmp_path, capsys):
-    args = ["evaluate", "--model", str(model), *FAST, "--json", str(tmp_path / "e.json")]
+    args = ["evaluate", "--model", str(model), *FAST, "--json", str(tmp_path / "e.json"), "--journal",
+            str(tmp_path / "j.jsonl")]  # a journal named with --journal is kept after the run
     assert pih(args) == 0
     assert pih(args + ["--overwrite"]) == 0
     os.remove(tmp_path / "e.json")
@@ -164,7 +174,7 @@ def test_sigkill_of_a_worker_changes_no_episode_and_is_listed(model, tmp_path):
 @pytest.mark.slow
 def test_ctrl_c_then_resume_gives_the_uninterrupted_json(model, tmp_path):
     args = ["--model", str(model), "--episodes", "8", "--time-limit-s", "1.0", "--quiet"]
-    whole = _run(args + ["--json", str(tmp_path / "whole.json")])
+    whole = _run(args + ["--json", str(tmp_path / "whole.json"), "--workers", "1"])
     assert whole.wait(300) == 0, whole.stderr.read()
     out, journal = tmp_path / "e.json", tmp_path / "e.json.journal.jsonl"
     proc = _run(args + ["--json", str(out), "--workers", "2"])
@@ -179,8 +189,10 @@ def test_ctrl_c_then_resume_gives_the_uninterrupted_json(model, tmp_path):
     assert "--resume" in stderr and "Traceback" not in stderr
     partial = json.loads(out.read_text())
     assert partial["complete"] is False and 1 <= partial["episodes"] < 8
+    assert journal.is_file()  # kept while the run is incomplete
     resumed = _run(args + ["--json", str(out), "--workers", "2", "--resume"])
     assert resumed.wait(300) == 0, resumed.stderr.read()
+    assert not journal.exists()  # complete: out of the user's way
     a = without_wall_times(json.loads((tmp_path / "whole.json").read_text()))
     b = without_wall_times(json.loads(out.read_text()))
     assert b["config"].pop("workers") == 2 and a["config"].pop("workers") == 1

@@ -102,3 +102,54 @@ def test_multisampling_smooths_edges_without_moving_the_scene(env: PegInHoleEnv)
 def test_bad_multisamples_are_rejected() -> None:
     with pytest.raises(EnvError, match="multisamples"):
         VideoConfig(multisamples=-1)
+
+
+def _seated(env: PegInHoleEnv) -> None:
+    """Lower the peg from 12 mm above the true goal to 2 mm past it: it ends in the hole."""
+    goal = env.goal
+    env.reset(start_pose=Pose(goal.pos + np.array([0.0, 0.0, 0.012]), goal.quat))
+    for k in range(120):
+        s = min(1.0, k / 80)
+        env.step((goal.pos + np.array([0.0, 0.0, 0.012 * (1 - s) - 0.002 * s]), goal.quat))
+
+
+def _peg_pixels(frame: np.ndarray) -> int:
+    """Pixels of the peg's red, also seen through the translucent sorter (red well above green and blue)."""
+    r, g, b = (frame[..., i].astype(int) for i in range(3))
+    return int(np.sum((r > g + 50) & (r > b + 50)))
+
+
+def test_the_cutaway_camera_shows_the_peg_inside_the_hole(env: PegInHoleEnv, monkeypatch: pytest.MonkeyPatch) -> None:
+    """From the cutaway camera the sorter is translucent: the seated peg's part below the opening shows, which the
+    same view of an opaque sorter hides."""
+    import envs.media.video as video_module
+
+    _seated(env)
+    assert env.observation.insertion.depth_m > 0.025
+    with OffscreenRenderer(env.model, 320, 240) as renderer:
+        renderer.set_camera("cutaway")
+        renderer.update_scene(env.data)
+        translucent = renderer.render().copy()
+        monkeypatch.setattr(video_module, "CUTAWAY_ALPHA", 1.0)
+        renderer.update_scene(env.data)
+        opaque = renderer.render().copy()
+        renderer.set_camera("closeup")
+        alphas = {float(renderer.scene.geoms[i].rgba[3]) for i in range(renderer.update_scene(env.data).ngeom)}
+    assert _peg_pixels(translucent) > 1.3 * _peg_pixels(opaque) > 0
+    assert alphas <= {1.0} | {float(a) for a in env.model.geom_rgba[:, 3]}  # other cameras: the sorter as it is
+
+
+def test_a_frame_carries_the_episode_its_outcome_time_and_force(env: PegInHoleEnv) -> None:
+    from envs.media.video import episode_overlay
+
+    text = episode_overlay("episode 3", "success", 1.234, 5.67)
+    assert text == "episode 3: success\nt  1.23 s   |F|   5.7 N"
+    with OffscreenRenderer(env.model, 320, 240) as renderer:
+        renderer.set_camera("front")
+        renderer.update_scene(env.data)
+        plain = renderer.render().copy()
+        renderer.update_scene(env.data)
+        marked = renderer.render(text=text).copy()
+    changed = np.argwhere(np.any(plain != marked, axis=-1))
+    assert len(changed) > 200  # the letters
+    assert changed[:, 0].max() < 100 and changed[:, 1].max() < 260  # top left only: the rest of the scene untouched

@@ -1,4 +1,4 @@
-"""The Gymnasium environment pih/PegInHole-v0: registration, spaces (what a real cell measures; a normalised action),
+"""The Gymnasium environment pih/PegInHole-v1: registration, spaces (the policy's observation; a normalised action),
 Gymnasium's and stable-baselines3's checkers, determinism, ends and reward."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from envs.errors import EnvError
-from envs.gym_env import ENV_ID, PRIVILEGED_KEYS, STIFFNESS_RANGE_N_M, PegInHoleGymEnv
+from envs.gym_env import ENV_ID, STIFFNESS_RANGE_N_M, TRUTH_KEYS, PegInHoleGymEnv
 from envs.poses import quat_angle_rad, quat_conj, quat_mul, quat_to_rotvec
 
 
@@ -41,7 +41,7 @@ def test_unknown_option_is_an_error_naming_it() -> None:
 
 
 def test_make_with_the_module_prefix_registers_without_an_import() -> None:
-    code = ("import gymnasium, sys; env = gymnasium.make('envs.gym_env:pih/PegInHole-v0', shape='square', "
+    code = ("import gymnasium, sys; env = gymnasium.make('envs.gym_env:pih/PegInHole-v1', shape='square', "
             "clearance_mm=0.2); sys.stdout.write(type(env.unwrapped).__name__)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout == "PegInHoleGymEnv"
@@ -68,17 +68,20 @@ def test_no_observation_key_carries_the_simulator_truth_unless_privileged() -> N
     made = gymnasium.make(ENV_ID, time_limit_s=0.5, hole_error_mm=1.0)
     env = made.unwrapped
     obs, info = env.reset(seed=1)
-    assert set(obs) == {"tcp_pos", "tcp_quat", "qpos", "qvel", "wrist_wrench", "gripper_width_m", "nominal_hole_pos",
-                        "nominal_hole_quat", "time_s"}
-    np.testing.assert_allclose(obs["nominal_hole_pos"], env.sim.nominal_hole.pos, atol=1e-7)
+    assert not any(key.startswith("privileged") or key in TRUTH_KEYS for key in obs)
+    np.testing.assert_array_equal(obs["nominal_hole_pos"], env.sim.nominal_hole.pos)
     assert np.linalg.norm(env.sim.hole.pos - env.sim.nominal_hole.pos) > 1e-5  # the hole did move
     _, _, _, _, info = env.step(np.zeros(6, dtype=np.float32))
-    assert set(PRIVILEGED_KEYS) <= set(info)
-    np.testing.assert_allclose(info["peg_tip_pos"], env.sim.observation.peg_tip.pos, atol=1e-6)
-    assert info["insertion"][0] == pytest.approx(env.sim.observation.insertion.depth_m, abs=1e-6)
-    teacher = gymnasium.make(ENV_ID, time_limit_s=0.5, privileged=True).unwrapped
-    assert set(PRIVILEGED_KEYS) <= set(teacher.observation_space.spaces)
-    assert set(PRIVILEGED_KEYS) <= set(teacher.reset(seed=1)[0])
+    assert set(TRUTH_KEYS) <= set(info)
+    np.testing.assert_array_equal(info["peg_tip_pos"], env.sim.observation.peg_tip.pos)
+    assert info["insertion_depth_m"] == env.sim.observation.insertion.depth_m
+    teacher = gymnasium.make(ENV_ID, time_limit_s=0.5, privileged=True, hole_error_mm=1.0).unwrapped
+    privileged = {"privileged_hole_pos", "privileged_hole_quat", "privileged_hole_axis", "privileged_goal_pos",
+                  "privileged_goal_quat"}
+    assert privileged <= set(teacher.observation_space.spaces)
+    seen = teacher.reset(seed=1)[0]
+    assert privileged <= set(seen)
+    np.testing.assert_array_equal(seen["privileged_hole_pos"], teacher.sim.hole.pos)  # the true, displaced hole
 
 
 def test_the_action_is_normalised_onto_the_physical_range(env: PegInHoleGymEnv) -> None:
@@ -91,16 +94,16 @@ def test_the_action_is_normalised_onto_the_physical_range(env: PegInHoleGymEnv) 
     u = 0.3 * env.physical_low + 0.7 * env.physical_high
     np.testing.assert_allclose(env.to_physical(env.to_action(u)), u, atol=1e-6)
     with pytest.raises(EnvError, match="NaN"):
-        env.command(np.full(6, np.nan))
+        env.policy_action(np.full(6, np.nan))
 
 
 def test_observation_sizes_come_from_the_simulator(env: PegInHoleGymEnv) -> None:
     obs, info = env.reset(seed=0)
     assert env.observation_space["qpos"].shape == env.sim.observation.qpos.shape
     assert env.observation_space["qvel"].shape == env.sim.observation.qvel.shape
-    np.testing.assert_allclose(info["peg_tip_pos"], env.sim.observation.peg_tip.pos, atol=1e-6)
-    np.testing.assert_allclose(obs["tcp_pos"], env.sim.observation.tcp.pos, atol=1e-6)
-    np.testing.assert_allclose(obs["wrist_wrench"], env.sim.observation.wrist_wrench, rtol=1e-6, atol=1e-5)
+    np.testing.assert_array_equal(info["peg_tip_pos"], env.sim.observation.peg_tip.pos)
+    np.testing.assert_array_equal(obs["tcp_pos"], env.sim.observation.tcp.pos)
+    np.testing.assert_array_equal(obs["wrist_wrench"], env.sim.observation.sensed_wrench)
 
 
 def test_reset_with_a_seed_is_deterministic_and_seeds_differ(env: PegInHoleGymEnv) -> None:
@@ -136,21 +139,23 @@ def test_random_actions_run_until_the_time_limit_truncates(env: PegInHoleGymEnv)
 def test_action_is_the_peg_tip_pose_relative_to_the_goal_orientation(env: PegInHoleGymEnv) -> None:
     rotvec = np.array([0.0, 0.0, 0.2])
     goal = env.sim.nominal_goal
-    pose, stiffness = env.command(env.to_action(np.concatenate([goal.pos, rotvec])))
-    np.testing.assert_allclose(pose.pos, goal.pos, atol=1e-7)  # float32 actions: ~1e-8 m
-    assert quat_angle_rad(pose.quat, goal.quat) == pytest.approx(0.2, abs=1e-7)
-    assert stiffness is None
-    clipped, _ = env.command(env.to_action(np.concatenate([goal.pos + 10.0, np.zeros(3)])))
-    np.testing.assert_allclose(clipped.pos, env.physical_high[:3])
+    action = env.policy_action(env.to_action(np.concatenate([goal.pos, rotvec])))
+    np.testing.assert_allclose(action.pose.pos, goal.pos, atol=1e-7)  # float32 actions: ~1e-8 m
+    assert quat_angle_rad(action.pose.quat, goal.quat) == pytest.approx(0.2, abs=1e-7)
+    assert action.stiffness is None and action.rotational_stiffness is None
+    clipped = env.policy_action(env.to_action(np.concatenate([goal.pos + 10.0, np.zeros(3)])))
+    np.testing.assert_allclose(clipped.pose.pos, env.physical_high[:3])
 
 
-def test_stiffness_action_sets_the_translational_diagonal() -> None:
-    made = gymnasium.make(ENV_ID, stiffness_action=True, rotational_stiffness=70.0)
+def test_stiffness_action_sets_the_translational_diagonal_and_the_rotational_stiffness() -> None:
+    made = gymnasium.make(ENV_ID, stiffness_action=True)
     env = made.unwrapped
-    assert env.action_space.shape == (9,)
-    np.testing.assert_allclose(env.physical_low[6:], STIFFNESS_RANGE_N_M[0])
-    _, stiffness = env.command(env.to_action(np.concatenate([env.sim.nominal_goal.pos, np.zeros(3), [300.0, 600.0, 900.0]])))
-    np.testing.assert_allclose(stiffness, np.diag([300.0, 600.0, 900.0, 70.0, 70.0, 70.0]), rtol=1e-6)
+    assert env.action_space.shape == (10,)
+    np.testing.assert_allclose(env.physical_low[6:9], STIFFNESS_RANGE_N_M[0])
+    physical = np.concatenate([env.sim.nominal_goal.pos, np.zeros(3), [300.0, 600.0, 900.0, 20.0]])
+    action = env.policy_action(env.to_action(physical))
+    np.testing.assert_allclose(action.stiffness, np.diag([300.0, 600.0, 900.0]), rtol=1e-6)
+    assert action.rotational_stiffness == pytest.approx(20.0, rel=1e-6)
 
 
 def test_reward_is_minus_the_distance_of_the_peg_to_the_true_goal(env: PegInHoleGymEnv) -> None:
@@ -181,7 +186,9 @@ def test_an_insertion_terminates_with_success_and_the_bonus() -> None:
         if terminated or truncated:
             break
     assert terminated and not truncated and info["reason"] == "success" and info["is_success"]
-    assert reward > 90.0 and info["inserted"] == 1
+    assert reward > 90.0 and info["inserted"] is True
+    record = info["episode_record"]  # the record `pih evaluate` writes
+    assert record["success"] and record["reason"] == "success" and record["steps"] == k + 1
 
 
 def test_render_returns_an_rgb_frame() -> None:
