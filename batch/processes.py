@@ -10,12 +10,16 @@ limit has its worker killed and replaced.
 A worker is spawned (a fresh interpreter) or, with ``BatchConfig.start_method`` "fork" on Linux, forked: a copy of
 this process that needs none of its imports again (what a spawned evaluation worker spends ~2 s on) and that
 ends with ``os._exit``, without the ~0.8 s interpreter shutdown.
+
+No worker outlives this process, whatever ends it (`batch.lifetime`): each dies with it (the parent-death
+signal), and a forked one holds none of this process's pipe ends, so it would see end-of-file at its next read.
 """
 
 from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 import signal
 import sys
 import threading
@@ -27,6 +31,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from batch.config import BatchConfig
 from batch.errors import BatchError
+from batch.lifetime import close_inherited, die_with_parent
 from batch.supervision import Fault, Init, Schedule, Work, error_reason, unit_limit_s
 
 
@@ -48,10 +53,16 @@ def start_method(config: BatchConfig) -> str:
     return config.start_method if sys.platform.startswith("linux") else "spawn"
 
 
-def _worker_main(conn: Connection, setup: Any, init: Init, work: Work) -> None:
+def _worker_main(conn: Connection, setup: Any, init: Init, work: Work, parent: int = 0,
+                 inherited: tuple[int, ...] = ()) -> None:
     """A worker: init once, then answer ("done", key, record) or ("error", key, reason) per unit received
-    until None. Ctrl-C is left to the supervisor (which kills the worker); a forked worker also drops the
-    supervisor's SIGTERM handler (`batch.runner`), which would raise KeyboardInterrupt in the worker."""
+    until None. It dies with its supervisor ``parent`` (`batch.lifetime.die_with_parent`; a forked one also closes
+    the supervisor's pipe ends it ``inherited``). Ctrl-C is left to the supervisor (which kills the worker); a
+    forked worker also drops the supervisor's SIGTERM handler (`batch.runner`), which would raise KeyboardInterrupt
+    in the worker."""
+    if parent:
+        die_with_parent(parent)
+    close_inherited(inherited)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
@@ -133,7 +144,11 @@ def run_in_processes(schedule: Schedule, setup: Any, init: Init, work: Work, con
 
     def spawn(slot: int) -> _Worker:
         ours, theirs = ctx.Pipe(duplex=True)
-        process = ctx.Process(target=_worker_main, args=(theirs, setup, init, work), daemon=True)
+        # A forked worker holds copies of every pipe end open here: it closes the supervisor's (module docstring).
+        inherited = tuple(w.conn.fileno() for w in spawned if not w.conn.closed) + (ours.fileno(),)
+        process = ctx.Process(target=_worker_main, args=(theirs, setup, init, work, os.getpid(),
+                                                         inherited if ctx.get_start_method() == "fork" else ()),
+                              daemon=True)
         with _sigint_ignored():  # inherited (through exec too): a Ctrl-C while the worker starts does not reach it
             process.start()
         theirs.close()
