@@ -116,6 +116,8 @@ class _Worker:
             self.retired = True
 
 
+WAIT_LIMIT_S = 2_147_483.0
+"""The longest single wait: poll(2) takes int milliseconds (a longer deadline is waited for in several waits)."""
 RETIRE_GRACE_S = 2.0
 """How long the workers asked to return may take, together, before they are killed."""
 
@@ -178,7 +180,7 @@ def _wait_for_any(workers: Sequence[_Worker], config: BatchConfig) -> None:
     start limit, whichever comes first."""
     deadlines = [w.unit[2] + w.unit[3] for w in workers if w.unit is not None and w.unit[3] is not None]
     deadlines += [w.started + config.start_timeout_s for w in workers if not w.ready]
-    timeout = max(0.0, min(deadlines) - time.monotonic()) if deadlines else None
+    timeout = min(max(0.0, min(deadlines) - time.monotonic()), WAIT_LIMIT_S) if deadlines else None
     wait([w.conn for w in workers] + [w.process.sentinel for w in workers], timeout)
 
 

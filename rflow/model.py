@@ -26,6 +26,7 @@ import numpy.typing as npt
 import torch
 from torch import nn
 
+from pihutil.bounds import LOG_SCALE_CLAMP
 from rflow.dynamics import StableLinearDynamics
 from rflow.errors import RFlowError
 from rflow.flow import ACTIVATIONS, CouplingFlow
@@ -83,8 +84,9 @@ class ModelConfig:
                              f"and 1..{MAX_HIDDEN_LAYERS}")
         if self.activation not in ACTIVATIONS:
             raise RFlowError(f"unknown activation {self.activation!r}; expected one of {sorted(ACTIVATIONS)}")
-        if not (self.log_scale_clamp > 0 and self.min_rate > 0):
-            raise RFlowError("log_scale_clamp and min_rate must be > 0")
+        if not (LOG_SCALE_CLAMP.contains(self.log_scale_clamp) and self.min_rate > 0):
+            raise RFlowError(f"log_scale_clamp {self.log_scale_clamp!r} must be {LOG_SCALE_CLAMP.text()} and min_rate "
+                             f"{self.min_rate!r} > 0")
 
 
 class ImitationFlow(nn.Module):

@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from numerics.cpu_dispatch import check_torch_dispatch
 from pihutil.atomic import write_atomic
+from pihutil.bounds import LEARNING_RATE, PRIOR_RADIUS, PRIOR_WEIGHT
 from rflow.adam import FusedAdam
 from rflow.errors import RFlowError
 from rflow.manifolds import Manifold, get_manifold
@@ -118,8 +119,9 @@ class TrainConfig:
             raise RFlowError(f"model must be a ModelConfig, got {type(self.model).__name__}")
         if self.optimizer not in OPTIMIZERS:
             raise RFlowError(f"unknown optimizer {self.optimizer!r}; expected one of {OPTIMIZERS}")
-        if not (self.lr > 0 and 0 < self.lr_final_fraction <= 1):
-            raise RFlowError(f"need lr > 0 and 0 < lr_final_fraction <= 1, got {self.lr}, {self.lr_final_fraction}")
+        if not (LEARNING_RATE.contains(self.lr) and 0 < self.lr_final_fraction <= 1):
+            raise RFlowError(f"need lr {LEARNING_RATE.text()} and 0 < lr_final_fraction <= 1, got {self.lr}, "
+                             f"{self.lr_final_fraction}")
         counts = {"batch_size": self.batch_size, "epochs": self.epochs, "transitions_per_epoch":
                   self.transitions_per_epoch, "horizon": self.horizon, "horizon_groups": self.horizon_groups}
         for name, value in counts.items():
@@ -132,9 +134,9 @@ class TrainConfig:
             raise RFlowError(f"val_fraction {self.val_fraction} must be in [0, 1)")
         if not (self.grad_clip > 0 and self.init_noise > 0 and self.goal_tolerance >= 0):
             raise RFlowError("grad_clip and init_noise must be > 0, goal_tolerance >= 0")
-        if not (np.isfinite(self.prior_weight) and self.prior_weight >= 0 and np.isfinite(self.prior_radius)
-                and self.prior_radius > 0):
-            raise RFlowError(f"need prior_weight >= 0 and prior_radius > 0, got {self.prior_weight}, {self.prior_radius}")
+        if not (PRIOR_WEIGHT.contains(self.prior_weight) and PRIOR_RADIUS.contains(self.prior_radius)):
+            raise RFlowError(f"need prior_weight {PRIOR_WEIGHT.text()} and prior_radius {PRIOR_RADIUS.text()}, got "
+                             f"{self.prior_weight}, {self.prior_radius}")
         if self.threads is not None and self.threads < 1:
             raise RFlowError(f"threads {self.threads} must be >= 1")
         if self.patience is not None and not (isinstance(self.patience, int) and 1 <= self.patience <= MAX_COUNT):

@@ -35,11 +35,13 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.evaluation.config import MAX_LOCKSTEP, MAX_SPEED, EvaluationConfig  # noqa: E402
+from envs.evaluation.config import MAX_LOCKSTEP, EvaluationConfig  # noqa: E402
 from envs.io.owned_output import MiB, check_distinct, check_output  # noqa: E402
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
+from pihutil.bounds import FEEDFORWARD_GAIN, LOOKAHEAD_S, SPEED, TIMEOUT_S  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
-from scripts.options import MAX_EPISODES, MAX_WORKERS, check_camera, count, number, refuse_unused, seed  # noqa: E402
+from scripts.options import (MAX_EPISODES, MAX_WORKERS, check_camera, count, number, refuse_unused, seed,  # noqa: E402
+                             work_begins)
 from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
@@ -102,11 +104,11 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     skill.add_argument("--mode", choices=MODES, default=d.mode,
                        help="closed-loop: query the flow at the measured pose every 10 ms; "
                             "open-loop: generate the trajectory first and track it in time")
-    skill.add_argument("--lookahead-s", type=number(above=0.0), default=DEFAULT_LOOKAHEAD_S,
+    skill.add_argument("--lookahead-s", type=number(bound=LOOKAHEAD_S), default=DEFAULT_LOOKAHEAD_S,
                        help="closed loop: flow time of the velocity query, s")
-    skill.add_argument("--feedforward", type=number(minimum=0.0), default=d.feedforward_gain,
+    skill.add_argument("--feedforward", type=number(bound=FEEDFORWARD_GAIN), default=d.feedforward_gain,
                        help="gain of the impedance velocity feed-forward, 0 = off")
-    skill.add_argument("--speed", type=number(above=0.0, maximum=MAX_SPEED), default=d.speed,
+    skill.add_argument("--speed", type=number(bound=SPEED), default=d.speed,
                        help="time scaling of the learned flow, both modes")
     skill.add_argument("--stiffness",
                        help="translational stiffness to command: 'learned' (a skill from `pih train --stiffness`), "
@@ -123,7 +125,7 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     run.add_argument("--backend", choices=BACKENDS, default=d.backend,
                      help="process: local worker processes; ray: Ray actors (pip install -e '.[cluster]')")
     run.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray on all cores)")
-    run.add_argument("--unit-timeout-s", type=number(minimum=0.0), default=d.unit_timeout_s,
+    run.add_argument("--unit-timeout-s", type=number(minimum=0.0, maximum=TIMEOUT_S.high), default=d.unit_timeout_s,
                      help="wall-clock seconds per episode before its worker is killed and the episode recorded "
                           "'wall_timeout'; 0 = no limit")
     task = add_task_arguments(parser)
@@ -488,6 +490,7 @@ def main(args: argparse.Namespace) -> int:
     the record says so), 3 when the batch is incomplete, 1 when a fault stopped it, 130 when interrupted."""
     wall = time.perf_counter()
     config = check_args(args)
+    work_begins()
     result = run_evaluation(args, config)
     if result.goal_mismatch_mm > GOAL_MISMATCH_WARN_MM:
         whose = "demos" if args.policy else "skill"

@@ -21,7 +21,7 @@ from envs.datasets.export_folder import check_export_folder, staged_folder
 from envs.datasets.features import ExportEpisode, ExportMeta, episodes_from_demos
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output_folder
-from scripts.options import refuse_unused
+from scripts.options import refuse_unused, work_begins
 
 DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x128"}
 VIDEO_BYTES = 500 * MiB
@@ -143,6 +143,7 @@ def main(args: argparse.Namespace) -> int:
         VideoConfig(width=width, height=height, camera=args.camera)  # H.264 needs multiples of 8
     elif args.video_size is not None:
         parse_size(args.video_size)
+    work_begins()
     start = time.perf_counter()
     with staged_folder(args.out, args.overwrite) as root:
         if args.demos is not None:

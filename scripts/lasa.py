@@ -46,7 +46,8 @@ from rflow.lasa import (
 from rflow.model import ModelConfig
 from rflow.train import TrainConfig
 from scripts.lasa_report import MANIFOLD_LABELS, METHOD_LABELS, gains, markdown_table, plot_comparison, plot_results
-from scripts.options import MAX_EPOCHS, MAX_WORKERS, count, number, refuse_unused, seed
+from pihutil.bounds import LEARNING_RATE, TIMEOUT_S
+from scripts.options import MAX_EPOCHS, MAX_WORKERS, count, number, refuse_unused, seed, work_begins
 
 JOURNAL = "journal.jsonl"
 EXIT_FAILED_UNITS = 1
@@ -78,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", default="process", help="--all: process (spawned workers) or ray")
     parser.add_argument("--ray-address", metavar="HOST:PORT",
                         help="--all --backend ray: join this Ray cluster (default: a local Ray instance)")
-    parser.add_argument("--unit-timeout-s", type=number(above=0.0), metavar="S",
+    parser.add_argument("--unit-timeout-s", type=number(bound=TIMEOUT_S), metavar="S",
                         help="--all: record a run taking longer than S seconds as failed (default: no limit)")
     parser.add_argument("--shapes", help="comma-separated subset of shapes for --all (default all 30)")
     parser.add_argument("--manifolds", default="spd,uq", help="comma-separated manifolds for --all")
@@ -92,7 +93,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = TrainConfig()
     parser.add_argument("--epochs", type=count(MAX_EPOCHS), help=f"training epochs (default {defaults.epochs})")
     parser.add_argument("--layers", type=count(64), help=f"coupling layers, 1..64 (default {defaults.model.layers})")
-    parser.add_argument("--lr", type=number(above=0.0), help=f"learning rate (default {defaults.lr:g})")
+    parser.add_argument("--lr", type=number(bound=LEARNING_RATE), help=f"learning rate (default {defaults.lr:g})")
     parser.add_argument("--batch-size", type=count(1_000_000),
                         help=f"transitions per step (default {defaults.batch_size})")
     parser.add_argument("--threads", type=count(256), default=1,
@@ -291,6 +292,7 @@ def run_all(args: argparse.Namespace) -> int:
         raise RFlowError(f"--resume: there is no run to continue in {out} (no {JOURNAL})")
     run = {"command": "lasa", "shapes": shapes, "manifolds": manifolds, "methods": methods,
            "n_points": args.n_points, "config": dataclasses.asdict(config)}
+    work_begins()
     for folder in (out, out / "figures", out / "trajectories"):
         folder.mkdir(parents=True, exist_ok=True)
     try:
@@ -370,6 +372,7 @@ def run_one(args: argparse.Namespace) -> int:
     check_distinct(outputs)
     for (option, path), suffix in zip(outputs.items(), (".json", ".npz", ".png")):
         check_output(option, path, args.overwrite, suffix=suffix, inputs=[args.config], estimate_bytes=4 * MiB)
+    work_begins()
     result = evaluate_shape(shape, manifold, config, args.seed, method, args.n_points, progress=args.progress)
     if args.json is not None:
         write_json(args.json, result.to_dict())

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output, check_output_folder
-from scripts.options import MAX_EPISODES, MAX_WORKERS, count, seed
+from scripts.options import MAX_EPISODES, MAX_WORKERS, count, seed, work_begins
 from scripts.task_options import add_task_file_arguments, task_from_args
 
 IMPERFECTION_NAMES = ("friction", "compliant_pads", "in_hand_pose", "grasp_offset", "payload", "joint_friction",
@@ -61,6 +61,7 @@ def main(args: argparse.Namespace) -> int:
         check_output("--out", path, args.overwrite, inputs=[args.model], estimate_bytes=2 * MiB)
     config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task_from_args(args))
     names = [n for n in IMPERFECTION_NAMES if n in args.only]
+    work_begins()
     rows = run_sensitivity(args.model, config, names,
                            on_variant=lambda name: print(f"evaluating: {name}", file=sys.stderr, flush=True))
     args.out.mkdir(parents=True, exist_ok=True)  # made once there is something to write: a bad model leaves nothing

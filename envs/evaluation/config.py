@@ -13,8 +13,9 @@ from batch.config import BatchConfig
 from batch.errors import BatchError
 from envs.errors import EnvError
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
-from envs.task.task import Task, check_number
+from envs.task.task import Task
 from numerics.cpu_dispatch import DISPATCH_VARIABLES
+from pihutil.bounds import FEEDFORWARD_GAIN, LOOKAHEAD_S, SPEED
 
 DEFAULT_LOCKSTEP = 8
 """Episodes a worker runs in lockstep by default (`EvaluationConfig.lockstep`)."""
@@ -27,8 +28,8 @@ SCENE_FROM_TASK: tuple[str, ...] = ("peg_mode", "clearance_m", "chamfer_m", "gra
 the hole depth and the goal are always the demos': a skill is evaluated at the depth it was taught."""
 
 
-MAX_SPEED = 10.0
-"""The largest time scaling of the learned flow an evaluation runs (10x the demonstrated speed)."""
+MAX_SPEED = SPEED.high
+"""The largest time scaling of the learned flow an evaluation runs (10x the demonstrated speed; pihutil.bounds)."""
 
 
 @dataclass(frozen=True)
@@ -98,10 +99,9 @@ class EvaluationConfig:
             StiffnessSetting.parse(self.stiffness)
         if self.mode not in MODES:
             raise EnvError(f"mode={self.mode!r} must be one of {', '.join(MODES)}")
-        check_number("lookahead_s", self.lookahead_s, strict=True)
-        if not check_number("speed", self.speed, strict=True) <= MAX_SPEED:
-            raise EnvError(f"speed={self.speed!r} must be <= {MAX_SPEED} (a time scaling of the learned flow)")
-        check_number("feedforward_gain", self.feedforward_gain)
+        for name, bound in (("lookahead_s", LOOKAHEAD_S), ("speed", SPEED), ("feedforward_gain", FEEDFORWARD_GAIN)):
+            if not bound.contains(getattr(self, name)):
+                raise EnvError(f"{name}={getattr(self, name)!r} must be a number {bound.text()}")
         if not isinstance(self.task, Task):
             raise EnvError(f"task={self.task!r} must be an envs.task.task.Task")
         object.__setattr__(self, "scene_from_task", tuple(self.scene_from_task))

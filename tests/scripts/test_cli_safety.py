@@ -115,6 +115,13 @@ def _nan_goal(tmp: Path) -> None:
              goal_quat=demos.goal_quat, shape="square", clearance_m=0.001, config_json="{}")
 
 
+def _task_file(time_limit: str) -> Callable[[Path], None]:
+    """A task file with the given time limit."""
+    def prepare(tmp: Path) -> None:
+        (tmp / "t.toml").write_text(f"version = 1\ntime_limit_s = {time_limit}\n")
+    return prepare
+
+
 @dataclass(frozen=True)
 class Case:
     argv: str
@@ -247,6 +254,27 @@ CASES: dict[str, Case] = {
     "evaluate-pickled-preview": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --figure {{tmp}}/f.png",
                                      "not a readable demo preview", (_pickled_preview,)),
     "train-nan-goal": Case("train --demos {tmp}/nan.npz --out {tmp}/ck", "'goal_pos' contains NaN", (_nan_goal,)),
+    # numbers past what the code below takes (pihutil.bounds): refused before any work, not failed in every episode
+    "evaluate-unit-timeout-1e10": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --unit-timeout-s 1e10",
+                                       "argument --unit-timeout-s"),
+    "sweep-unit-timeout-1e10": Case("sweep --model {tmp}/model --clearance-mm 0.2 --out {tmp}/sw --unit-timeout-s 1e10",
+                                    "argument --unit-timeout-s"),
+    "evaluate-stiffness-1e300": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --stiffness constant:1e300",
+                                     "K must be in [0.001, 1e+06] N/m"),
+    "evaluate-lookahead-1e300": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --lookahead-s 1e300",
+                                     "argument --lookahead-s"),
+    "evaluate-feedforward-1e300": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --feedforward 1e300",
+                                       "argument --feedforward"),
+    "benchmark-workers-1e20": Case("benchmark --workers 100000000000000000000 --out {tmp}/b", "argument --workers"),
+    "benchmark-demo-seeds-huge": Case("benchmark --demo-seeds 0-99999999999 --out {tmp}/b",
+                                      "every seed must be in 0..4,294,967,295"),
+    "benchmark-demo-seeds-many": Case("benchmark --demo-seeds 0-999999 --out {tmp}/b", "1,000,000 replicates, at most"),
+    "benchmark-episodes-huge": Case("benchmark --episodes 1000000 --out {tmp}/b", "argument --episodes"),
+    "evaluate-task-file-time-limit-1e12": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --task {{tmp}}/t.toml",
+                                               "time_limit_s=1000000000000.0 must be", (_task_file("1e12"),)),
+    "import-tool-offset-1e300": Case("demos --import {tmp}/rec.npz --tool-offset 1e300,0,0,1,0,0,0 --out {tmp}/d.npz",
+                                     "the offset's length", (_recording,)),
+    "train-lr-1e300": Case("train --demos {tmp}/demos.npz --out {tmp}/ck --lr 1e300", "argument --lr"),
     "import-non-unit-tool-quaternion": Case("demos --import {tmp}/rec.npz --tool-offset 0,0,0.1,0.7071,0,0,0.7071 "
                                             "--out {tmp}/d.npz", "not 1", (_recording,)),
 }
