@@ -180,7 +180,7 @@ def test_every_extreme_value_of_every_option_is_one_line_and_exit_2_or_within_it
     assert wrong == {}
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                    HealthCheck.too_slow])
 @given(case=st.sampled_from(CASES), value=st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr),
                                                     st.integers(-2**70, 2**70).map(str)))
