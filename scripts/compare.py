@@ -157,14 +157,12 @@ def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
 
 def run_sequential(args: argparse.Namespace) -> int:
     """Sequential mode (module docstring)."""
-    from envs.evaluation.evaluate import evaluate
-    from envs.evaluation.starts import evaluation_starts
+    from envs.evaluation.evaluate import evaluate, skill_file
+    from envs.evaluation.starts import evaluation_starts, metadata_starts
     from rflow.skill_io import load_skill
 
     config = evaluate_cli.checked_config(args)
-    demo_starts = load_skill(args.base_model).metadata.get("demo_starts")
-    if not isinstance(demo_starts, dict) or "pos" not in demo_starts or "quat" not in demo_starts:
-        raise EnvError(f"--base-model {args.base_model} has no demo start poses (metadata 'demo_starts')")
+    demo_starts = metadata_starts(load_skill(args.base_model).metadata, f"--base-model {skill_file(args.base_model)}")
     starts = evaluation_starts(demo_starts, config)
     work_begins()
     margin = args.margin if args.progress_margin is None else args.progress_margin

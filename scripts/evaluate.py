@@ -379,8 +379,8 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         {"video": path or None, "figure": path or None, "stiffness_figure": path or None, "replayed": [...]}
         for the summary.
     """
-    from envs.evaluation.evaluate import replay_episodes
-    from envs.evaluation.starts import evaluation_starts
+    from envs.evaluation.evaluate import replay_episodes, skill_file
+    from envs.evaluation.starts import evaluation_starts, metadata_starts
     from envs.media.video import EpisodeVideo, VideoConfig
     from envs.policies.flow_skill import generate_plan
     from rflow.skill_io import load_skill
@@ -390,7 +390,7 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     if not episodes or all(p is None for p in (video, figure, stiffness_figure, force_figure)):
         return out
     skill = load_skill(model_dir)
-    meta = skill.metadata["demo_starts"]
+    meta = metadata_starts(skill.metadata, skill_file(model_dir))
     starts_all = evaluation_starts(meta, config)
     starts = [starts_all[i] for i in episodes]
     holder: dict[str, Any] = {}

@@ -257,6 +257,11 @@ def _failed_unit(key: str, start: StartPose, reason: str) -> dict[str, Any]:
                          reason=reason, perturbation=start.perturbation.to_dict()).to_dict()
 
 
+def skill_file(model_dir: str | os.PathLike[str]) -> str:
+    """The checkpoint's skill.json, as an error about its metadata names it."""
+    return str(Path(model_dir) / "skill.json")
+
+
 def journal_run(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> dict[str, Any]:
     """What identifies an evaluation for its journal: the checkpoint (path and skill.json checksum), the task and
     every other config field that changes a record (not workers, backend, address or the wall-time limit).
@@ -310,7 +315,7 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     goal_mismatch_mm = norm(skill.goal_pos - env.goal.pos) * 1e3
     env_scene = env.scene.config
     if starts is None:
-        starts = evaluation_starts(metadata_starts(skill.metadata, f"checkpoint {model_dir}"), config)
+        starts = evaluation_starts(metadata_starts(skill.metadata, skill_file(model_dir)), config)
     here = {"env": env, "policy": policy, "gain": config.feedforward_gain,
             "slots": SlotPool(env, policy, SlotMaker(skill, config, env))}
     del env, policy  # forked workers take their copy of ``here``, others build their own

@@ -23,7 +23,7 @@ import numpy as np
 from envs.errors import EnvError
 from envs.evaluation.config import SCENE_FROM_TASK
 from envs.evaluation.evaluate import EvaluationConfig, iter_replays
-from envs.evaluation.starts import evaluation_starts
+from envs.evaluation.starts import evaluation_starts, metadata_starts
 from envs.rollout.episode import EpisodeRecord, EpisodeTrace, StartPose
 from envs.task.task import Task
 
@@ -157,9 +157,7 @@ def recorded_starts(evaluation: RecordedEvaluation, indices: Sequence[int] | Non
     absent = [i for i in chosen if i not in by_index]
     if absent:
         raise EnvError(f"{evaluation.path}: no episode record with index {absent} (it holds {len(by_index)})")
-    meta = evaluation.skill.get("demo_starts")
-    if not isinstance(meta, dict) or "pos" not in meta or "quat" not in meta:
-        raise EnvError(f"{evaluation.path}: the skill metadata has no demo starts to draw the episodes' starts from")
+    meta = metadata_starts(evaluation.skill, f"{evaluation.path}: 'skill'")
     drawn = evaluation_starts(meta, dataclasses.replace(evaluation.config,
                                                         episodes=max(evaluation.config.episodes, max(chosen) + 1)))
     starts = []

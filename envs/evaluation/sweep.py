@@ -23,7 +23,9 @@ from typing import Any, Sequence
 
 from envs.errors import EnvError
 from envs.evaluation.config import SCENE_FROM_TASK
-from envs.evaluation.evaluate import EvaluationConfig, SlotMaker, SlotPool, _failed_unit, build_setup, run_settings
+from envs.evaluation.evaluate import (EvaluationConfig, SlotMaker, SlotPool, _failed_unit, build_setup, run_settings,
+                                      skill_file)
+from envs.evaluation.starts import metadata_starts
 from envs.evaluation.result import failure_kinds, finite_max, finite_median, finite_min
 from envs.rollout.episode import StartPose, run_episode
 from envs.rollout.episode import record_from_dict
@@ -284,9 +286,7 @@ def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal:
         skill, env, _ = build_setup(model_dir, cell.config)
         ran[cell.index] = cell.config.task.with_scene(env.scene.config)
         del env
-    meta = skill.metadata.get("demo_starts") if skill is not None else None
-    if not isinstance(meta, dict) or "pos" not in meta or "quat" not in meta:
-        raise EnvError(f"checkpoint {model_dir} has no demo start poses (metadata 'demo_starts')")
+    meta = metadata_starts(skill.metadata if skill is not None else {}, skill_file(model_dir))
     units = sweep_units(cells, meta)
     done = journal.done() if journal is not None else {}
     bar = tqdm(total=len(units), initial=sum(k in done for k, _ in units), desc="sweep", unit="ep",

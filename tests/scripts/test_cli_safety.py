@@ -92,6 +92,16 @@ def _model_json(key: str, value: object) -> Callable[[Path], None]:
     return prepare
 
 
+def _model_field(key: str, value: object) -> Callable[[Path], None]:
+    """The position model's model.json with its architecture's ``key`` (record["model"]) set to ``value``."""
+    def prepare(tmp: Path) -> None:
+        path = tmp / "model" / "position" / "model.json"
+        record = json.loads(path.read_text())
+        record["model"][key] = value
+        path.write_text(json.dumps(record))
+    return prepare
+
+
 def _pickled_weights(tmp: Path) -> None:
     """weights.pt as a pickle of a plain dict (pickle protocol 4): refused without unpickling."""
     import pickle
@@ -202,6 +212,20 @@ CASES: dict[str, Case] = {
                                              (_metadata("clearance_m", "x"),)),
     "evaluate-metadata-scene-number": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "'scene' must be a JSON",
                                            (_metadata("scene", 5),)),
+    "evaluate-metadata-demo-starts-pos-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}",
+                                                   "skill.json: metadata 'demo_starts.pos' must be finite numbers",
+                                                   (_metadata("demo_starts", {"pos": "abc", "quat": [[1, 0, 0, 0]]}),)),
+    "evaluate-metadata-demo-starts-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}",
+                                               "skill.json: metadata 'demo_starts' must be an object",
+                                               (_metadata("demo_starts", "some text"),)),
+    "evaluate-model-width-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}",
+                                      "position/model.json: model.width='16' must be an integer",
+                                      (_model_field("width", "16"),)),
+    "evaluate-model-layers-float": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}",
+                                        "position/model.json: model.layers=2.5 must be an integer",
+                                        (_model_field("layers", 2.5),)),
+    "evaluate-model-dim-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "model.json: dim='3' must be an integer",
+                                    (_model_json("dim", "3"),)),
     "evaluate-model-dim-huge": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "dim=1000000000000 differs",
                                     (_model_json("dim", 10**12),)),
     "evaluate-pickled-weights": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "which pih never does",
