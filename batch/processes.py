@@ -24,13 +24,12 @@ import signal
 import sys
 import threading
 import time
-import traceback
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from typing import Any, Callable, Iterator, Sequence
 
 from batch.config import BatchConfig
-from batch.errors import BatchError
+from batch.errors import BatchError, WorkerInitError
 from batch.lifetime import close_inherited, die_with_parent
 from batch.supervision import Fault, Init, Schedule, Work, error_reason, unit_limit_s
 
@@ -67,8 +66,9 @@ def _worker_main(conn: Connection, setup: Any, init: Init, work: Work, parent: i
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         context = init(setup)
-    except BaseException as err:  # noqa: BLE001 -- reported to the supervisor, which raises BatchError
-        conn.send(("init_error", "", f"{error_reason(err)}\n{traceback.format_exc()}"))
+    except BaseException as err:  # noqa: BLE001 -- reported to the supervisor, which raises WorkerInitError
+        message = str(err).strip()
+        conn.send(("init_error", "", (type(err).__name__, message.splitlines()[0] if message else "")))
         return
     conn.send(("ready", "", None))
     while True:
@@ -161,7 +161,8 @@ def run_in_processes(schedule: Schedule, setup: Any, init: Init, work: Work, con
     try:
         while schedule.remaining or any(w.unit is not None for w in workers):
             if not workers:
-                raise Fault(f"every worker died while starting ({len(spawned)} starts); no unit can run")
+                raise Fault(f"every worker died while starting ({len(spawned)} starts, the last "
+                            f"{schedule.last_start_loss}); no unit can run")
             for w in workers:
                 if w.ready and not w.retired and w.unit is None and schedule.remaining:
                     key, unit = schedule.take()
@@ -192,7 +193,7 @@ def _serve(w: _Worker, schedule: Schedule, config: BatchConfig, spawn: Callable[
         while w.conn.poll():
             kind, key, payload = w.conn.recv()
             if kind == "init_error":
-                raise BatchError(f"a worker failed to start: {payload}")
+                raise WorkerInitError(*payload)
             if kind == "ready":
                 w.ready = True
                 schedule.worker_ready(w.slot)

@@ -90,7 +90,8 @@ def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
     from envs.io.jsonable import to_jsonable
 
     evaluation = {k: v for k, v in config.evaluation.settings().items()
-                  if k not in ("seed", "workers", "unit_timeout_s", "backend", "ray_address", "lockstep")}
+                  if k not in ("seed", "workers", "unit_timeout_s", "start_timeout_s", "backend", "ray_address",
+                               "lockstep")}
     noise = {} if config.demo_noise is None else {"demo_noise": config.demo_noise}
     return to_jsonable({"command": "pih benchmark", **noise, "demo_seeds": list(config.demo_seeds),
                         "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "epochs": config.epochs,

@@ -128,6 +128,9 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     run.add_argument("--unit-timeout-s", type=number(minimum=0.0, maximum=TIMEOUT_S.high), default=d.unit_timeout_s,
                      help="wall-clock seconds per episode before its worker is killed and the episode recorded "
                           "'wall_timeout'; 0 = no limit")
+    run.add_argument("--start-timeout-s", type=number(bound=TIMEOUT_S), default=d.start_timeout_s,
+                     help="wall-clock seconds a worker may take to start (with --policy: to import it and call its "
+                          "factory) before it is killed and counts as lost")
     task = add_task_arguments(parser)
     task.add_argument("--shape", help="the scene's peg/hole shape (default: the task's, else the demos'; must match "
                                       "them)")
@@ -173,7 +176,8 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
         episodes=args.episodes, seed=args.seed, mode=args.mode, lookahead_s=args.lookahead_s,
         feedforward_gain=args.feedforward, speed=args.speed, task=task_from_args(args),
         scene_from_task=scene_from_task(args), hole_at_goal=args.hole_at_goal, workers=args.workers,
-        unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s, backend=args.backend,
+        unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s,
+        start_timeout_s=args.start_timeout_s, backend=args.backend,
         ray_address=args.ray_address, stiffness=args.stiffness,
         contact_adaptation=not args.no_contact_adaptation,
         adaptation_off=adaptation_parts(getattr(args, "adaptation_off", None)),
@@ -333,7 +337,7 @@ def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> Evalua
         return evaluate_it()
     journal = Journal.open(path, run, resume=args.resume, overwrite=args.overwrite)
     try:
-        return evaluate_it(journal)
+        result = evaluate_it(journal)
     except BaseException:
         journal.close()
         if not args.resume and not journal.done():
@@ -341,6 +345,25 @@ def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> Evalua
         raise
     finally:
         journal.close()
+    if not args.resume and not journal.done():  # nothing to continue: it must not block a plain rerun
+        path.unlink(missing_ok=True)
+    return result
+
+
+def fault_text(args: argparse.Namespace, result: EvaluationResult) -> str:
+    """The fault that stopped the batch, for its one line; a policy that no worker could start is named."""
+    if args.policy is not None and result.workers == 0:
+        return f"--policy {args.policy}: no worker could start the policy ({result.fault})"
+    return str(result.fault)
+
+
+def continue_text(args: argparse.Namespace, result: EvaluationResult) -> str:
+    """"; N of M episodes finished (in JOURNAL); continue with: COMMAND" when there is a journal to continue."""
+    path = journal_path(args)
+    if path is None or not path.is_file():
+        return ""
+    return (f"; {len(result.records)} of {result.config.episodes} episodes finished (in {path}); continue with: "
+            f"{resume_command(args)}")
 
 
 def resume_command(args: argparse.Namespace) -> str:
@@ -496,24 +519,25 @@ def main(args: argparse.Namespace) -> int:
         whose = "demos" if args.policy else "skill"
         print(f"pih evaluate: warning: the {whose}'s goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
               "for demos recorded elsewhere use --hole-at-goal", file=sys.stderr)
+    if result.fault is not None:  # the batch was stopped: one line, no table of a run that did not happen
+        if args.json is not None and result.records:
+            result.save_json(args.json)  # what ran, and the fault (the events are in it)
+        print(f"pih evaluate: error: {fault_text(args, result)}{continue_text(args, result)}", file=sys.stderr)
+        return EXIT_FAULT
     print(result.summary_table())
     for event in result.infrastructure_events:
         print(f"pih evaluate: infrastructure: {describe_event(event)}", file=sys.stderr)
     if args.json is not None:
         result.save_json(args.json)
         print(f"wrote {args.json}")
-    if result.fault is not None or result.interrupted or not result.complete:
-        if result.fault is not None:
-            print(f"pih evaluate: error: {result.fault}", file=sys.stderr)
+    if result.interrupted or not result.complete:
         what = "interrupted" if result.interrupted else "incomplete"
         unscored = f" ({len(result.infrastructure_errors)} lost to infrastructure)" if result.infrastructure_errors else ""
         print(f"pih evaluate: {what} after {len(result.records)} of {config.episodes} episodes{unscored}",
               file=sys.stderr)
-        if journal_path(args) is not None:
+        if journal_path(args) is not None and journal_path(args).is_file():
             print(f"pih evaluate: finished episodes are in {journal_path(args)}; continue with: {resume_command(args)}",
                   file=sys.stderr)
-        if result.fault is not None:
-            return EXIT_FAULT
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
     if args.policy is not None:  # no video or figures for a policy (check_policy_args refuses them)
         if not args.quiet:

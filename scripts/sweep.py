@@ -171,6 +171,10 @@ def main(args: argparse.Namespace) -> int:
             if created and not any(out.iterdir()):
                 out.rmdir()
         raise
+    if result.fault is not None:  # the batch was stopped: one line, no success map of a sweep that did not happen
+        print(f"pih sweep: error: {result.fault}; finished episodes are in {journal_path}; continue with the same "
+              "command and --resume", file=sys.stderr)
+        return 1
     write_json(out / "sweep.json", result.to_dict())
     active = axes.active()
     rows: str | None
@@ -192,9 +196,6 @@ def main(args: argparse.Namespace) -> int:
     print(f"wrote {out / 'sweep.json'} and {out / 'sweep.png'} ({time.perf_counter() - wall:.0f} s)")
     for event in result.infrastructure_events:
         print(f"pih sweep: infrastructure: {describe_event(event)}", file=sys.stderr)
-    if result.fault is not None:
-        print(f"pih sweep: error: {result.fault}; continue with the same command and --resume", file=sys.stderr)
-        return 1
     if result.interrupted:
         print("interrupted: continue with the same command and --resume", flush=True)
         return 130

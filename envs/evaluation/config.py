@@ -57,6 +57,9 @@ class EvaluationConfig:
         workers: processes (1: in this process) or Ray actors.
         unit_timeout_s: wall-clock seconds one episode may take before its worker is killed and the episode
             recorded "wall_timeout" (None: no limit).
+        start_timeout_s: wall-clock seconds a worker process may take to start (import the libraries, build the
+            scene; with a user's policy: import it and call its factory) before it is killed and counts as lost at
+            start (`batch.BatchConfig.start_timeout_s`).
         backend: "process" (local processes) or "ray".
         ray_address: HOST:PORT of a Ray cluster (None: a local Ray instance on all cores).
         stiffness: the translational stiffness commanded ("learned": the skill's, "constant:K": K I in N/m,
@@ -84,6 +87,7 @@ class EvaluationConfig:
     hole_at_goal: bool = False
     workers: int = 1
     unit_timeout_s: float | None = 300.0
+    start_timeout_s: float = 600.0
     backend: str = "process"
     ray_address: str | None = None
     stiffness: str | None = None
@@ -135,7 +139,8 @@ class EvaluationConfig:
     def batch_config(self) -> BatchConfig:
         """How the episodes run as a batch (workers, wall-time limit, backend); worker processes are forked, as
         every episode worker runs torch on one thread (`batch.BatchConfig.start_method`)."""
-        return BatchConfig(workers=self.workers, unit_timeout_s=self.unit_timeout_s, backend=self.backend,
+        return BatchConfig(workers=self.workers, unit_timeout_s=self.unit_timeout_s,
+                           start_timeout_s=self.start_timeout_s, backend=self.backend,
                            ray_address=self.ray_address, start_method="fork", worker_environment=DISPATCH_VARIABLES)
 
     def settings(self) -> dict[str, Any]:

@@ -283,8 +283,8 @@ def journal_run(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
 def run_settings(config: EvaluationConfig) -> dict[str, Any]:
     """{"config": the config's settings that change a record, its task (versioned) among them}: what a journal's run
     holds of an evaluation (`journal_run`, envs.evaluation.evaluate_policy.policy_journal_run)."""
-    settings = {k: v for k, v in config.settings().items() if k not in ("workers", "unit_timeout_s", "backend",
-                                                                         "ray_address", "lockstep")}
+    settings = {k: v for k, v in config.settings().items() if k not in ("workers", "unit_timeout_s", "start_timeout_s",
+                                                                         "backend", "ray_address", "lockstep")}
     return {"config": to_jsonable({**settings, "task": config.task.to_dict()})}
 
 

@@ -196,7 +196,9 @@ class EvaluationResult:
             ("policy", self.policy["spec"]) if self.policy is not None else ("mode", self.config.mode),
             ("episodes", str(len(self.records))),
             ("success rate", f"{100 * self.success_rate:.1f} % ({self.num_success}/{len(self.records)}), "
-                             f"95 % CI [{100 * low:.1f}, {100 * high:.1f}] %"),
+                             f"95 % CI [{100 * low:.1f}, {100 * high:.1f}] %" if self.records else
+                             "none: no episode completed" + (f" ({len(self.infrastructure_errors)} lost to "
+                                                              "infrastructure)" if self.infrastructure_errors else "")),
             ("time to insert (median/max)", f"{fmt(s['median_time_to_insert_s'], 's')} / {fmt(s['max_time_to_insert_s'], 's')}"),
             ("final position error (median)", fmt(s["median_final_pos_error_mm"], "mm")),
             ("final angle error (median)", fmt(s["median_final_angle_error_deg"], "deg")),

@@ -60,7 +60,7 @@ def test_exit_status_says_whether_the_candidate_regressed(files, capsys, cand, e
     (["base", "other_seed"], "episode 0: start_pos differs"),
     (["base", "fewer"], "episode 40 is only in the base"),
     (["base"], "give two evaluations"),
-    (["base", "base", "--margin", "1.5"], "--margin 1.5"),
+    (["base", "base", "--margin", "1.5"], "argument --margin"),
     (["base", "base", "--alpha", "0"], "--alpha 0"),
     (["base", "base", "--sequential"], "--sequential runs the episodes itself"),
     (["--sequential", "--cand-model", "base"], "--sequential needs --base-model"),
