@@ -132,7 +132,11 @@ def main(args: argparse.Namespace) -> int:
     check_args(args)
     if args.sequential:
         return run_sequential(args)
+    from envs.evaluation.replay import check_recorded
+
     base, cand = (load_evaluation(path, label) for path, label in zip(args.evaluations, ("BASE", "CAND")))
+    for path, label in zip(args.evaluations, ("BASE", "CAND")):  # its counts, its starts and perturbations
+        check_recorded(json.loads(Path(path).read_text()), f"{label} {path}")
     work_begins()
     comparison = compare_evaluations(base, cand, args.margin, args.alpha)
     print(comparison.table())

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
 
 from envs.datasets import LAYOUTS, require_layout
 from envs.datasets.export_folder import check_export_folder, staged_folder
@@ -102,12 +103,27 @@ def _write_all(root: Path, layout: str, meta: ExportMeta, episodes: list[ExportE
     writer.close()
 
 
-def export_episodes(args: argparse.Namespace, root: Path) -> tuple[int, dict[int, str]]:
-    """Replay the evaluation's episodes into ``root``; (episodes written, {skipped index: reason})."""
-    from envs.datasets.episode_export import EpisodeExport
-    from envs.evaluation.replay import load_evaluation, replay_evaluation
+def checked_evaluation(args: argparse.Namespace) -> Any:
+    """The evaluation of --episodes, checked field by field (envs.evaluation.replay.check_recorded) and, with
+    --select, the chosen episodes drawn again: before the export folder is staged.
+
+    Raises:
+        EnvError: see `envs.evaluation.replay.load_evaluation` and `recorded_starts`.
+    """
+    from envs.evaluation.replay import load_evaluation, recorded_starts
 
     evaluation = load_evaluation(args.episodes, args.model)
+    chosen = parse_select(args.select)
+    if chosen is not None:
+        recorded_starts(evaluation, chosen)
+    return evaluation
+
+
+def export_episodes(args: argparse.Namespace, root: Path, evaluation: Any) -> tuple[int, dict[int, str]]:
+    """Replay the evaluation's episodes into ``root``; (episodes written, {skipped index: reason})."""
+    from envs.datasets.episode_export import EpisodeExport
+    from envs.evaluation.replay import replay_evaluation
+
     size = parse_size(args.video_size or DEFAULT_VIDEO_SIZE[args.format])
     job = EpisodeExport(root, args.format, str(args.episodes), evaluation, args.camera if args.video else None, size)
     try:
@@ -143,6 +159,7 @@ def main(args: argparse.Namespace) -> int:
         VideoConfig(width=width, height=height, camera=args.camera)  # H.264 needs multiples of 8
     elif args.video_size is not None:
         parse_size(args.video_size)
+    evaluation = checked_evaluation(args) if args.episodes is not None else None
     work_begins()
     start = time.perf_counter()
     with staged_folder(args.out, args.overwrite) as root:
@@ -153,7 +170,7 @@ def main(args: argparse.Namespace) -> int:
             _write_all(root, args.format, meta, episodes)
             count, skipped, absent = len(episodes), {}, meta.absent
         else:
-            count, skipped = export_episodes(args, root)
+            count, skipped = export_episodes(args, root, evaluation)
             absent = {}
     wall = time.perf_counter() - start
     print(f"wrote {args.out} ({args.format}): {count} {'demos' if args.demos is not None else 'episodes'} in "

@@ -15,7 +15,7 @@ from envs.errors import EnvError
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.task.task import Task
 from numerics.cpu_dispatch import DISPATCH_VARIABLES
-from pihutil.bounds import FEEDFORWARD_GAIN, LOOKAHEAD_S, SPEED
+from pihutil.bounds import EPISODES, FEEDFORWARD_GAIN, LOOKAHEAD_S, SEED, SPEED
 
 DEFAULT_LOCKSTEP = 8
 """Episodes a worker runs in lockstep by default (`EvaluationConfig.lockstep`)."""
@@ -97,8 +97,13 @@ class EvaluationConfig:
     follow_observed_hole: bool = False
 
     def __post_init__(self) -> None:
-        if not isinstance(self.episodes, int) or self.episodes < 1:
-            raise EnvError(f"episodes={self.episodes!r} must be an integer >= 1")
+        if not EPISODES.contains(self.episodes):
+            raise EnvError(f"episodes={self.episodes!r} must be an integer {EPISODES.text()}")
+        if not SEED.contains(self.seed):
+            raise EnvError(f"seed={self.seed!r} must be an integer {SEED.text()}")
+        for name in ("hole_at_goal", "contact_adaptation"):
+            if not isinstance(getattr(self, name), bool):
+                raise EnvError(f"{name}={getattr(self, name)!r} must be True or False")
         if self.stiffness is not None:
             StiffnessSetting.parse(self.stiffness)
         if self.mode not in MODES:
@@ -108,11 +113,15 @@ class EvaluationConfig:
                 raise EnvError(f"{name}={getattr(self, name)!r} must be a number {bound.text()}")
         if not isinstance(self.task, Task):
             raise EnvError(f"task={self.task!r} must be an envs.task.task.Task")
+        if not isinstance(self.scene_from_task, (tuple, list)) or not all(isinstance(n, str) for n in self.scene_from_task):
+            raise EnvError(f"scene_from_task={self.scene_from_task!r} must be a list of scene field names")
         object.__setattr__(self, "scene_from_task", tuple(self.scene_from_task))
         unknown = [name for name in self.scene_from_task if name not in SCENE_FROM_TASK]
         if unknown:
             raise EnvError(f"scene_from_task names {unknown}: only {', '.join(SCENE_FROM_TASK)} may replace the "
                            "demos' scene")
+        if not isinstance(self.adaptation_off, (tuple, list)):
+            raise EnvError(f"adaptation_off={self.adaptation_off!r} must be a list of parts")
         object.__setattr__(self, "adaptation_off", tuple(self.adaptation_off))
         if self.adaptation_off:
             from envs.policies.adaptation import adaptation_parts  # numba through envs.poses: only when asked for

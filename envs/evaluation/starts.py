@@ -54,15 +54,20 @@ def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike,
         raise EnvError("demo start poses contain NaN or inf")
     region = StartRegion(pos_half_width_m=(pos_range_m,) * 3, max_angle_deg=rot_range_deg)
     rng = np.random.default_rng(seed)
-    task_rng = np.random.default_rng([seed, 1])
     mean = Pose(pos=p.mean(axis=0), quat=mean_quat(q))
     starts = []
-    for k in range(num):
+    for k, perturbation in enumerate(seeded_perturbations(perturbations, seed, num)):
         n = int(rng.integers(p.shape[0])) if around == "demo" else -1
         centre = Pose(pos=p[n], quat=q[n] / norm(q[n])) if n >= 0 else mean
-        starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0],
-                                sample_perturbation(perturbations, task_rng)))
+        starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0], perturbation))
     return starts
+
+
+def seeded_perturbations(perturbations: PerturbationRanges, seed: int, num: int) -> list[Any]:
+    """The perturbations of episodes 0..num-1 of an evaluation with ``seed``: drawn in order from a generator seeded
+    with (seed, 1), apart from the start poses (what `sample_starts` gives each episode; needs no demo starts)."""
+    task_rng = np.random.default_rng([seed, 1])
+    return [sample_perturbation(perturbations, task_rng) for _ in range(num)]
 
 
 def evaluation_starts(demo_starts: dict[str, Any], config: EvaluationConfig) -> list[StartPose]:

@@ -123,7 +123,7 @@ def test_sequential_mode_runs_paired_episodes_until_a_decision_independent_of_th
 
 
 @pytest.mark.parametrize("field, value, message", [
-    ("index", True, "integer 'index'"),
+    ("index", True, "record 0 has index True, not an episode"),
     ("time_to_insert_s", "fast", "time_to_insert_s='fast', not a number or null"),
     ("peak_sustained_wrist_force_n", True, "peak_sustained_wrist_force_n=True, not a number or null"),
 ])

@@ -66,3 +66,48 @@ def test_what_a_killed_export_left_is_removed_by_the_next_one(evaluation: Path, 
     assert main(["export", "--episodes", str(evaluation), "--format", "lerobot", "--out", str(tmp_path / "ds")]) == 0
     assert leftovers(tmp_path) == [] and (tmp_path / "ds").is_dir()
     assert "left by a run that was killed" in capsys.readouterr().err
+
+
+def _edited(evaluation: Path, folder: Path, edit) -> Path:
+    data = json.loads(evaluation.read_text())
+    edit(data)
+    path = folder / "edited.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def _set(*keys, value):
+    def edit(data):
+        target = data
+        for key in keys[:-1]:
+            target = target[key]
+        target[keys[-1]] = value
+    return edit
+
+
+EDITS = {
+    "index 2**40": (_set("per_episode", 0, "index", value=2**40), "record 0 has index 1099511627776, not an episode"),
+    "index twice": (_set("per_episode", 1, "index", value=0), "episode 0 is recorded twice"),
+    "hole offset 50 mm": (_set("per_episode", 1, "perturbation", "hole_offset_mm", value=50.0),
+                          "episode 1's perturbation hole_offset_mm = 50.0 differs from the one its seed draws"),
+    "seed -5": (_set("config", "seed", value=-5), "seed=-5 must be an integer in 0..4,294,967,295"),
+    "episodes text": (_set("config", "episodes", value="3"), "episodes='3' must be an integer"),
+    "start moved": (_set("per_episode", 2, "start_pos", 0, value=0.7), "episode 2's start pose differs"),
+    "count": (_set("episodes", value=99), "it holds 3 episode records but says 99"),
+}
+
+
+@pytest.mark.parametrize("name", list(EDITS))
+def test_a_hand_edited_evaluation_is_refused_by_export_and_compare(evaluation, tmp_path, capsys, name) -> None:
+    edit, message = EDITS[name]
+    path = _edited(evaluation, tmp_path, edit)
+    for argv in (["export", "--episodes", str(path), "--format", "lerobot", "--out", str(tmp_path / "ds")],
+                 ["compare", str(evaluation), str(path)]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["edited.json"]  # no dataset, no staging folder
+
+
+def test_the_evaluation_as_written_is_taken(evaluation, tmp_path, capsys) -> None:
+    assert main(["compare", str(evaluation), str(evaluation)]) == 0
