@@ -525,7 +525,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"pih evaluate: error: {fault_text(args, result)}{continue_text(args, result)}", file=sys.stderr)
         return EXIT_FAULT
     print(result.summary_table())
-    for event in result.infrastructure_events:
+    for event in result.new_events:  # a resumed run's earlier losses are in the JSON, not news
         print(f"pih evaluate: infrastructure: {describe_event(event)}", file=sys.stderr)
     if args.json is not None:
         result.save_json(args.json)

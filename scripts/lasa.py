@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 import time
 from pathlib import Path
@@ -31,6 +32,7 @@ from envs.io.npz import open_npz
 from envs.io.owned_output import (MiB, check_distinct, check_output, check_output_folder, save_npz, write_json,
                                   write_text)
 from numerics.cpu_dispatch import DISPATCH_VARIABLES
+from pihutil.bounds import LEARNING_RATE, TIMEOUT_S
 from rflow.errors import RFlowError
 from rflow.lasa import (
     BENCHMARK_MANIFOLDS,
@@ -44,9 +46,8 @@ from rflow.lasa import (
     riemannian_lasa,
 )
 from rflow.model import ModelConfig
-from rflow.train import TrainConfig
+from rflow.train import TrainConfig, check_training_memory
 from scripts.lasa_report import MANIFOLD_LABELS, METHOD_LABELS, gains, markdown_table, plot_comparison, plot_results
-from pihutil.bounds import LEARNING_RATE, TIMEOUT_S
 from scripts.options import MAX_EPOCHS, MAX_WORKERS, count, number, refuse_unused, seed, work_begins
 
 JOURNAL = "journal.jsonl"
@@ -56,6 +57,8 @@ EXIT_INTERRUPTED = 130
 _HYPERPARAMETERS = ("epochs", "layers", "lr", "batch_size")  # the options --config replaces
 UNIT_BYTES = 256 * 1024
 """Generous size of one unit of --all on disk (its trajectories, journal line and share of the figures)."""
+LASA_TANGENT_DIM = 3
+"""The tangent dimension of every LASA model (SPD(2) and unit quaternions: 3), for the memory check."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -268,6 +271,7 @@ def run_all(args: argparse.Namespace) -> int:
     manifolds = [_manifold_name(m) for m in _split(args.manifolds, check_manifold, "manifolds")]
     methods = _split(args.methods, _check_method, "methods")
     config = train_config(args)
+    check_training_memory(config, [LASA_TANGENT_DIM] * min(args.workers, os.cpu_count() or 1))  # workers at once
     try:
         batch_config = BatchConfig(workers=args.workers, unit_timeout_s=args.unit_timeout_s, backend=args.backend,
                                    ray_address=args.ray_address, worker_environment=DISPATCH_VARIABLES)
@@ -343,7 +347,7 @@ def run_all(args: argparse.Namespace) -> int:
                       for m in methods if m != "rflow" for a, g in gains(ordered, m).items())
     print(f"wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'comparison.png'}: {len(ordered)} of "
           f"{len(units)} runs, {failed} failed, {time.perf_counter() - start:.0f} s. Mean DTW: {means or 'n/a'}")
-    for event in outcome.events:
+    for event in outcome.events[outcome.events_before:]:  # a resumed run's earlier losses are in the JSON
         print(f"pih lasa: infrastructure: {describe_event(event)}", file=sys.stderr)
     if outcome.fault is not None:
         print(f"pih lasa: error: {outcome.fault}; continue with --resume", file=sys.stderr)
@@ -368,6 +372,7 @@ def run_one(args: argparse.Namespace) -> int:
     manifold = _manifold_name(args.manifold)
     method = _check_method(args.method)
     config = train_config(args, args.threads)
+    check_training_memory(config, [LASA_TANGENT_DIM])
     outputs = {"--json": args.json, "--save-trajectories": args.save_trajectories, "--figure": args.figure}
     check_distinct(outputs)
     for (option, path), suffix in zip(outputs.items(), (".json", ".npz", ".png")):

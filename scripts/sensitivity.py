@@ -157,7 +157,7 @@ def stopped(args: argparse.Namespace, name: str | None, result: Any, planned: li
     done = [v for v in planned if _finished(journals / f"{v}.jsonl", args.episodes)]
     where = f"in variant {name!r} " if name is not None else ""
     if result is not None:
-        for event in result.infrastructure_events:
+        for event in result.new_events:
             print(f"pih sensitivity: infrastructure: {describe_event(event)}", file=sys.stderr)
         if result.fault is not None:
             print(f"pih sensitivity: error: {result.fault}", file=sys.stderr)

@@ -194,7 +194,7 @@ def main(args: argparse.Namespace) -> int:
               f"contact {100 * summary['contact_rate']:.0f} %, "
               f"median peak wrist force {'-' if force is None else f'{force:.1f} N'}")
     print(f"wrote {out / 'sweep.json'} and {out / 'sweep.png'} ({time.perf_counter() - wall:.0f} s)")
-    for event in result.infrastructure_events:
+    for event in result.infrastructure_events[result.events_before:]:  # a resumed sweep's earlier ones: in the JSON
         print(f"pih sweep: infrastructure: {describe_event(event)}", file=sys.stderr)
     if result.interrupted:
         print("interrupted: continue with the same command and --resume", flush=True)

@@ -186,6 +186,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     from envs.demos.file import anchored_at_goal, load_demos
     from envs.media.figures import plot_loss
     from rflow.skill_io import check_checkpoint_target, file_sha256, fit_pose_skill, save_skill, stiffness_reproduction, subsample as take_every
+    from rflow.train import check_training_memory
     cfg = skill_train_config() if config is None else config
     check_checkpoint_target(out, overwrite)
     demos = load_demos(demos_path)
@@ -195,9 +196,11 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     k_demo = None if stiffness is None else demo_stiffness(demos, stiffness, bounds, demos_path)
     k = None if k_demo is None else take_every(k_demo, subsample)
     dt = demos.dt * subsample
+    layout = "joint" if joint else "separate" if k is None else "separate_stiffness"
+    dims = {"joint": [6 if k is None else 12], "separate": [3, 3], "separate_stiffness": [3, 3, 6]}[layout]
+    check_training_memory(cfg, dims if workers > 1 else [max(dims)])  # the models that train at the same time
     work_begins()
     wall = time.perf_counter()
-    layout = "joint" if joint else "separate" if k is None else "separate_stiffness"
     skill = fit_pose_skill(pos, quat, dt, cfg, layout, progress, stiffness=k, bounds=bounds, workers=workers)
     train_s = time.perf_counter() - wall
     scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None

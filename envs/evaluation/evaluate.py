@@ -326,7 +326,8 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, str(model_dir), skill.metadata,
                             to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
-                            outcome.workers, outcome.fault, task=config.task.with_scene(env_scene))
+                            outcome.workers, outcome.fault, task=config.task.with_scene(env_scene),
+                            events_before=outcome.events_before)
 
 
 def run_episodes(starts: Sequence[StartPose], setup: Any, init_worker: Callable[[Any], dict[str, Any]],

@@ -354,4 +354,4 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
                             goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
                             outcome.workers, outcome.fault, policy=spec.to_dict(),
-                            task=config.task.with_scene(scene_config))
+                            task=config.task.with_scene(scene_config), events_before=outcome.events_before)

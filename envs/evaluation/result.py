@@ -64,6 +64,8 @@ class EvaluationResult:
         infrastructure_events: lost workers, actors, nodes and retried episodes (batch.supervision).
         workers: processes or actors the episodes ran on (0: all were in the journal already).
         fault: what stopped the whole evaluation (e.g. the Ray head lost), else None.
+        events_before: how many of ``infrastructure_events`` (the first ones) happened in the earlier parts of a
+            resumed evaluation (`new_events` are the others).
         policy: a user policy's spec, options and privilege (`pih evaluate --policy`); None for the skill.
         task: the task the episodes ran: ``config.task`` with the scene it ran in (`Task.with_scene`); None: the
             config's.
@@ -84,6 +86,12 @@ class EvaluationResult:
     fault: str | None = None
     policy: dict[str, Any] | None = None
     task: Task | None = None
+    events_before: int = 0
+
+    @property
+    def new_events(self) -> list[dict[str, Any]]:
+        """The infrastructure events of this part of the run (a resumed run's earlier ones are not news)."""
+        return self.infrastructure_events[self.events_before:]
 
     @property
     def ran(self) -> Task:

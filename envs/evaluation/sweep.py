@@ -226,6 +226,8 @@ class SweepResult:
     infrastructure_errors: dict[str, dict[str, Any]] = field(default_factory=dict)
     infrastructure_events: list[dict[str, Any]] = field(default_factory=list)
     fault: str | None = None
+    events_before: int = 0
+    """How many of ``infrastructure_events`` (the first) happened in the earlier parts of a resumed sweep."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record of the sweep (sweep.json)."""
@@ -305,4 +307,4 @@ def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal:
     earlier_s = journal.earlier_wall_s if journal is not None else 0.0
     return SweepResult(str(model_dir), list(cells), summaries, dict(outcome.records), outcome.complete,
                        outcome.interrupted, earlier_s + time.perf_counter() - wall, outcome.infrastructure_errors,
-                       outcome.events, outcome.fault)
+                       outcome.events, outcome.fault, outcome.events_before)

@@ -298,6 +298,9 @@ CASES: dict[str, Case] = {
                                                "time_limit_s=1000000000000.0 must be", (_task_file("1e12"),)),
     "import-tool-offset-1e300": Case("demos --import {tmp}/rec.npz --tool-offset 1e300,0,0,1,0,0,0 --out {tmp}/d.npz",
                                      "the offset's length", (_recording,)),
+    "train-memory": Case("train --demos {tmp}/demos.npz --out {tmp}/ck --width 4096 --layers 64 --batch-size 1000000",
+                         "of memory, more than the"),
+    "lasa-memory": Case("lasa --shape NShape --layers 64 --batch-size 1000000", "of memory, more than the"),
     "train-lr-1e300": Case("train --demos {tmp}/demos.npz --out {tmp}/ck --lr 1e300", "argument --lr"),
     "import-non-unit-tool-quaternion": Case("demos --import {tmp}/rec.npz --tool-offset 0,0,0.1,0.7071,0,0,0.7071 "
                                             "--out {tmp}/d.npz", "not 1", (_recording,)),
