@@ -104,6 +104,28 @@ ENTRY_SPEED_M_S = Bound(0.0, 0.5, "m/s", low_open=True)
 """The scripted expert's insertion speed (envs.policies.expert_plan): the feed-forward twist is cut to 0.5 m/s
 (envs.policies.feedforward.MAX_SPEED_M_S)."""
 
+# ---- the task's sensing and success (envs.task.sensor_config, envs.task.task.SuccessConfig) -------------------------
+
+SENSOR_FORCE_N = Bound(0.0, 1e4, "N")
+"""A wrist sensor's force noise or bias (sigma, N): a force/torque sensor's range is some hundreds to a few thousand
+newtons; past 1e4 N every reading is the noise, and every episode ends at the force limit in free space."""
+SENSOR_TORQUE_NM = Bound(0.0, 1e3, "N m")
+"""A wrist sensor's torque noise or bias (sigma, N m)."""
+JOINT_TORQUE_NM = Bound(0.0, 87.0, "N m")
+"""A joint torque sensor's noise or bias (sigma, N m): no larger than the largest torque a Panda joint takes
+(controllers.impedance.PANDA_TORQUE_LIMITS_NM)."""
+SENSOR_CUTOFF_HZ = Bound(0.0, 1e6, "Hz")
+"""A sensor's low-pass cutoff (0: none): above the 1 kHz reading rate it no longer filters."""
+SEAT_TOLERANCE_M = Bound(0.0, 0.01, "m")
+"""How far from the seated depth a peg still counts as seated (envs.task.success): past 1 cm a peg resting on the
+hole's mouth counts."""
+PENETRATION_TOLERANCE_M = Bound(0.0, 0.001, "m")
+"""The wall penetration still counted as inside (envs.task.success): past 1 mm a peg beside the hole counts."""
+REST_SPEED_M_S = Bound(0.0, 1.0, "m/s")
+"""The speed under which a peg is at rest (envs.task.success)."""
+FLOOR_FORCE_N = Bound(0.0, 1e4, "N")
+"""The force a seated peg must press on the hole's floor (and below the task's force limit, envs.task.task)."""
+
 # ---- learning -------------------------------------------------------------------------------------------------------
 
 LEARNING_RATE = Bound(0.0, 1.0, low_open=True)
@@ -118,7 +140,8 @@ PRIOR_RADIUS = Bound(0.0, 1e6, low_open=True)
 """The prior box's half-width in multiples of the demos' extent, a float32 (rflow.train)."""
 
 
-__all__ = ["Bound", "DEMOS", "ENTRY_SPEED_M_S", "EPISODES", "EPOCHS", "FEEDFORWARD_GAIN", "LEARNING_RATE",
+__all__ = ["Bound", "DEMOS", "FLOOR_FORCE_N", "JOINT_TORQUE_NM", "PENETRATION_TOLERANCE_M", "REST_SPEED_M_S",
+           "SEAT_TOLERANCE_M", "SENSOR_CUTOFF_HZ", "SENSOR_FORCE_N", "SENSOR_TORQUE_NM", "ENTRY_SPEED_M_S", "EPISODES", "EPOCHS", "FEEDFORWARD_GAIN", "LEARNING_RATE",
            "LOG_SCALE_CLAMP", "LOOKAHEAD_S", "PRIOR_RADIUS", "PRIOR_WEIGHT", "REPLICATES", "SAMPLES",
            "SAMPLE_PERIOD_S", "SEED", "SPEED", "STIFFNESS", "TIMEOUT_S", "TIME_LIMIT_S", "TOOL_OFFSET_M", "TRIALS",
            "WORKERS"]

@@ -50,7 +50,8 @@ from envs.cell.sorter import check_chamfer, check_clearance, check_hole_depth
 from envs.errors import EnvError
 from envs.task.perturbation import PerturbationRanges
 from envs.task.sensor_config import WristSensorConfig
-from pihutil.bounds import TIME_LIMIT_S
+from pihutil.bounds import (FLOOR_FORCE_N, PENETRATION_TOLERANCE_M, REST_SPEED_M_S, SEAT_TOLERANCE_M,
+                            TIME_LIMIT_S)
 
 if TYPE_CHECKING:
     from envs.cell.scene_config import SceneConfig
@@ -116,8 +117,11 @@ class SuccessConfig:
     floor_force_n: float = 0.0
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            check_number(f.name, getattr(self, f.name))
+        for name, bound in (("seat_tolerance_m", SEAT_TOLERANCE_M), ("penetration_tolerance_m", PENETRATION_TOLERANCE_M),
+                            ("max_speed_m_s", REST_SPEED_M_S), ("hold_s", TIME_LIMIT_S), ("floor_force_n", FLOOR_FORCE_N)):
+            check_number(name, getattr(self, name))
+            if not bound.contains(getattr(self, name)) and not (name == "hold_s" and getattr(self, name) == 0):
+                raise EnvError(f"success.{name}={getattr(self, name)!r} must be a number {bound.text()}")
 
 
 MAX_POS_RANGE_M = 0.5

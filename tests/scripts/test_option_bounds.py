@@ -70,7 +70,8 @@ SPECS: dict[tuple[str, str], tuple[str, Callable[[float], bool]]] = {
 """Options whose text holds a number: (template, whether an accepted number lies in its quantity's range); the
 sweep's axes are task fields (checked by envs.task.task.Task, as the task options are)."""
 
-EXTREMES = ["1e300", "-1", "nan", "inf", "0", "1e10", str(2**64), "1e-300"]
+EXTREMES = ["1e300", "-1", "nan", "inf", "0", "1e10"]
+"""Every option meets each of these; hypothesis adds any float and integer (huge ones among them)."""
 
 
 class Reached(Exception):
