@@ -33,7 +33,8 @@ class Bound:
             return False
         if self.integer and not isinstance(value, int):
             return False
-        if math.isnan(value) or (math.isinf(value) and not (self.infinite and value == math.inf)):
+        if isinstance(value, float) and (math.isnan(value) or (math.isinf(value) and not (self.infinite and
+                                                                                          value == math.inf))):
             return False
         above = value > self.low if self.low_open else value >= self.low
         return above and value <= self.high

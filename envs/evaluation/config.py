@@ -15,6 +15,7 @@ from envs.errors import EnvError
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
 from envs.task.task import Task
 from numerics.cpu_dispatch import DISPATCH_VARIABLES
+from numerics.errors import shown
 from pihutil.bounds import EPISODES, FEEDFORWARD_GAIN, LOOKAHEAD_S, SEED, SPEED
 
 DEFAULT_LOCKSTEP = 8
@@ -98,9 +99,9 @@ class EvaluationConfig:
 
     def __post_init__(self) -> None:
         if not EPISODES.contains(self.episodes):
-            raise EnvError(f"episodes={self.episodes!r} must be an integer {EPISODES.text()}")
+            raise EnvError(f"episodes={shown(self.episodes)} must be an integer {EPISODES.text()}")
         if not SEED.contains(self.seed):
-            raise EnvError(f"seed={self.seed!r} must be an integer {SEED.text()}")
+            raise EnvError(f"seed={shown(self.seed)} must be an integer {SEED.text()}")
         for name in ("hole_at_goal", "contact_adaptation"):
             if not isinstance(getattr(self, name), bool):
                 raise EnvError(f"{name}={getattr(self, name)!r} must be True or False")

@@ -92,6 +92,7 @@ EDITS = {
                           "episode 1's perturbation hole_offset_mm = 50.0 differs from the one its seed draws"),
     "seed -5": (_set("config", "seed", value=-5), "seed=-5 must be an integer in 0..4,294,967,295"),
     "episodes text": (_set("config", "episodes", value="3"), "episodes='3' must be an integer"),
+    "episodes 10**400": (_set("config", "episodes", value=10**400), "episodes=10000000000"),
     "start moved": (_set("per_episode", 2, "start_pos", 0, value=0.7), "episode 2's start pose differs"),
     "count": (_set("episodes", value=99), "it holds 3 episode records but says 99"),
 }
