@@ -4,9 +4,9 @@ listing every infrastructure event (`supervision`). Knows nothing of MuJoCo or t
 payload, a record any JSON object."""
 
 from batch.config import BACKENDS, BatchConfig
-from batch.errors import BatchError
+from batch.errors import BatchError, WorkerInitError
 from batch.journal import Journal
 from batch.runner import BatchOutcome, run_batch
 from batch.supervision import describe_event
 
-__all__ = ["BACKENDS", "BatchConfig", "BatchError", "BatchOutcome", "Journal", "describe_event", "run_batch"]
+__all__ = ["BACKENDS", "BatchConfig", "BatchError", "BatchOutcome", "Journal", "WorkerInitError", "describe_event", "run_batch"]

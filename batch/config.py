@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from batch.errors import BatchError
+from pihutil.bounds import TIMEOUT_S, WORKERS
 
 BACKENDS: tuple[str, ...] = ("process", "ray")
 START_METHODS: tuple[str, ...] = ("spawn", "fork")
@@ -19,8 +20,8 @@ class BatchConfig:
     Attributes:
         workers: parallel workers; 1 runs the units in this process, no pool (process backend; see ``isolate``).
             With the ray backend, the number of actors (1: one per CPU of the Ray cluster).
-        unit_timeout_s: wall-clock limit per unit (None: no limit); a unit over it is recorded "wall_timeout",
-            an outcome of the unit (batch.supervision).
+        unit_timeout_s: wall-clock limit per unit (None: no limit), in pihutil.bounds.TIMEOUT_S (the timers'
+            range); a unit over it is recorded "wall_timeout", an outcome of the unit (batch.supervision).
         max_retries: a unit whose worker, actor or node is lost runs again on another or a fresh worker up to
             this many times; after 1 + max_retries lost tries it is an infrastructure error (not journalled, so
             a resumed run tries it again). A lost worker that was still starting is replaced up to this many
@@ -56,17 +57,17 @@ class BatchConfig:
     worker_environment: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
-            raise BatchError(f"workers={self.workers!r} must be an integer >= 1")
-        if self.unit_timeout_s is not None and not (isinstance(self.unit_timeout_s, (int, float))
-                                                    and 0.0 < self.unit_timeout_s < float("inf")):
-            raise BatchError(f"unit_timeout_s={self.unit_timeout_s!r} must be a positive number of seconds or None")
+        if not WORKERS.contains(self.workers):
+            raise BatchError(f"workers={self.workers!r} must be an integer {WORKERS.text()}")
+        if self.unit_timeout_s is not None and not TIMEOUT_S.contains(self.unit_timeout_s):
+            raise BatchError(f"unit_timeout_s={self.unit_timeout_s!r} must be a number of seconds {TIMEOUT_S.text()} "
+                             "(the range of the timers that enforce it) or None")
         if isinstance(self.max_retries, bool) or not isinstance(self.max_retries, int) or self.max_retries < 0:
             raise BatchError(f"max_retries={self.max_retries!r} must be an integer >= 0")
         if self.backend not in BACKENDS:
             raise BatchError(f"backend={self.backend!r} must be one of {', '.join(BACKENDS)}")
-        if not (isinstance(self.start_timeout_s, (int, float)) and 0.0 < self.start_timeout_s < float("inf")):
-            raise BatchError(f"start_timeout_s={self.start_timeout_s!r} must be a positive number of seconds")
+        if not TIMEOUT_S.contains(self.start_timeout_s):
+            raise BatchError(f"start_timeout_s={self.start_timeout_s!r} must be a number of seconds {TIMEOUT_S.text()}")
         if self.start_method not in START_METHODS:
             raise BatchError(f"start_method={self.start_method!r} must be one of {', '.join(START_METHODS)}")
         names = self.worker_environment

@@ -11,13 +11,16 @@ File layout, one JSON object per line::
 ``segment`` counts the times the run was started (0, then one more per resume) and ``elapsed_s`` is the wall
 time since the journal was opened in that segment, so the wall time of the earlier segments (each up to its
 last line) is known on resume. Each line is written whole, flushed and fsynced before `append` returns, so a crash loses at most the line
-being written. Such a torn last line (no newline, or not JSON) is ignored on resume and cut off before the
+being written. A journal is locked (``fcntl.flock``) while a run owns it: a second run on it (a --resume or an
+--overwrite started while the first still goes) is refused in one line instead of duplicating the work and tearing
+the file; the lock goes with the process, however it ends. Such a torn last line (no newline, or not JSON) is ignored on resume and cut off before the
 next append. A resumed run must describe the same run: its header's ``run`` must equal the new one (after
 a JSON round trip, so tuples and lists compare equal).
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import os
@@ -138,18 +141,25 @@ class Journal:
         if resume:
             if not out.is_file():
                 raise BatchError(f"cannot resume: journal {out} does not exist")
-            contents = _read(out)
-            if contents.run != header:
-                raise BatchError(f"cannot resume from journal {out}: it records a different run "
-                                 f"(key {_first_difference(contents.run, header)})")
             handle = open(out, "r+", encoding="utf-8")
-            handle.truncate(contents.good_bytes)  # drop a torn last line before appending
-            handle.seek(contents.good_bytes)
+            try:
+                _lock(handle, out)
+                contents = _read(out)
+                if contents.run != header:
+                    raise BatchError(f"cannot resume from journal {out}: it records a different run "
+                                     f"(key {_first_difference(contents.run, header)})")
+                handle.truncate(contents.good_bytes)  # drop a torn last line before appending
+                handle.seek(contents.good_bytes)
+            except BaseException:
+                handle.close()
+                raise
             return cls(out, contents, handle)
         if out.exists() or out.is_symlink():
             if not overwrite:
                 raise BatchError(f"journal {out} already exists: use --resume or choose another path")
             _read(out)  # raises unless it is a journal: never replace a file that is not ours
+            with open(out, "r", encoding="utf-8") as old:
+                _lock(old, out)  # not while another run writes it
         return cls(out, _Contents(header), _create(out, header))
 
     def done(self) -> dict[str, dict[str, Any]]:
@@ -201,10 +211,30 @@ class Journal:
 
 
 def _create(out: Path, header: dict[str, Any]) -> TextIO:
-    """Write the header atomically (`pihutil.atomic.write_atomic`: mode per umask, renamed into place), open it."""
+    """Write the header atomically (`pihutil.atomic.write_atomic`: mode per umask, renamed into place), open it
+    locked."""
     line = json.dumps({"kind": HEADER, "run": header}, allow_nan=False) + "\n"
     write_atomic(out, lambda handle: handle.write(line))
-    return open(out, "a", encoding="utf-8")
+    handle = open(out, "a", encoding="utf-8")
+    try:
+        _lock(handle, out)
+    except BaseException:
+        handle.close()
+        raise
+    return handle
+
+
+def _lock(handle: TextIO, path: Path) -> None:
+    """Lock the journal ``path`` open as ``handle`` for this run (module docstring).
+
+    Raises:
+        BatchError: another run holds it.
+    """
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise BatchError(f"journal {path} is in use by another run that is still going: wait for it to end (or stop "
+                         "it), or choose another journal") from None
 
 
 def _read(path: Path) -> _Contents:

@@ -10,23 +10,27 @@ limit has its worker killed and replaced.
 A worker is spawned (a fresh interpreter) or, with ``BatchConfig.start_method`` "fork" on Linux, forked: a copy of
 this process that needs none of its imports again (what a spawned evaluation worker spends ~2 s on) and that
 ends with ``os._exit``, without the ~0.8 s interpreter shutdown.
+
+No worker outlives this process, whatever ends it (`batch.lifetime`): each dies with it (the parent-death
+signal), and a forked one holds none of this process's pipe ends, so it would see end-of-file at its next read.
 """
 
 from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 import signal
 import sys
 import threading
 import time
-import traceback
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from typing import Any, Callable, Iterator, Sequence
 
 from batch.config import BatchConfig
-from batch.errors import BatchError
+from batch.errors import BatchError, WorkerInitError
+from batch.lifetime import close_inherited, die_with_parent
 from batch.supervision import Fault, Init, Schedule, Work, error_reason, unit_limit_s
 
 
@@ -48,16 +52,23 @@ def start_method(config: BatchConfig) -> str:
     return config.start_method if sys.platform.startswith("linux") else "spawn"
 
 
-def _worker_main(conn: Connection, setup: Any, init: Init, work: Work) -> None:
+def _worker_main(conn: Connection, setup: Any, init: Init, work: Work, parent: int = 0,
+                 inherited: tuple[int, ...] = ()) -> None:
     """A worker: init once, then answer ("done", key, record) or ("error", key, reason) per unit received
-    until None. Ctrl-C is left to the supervisor (which kills the worker); a forked worker also drops the
-    supervisor's SIGTERM handler (`batch.runner`), which would raise KeyboardInterrupt in the worker."""
+    until None. It dies with its supervisor ``parent`` (`batch.lifetime.die_with_parent`; a forked one also closes
+    the supervisor's pipe ends it ``inherited``). Ctrl-C is left to the supervisor (which kills the worker); a
+    forked worker also drops the supervisor's SIGTERM handler (`batch.runner`), which would raise KeyboardInterrupt
+    in the worker."""
+    if parent:
+        die_with_parent(parent)
+    close_inherited(inherited)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         context = init(setup)
-    except BaseException as err:  # noqa: BLE001 -- reported to the supervisor, which raises BatchError
-        conn.send(("init_error", "", f"{error_reason(err)}\n{traceback.format_exc()}"))
+    except BaseException as err:  # noqa: BLE001 -- reported to the supervisor, which raises WorkerInitError
+        message = str(err).strip()
+        conn.send(("init_error", "", (type(err).__name__, message.splitlines()[0] if message else "")))
         return
     conn.send(("ready", "", None))
     while True:
@@ -105,6 +116,8 @@ class _Worker:
             self.retired = True
 
 
+WAIT_LIMIT_S = 2_147_483.0
+"""The longest single wait: poll(2) takes int milliseconds (a longer deadline is waited for in several waits)."""
 RETIRE_GRACE_S = 2.0
 """How long the workers asked to return may take, together, before they are killed."""
 
@@ -133,7 +146,11 @@ def run_in_processes(schedule: Schedule, setup: Any, init: Init, work: Work, con
 
     def spawn(slot: int) -> _Worker:
         ours, theirs = ctx.Pipe(duplex=True)
-        process = ctx.Process(target=_worker_main, args=(theirs, setup, init, work), daemon=True)
+        # A forked worker holds copies of every pipe end open here: it closes the supervisor's (module docstring).
+        inherited = tuple(w.conn.fileno() for w in spawned if not w.conn.closed) + (ours.fileno(),)
+        process = ctx.Process(target=_worker_main, args=(theirs, setup, init, work, os.getpid(),
+                                                         inherited if ctx.get_start_method() == "fork" else ()),
+                              daemon=True)
         with _sigint_ignored():  # inherited (through exec too): a Ctrl-C while the worker starts does not reach it
             process.start()
         theirs.close()
@@ -144,7 +161,8 @@ def run_in_processes(schedule: Schedule, setup: Any, init: Init, work: Work, con
     try:
         while schedule.remaining or any(w.unit is not None for w in workers):
             if not workers:
-                raise Fault(f"every worker died while starting ({len(spawned)} starts); no unit can run")
+                raise Fault(f"every worker died while starting ({len(spawned)} starts, the last "
+                            f"{schedule.last_start_loss}); no unit can run")
             for w in workers:
                 if w.ready and not w.retired and w.unit is None and schedule.remaining:
                     key, unit = schedule.take()
@@ -163,7 +181,7 @@ def _wait_for_any(workers: Sequence[_Worker], config: BatchConfig) -> None:
     start limit, whichever comes first."""
     deadlines = [w.unit[2] + w.unit[3] for w in workers if w.unit is not None and w.unit[3] is not None]
     deadlines += [w.started + config.start_timeout_s for w in workers if not w.ready]
-    timeout = max(0.0, min(deadlines) - time.monotonic()) if deadlines else None
+    timeout = min(max(0.0, min(deadlines) - time.monotonic()), WAIT_LIMIT_S) if deadlines else None
     wait([w.conn for w in workers] + [w.process.sentinel for w in workers], timeout)
 
 
@@ -175,7 +193,7 @@ def _serve(w: _Worker, schedule: Schedule, config: BatchConfig, spawn: Callable[
         while w.conn.poll():
             kind, key, payload = w.conn.recv()
             if kind == "init_error":
-                raise BatchError(f"a worker failed to start: {payload}")
+                raise WorkerInitError(*payload)
             if kind == "ready":
                 w.ready = True
                 schedule.worker_ready(w.slot)

@@ -5,7 +5,8 @@ A dead actor (its process killed, a segfault, its node lost) surfaces as RayActo
 a fresh actor takes its place and the unit runs again (`batch.supervision.Schedule`); an actor lost before
 it was ready is replaced up to max_retries times in a row. A unit over the wall-time limit has its actor
 killed and is recorded "wall_timeout". Without an address a local Ray instance is started on all local cores
-(and shut down after the batch); with HOST:PORT the driver joins that cluster (started with `ray start
+(and shut down after the batch; its processes are watched by a `batch.lifetime.Reaper`, so none outlives this one,
+whatever ends it); with HOST:PORT the driver joins that cluster (started with `ray start
 --head` / `ray start --address`), whose nodes must have this project installed.
 
 The head. Ray's driver waits 60 s for a lost head (its GCS) and then ends the process with exit status 1 and
@@ -32,6 +33,7 @@ from typing import Any, Iterator
 
 from batch.config import BatchConfig
 from batch.errors import BatchError
+from batch.lifetime import Reaper
 from batch.supervision import Fault, Init, Schedule, Work, error_reason, unit_limit_s
 
 POLL_S = 1.0
@@ -163,7 +165,8 @@ def run_on_ray(schedule: Schedule, setup: Any, init: Init, work: Work, config: B
     """
     ray = _import_ray()
     started_here = not ray.is_initialized()
-    with _driver_messages_on_stderr():
+    local = started_here and config.ray_address is None
+    with Reaper() if local else contextlib.nullcontext(), _driver_messages_on_stderr():
         if started_here:
             try:
                 with _env_defaults(QUICK_SHUTDOWN_ENV):

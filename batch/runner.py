@@ -55,6 +55,8 @@ class BatchOutcome:
         workers: workers (processes or actors) that ran units: at most the workers asked for (with Ray and
             workers=1, the cluster's CPUs); 0 when nothing was left to run.
         fault: the one-line description of a fault that stopped the whole batch, else None.
+        events_before: how many of ``events`` the journal held from the earlier parts of the run (they come first):
+            a resumed run reports only the others as its own.
     """
 
     records: dict[str, dict]
@@ -64,6 +66,7 @@ class BatchOutcome:
     events: list[dict[str, Any]] = field(default_factory=list)
     workers: int = 0
     fault: str | None = None
+    events_before: int = 0
 
 
 def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Work, failure: Failure,
@@ -105,6 +108,7 @@ def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Wo
     found: dict[str, dict] = {k: done[k] for k in keys if k in done}
     lost: dict[str, dict] = {}
     events: list[dict[str, Any]] = journal.events() if journal is not None else []
+    events_before = len(events)
 
     interrupts = _Interrupts()
 
@@ -148,7 +152,7 @@ def run_batch(units: Sequence[tuple[str, Any]], setup: Any, init: Init, work: Wo
     records = {k: found[k] for k in keys if k in found}
     return BatchOutcome(records, complete=len(records) == len(keys), interrupted=interrupted,
                         infrastructure_errors={k: lost[k] for k in keys if k in lost}, events=events,
-                        workers=schedule.workers, fault=fault)
+                        workers=schedule.workers, fault=fault, events_before=events_before)
 
 
 def unit_groups(todo: Sequence[tuple[str, Any]], group_size: int, workers: int) -> list[UnitGroup]:

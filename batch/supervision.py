@@ -64,6 +64,14 @@ def error_reason(err: BaseException) -> str:
     return f"error: {type(err).__name__}: {message}"
 
 
+def ended_how(where: dict[str, Any]) -> str:
+    """How a lost worker ended, from its event's ``where``: "with exit code 9", "killed by signal 9"."""
+    code = where.get("exit_code")
+    if not isinstance(code, int):
+        return "lost"
+    return f"killed by signal {-code}" if code < 0 else f"with exit code {code}"
+
+
 def infrastructure_reason(tries: int) -> str:
     """The reason of a unit given up after ``tries`` lost tries."""
     return f"{INFRASTRUCTURE}: {WORKER_DIED} after {tries} tries"
@@ -103,6 +111,8 @@ class Schedule:
         self._note = note
         self._started = time.monotonic()
         self._ready_slots: set[int] = set()
+        self.last_start_loss = ""
+        """How the last worker lost while starting ended ("with exit code 9", or the detail given), for messages."""
 
     @property
     def workers(self) -> int:
@@ -176,6 +186,7 @@ class Schedule:
             1 + max_retries starts in a row (else the batch goes on with the other workers).
         """
         self._start_losses[slot] = self._start_losses.get(slot, 0) + 1
+        self.last_start_loss = detail or ended_how(where)
         replace = self.remaining > 0 and self._start_losses[slot] < self._max_tries
         self.note("worker_lost_at_start", where, detail, replaced=replace,
                   starts_lost=self._start_losses[slot])

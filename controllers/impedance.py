@@ -41,6 +41,7 @@ from controllers.mujoco_c import FUNCTIONS
 from controllers.mujoco_layout import layout
 from controllers.validation import as_unit_quaternion, as_vector, site_id
 from numerics.small_linalg import eigh_sym
+from pihutil.bounds import STIFFNESS
 
 PANDA_TORQUE_LIMITS_NM: tuple[float, ...] = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 PANDA_TORQUE_RATE_LIMIT_NM_PER_S: float = 1000.0
@@ -117,9 +118,10 @@ class ImpedanceConfig:
 
 MAX_JOINT_ANGLE_RAD = 2.0 * np.pi
 """The largest |joint angle| a posture reference may ask for (every Panda joint lies within +-3.0 rad)."""
-MIN_STIFFNESS = 1e-3
-"""The smallest stiffness eigenvalue a command may have (N/m or N m/rad): K^-1 scales the feed-forward lead."""
-MAX_STIFFNESS = 1e6
+MIN_STIFFNESS = STIFFNESS.low
+"""The smallest stiffness eigenvalue a command may have (N/m or N m/rad): K^-1 scales the feed-forward lead
+(pihutil.bounds.STIFFNESS, what every option and task field of a stiffness is checked against)."""
+MAX_STIFFNESS = STIFFNESS.high
 """The largest (N/m or N m/rad): 200x a Panda's Cartesian stiffness of record; far below the law's overflow."""
 
 

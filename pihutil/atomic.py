@@ -11,11 +11,18 @@ folder under its ".old-" name beside the target (never a half-written target).
 New files and folders get the modes a plain ``open`` or ``mkdir`` would give (0666 / 0777 less the umask),
 not ``mkstemp``'s 0600.
 
+Killed runs. A process killed outright (SIGKILL, the OOM killer, a power cut) deletes nothing: its temporary file
+or folder stays beside the output. So each is locked (``fcntl.flock``) while its writer lives (a temporary file
+through its own open handle, a folder through a lock file ".NAME.lock-XXXXXXXX" beside it), and the next write of
+the same output removes those whose lock is free (`remove_stale`), saying so on stderr: a lock held is a live
+writer, left alone.
+
 Stdlib only: every layer (rflow, controllers, envs, batch, scripts) may import it.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import sys
@@ -54,16 +61,20 @@ class AtomicFile:
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
+        remove_stale(self.path)
         try:
             fd, name = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=f".tmp{self.path.suffix}",
                                         dir=_folder(self.path))
         except OSError as err:  # a read-only folder, a full disk: named after the output, not the temporary name
             raise OSError(err.errno, err.strerror, str(self.path)) from err
         self.temporary = Path(name)
+        self._lock: int | None = fd  # held until commit or abort: a live writer's file (module docstring)
         try:
+            _lock(fd)
             os.fchmod(fd, 0o666 & ~umask())  # mkstemp makes 0600
-        finally:
-            os.close(fd)
+        except BaseException:
+            self.abort()
+            raise
 
     def commit(self) -> Path:
         """Rename the temporary file over ``path``; returns ``path``. On failure the temporary file is deleted."""
@@ -72,11 +83,18 @@ class AtomicFile:
         except BaseException:
             self.abort()
             raise
+        self._release()
         return self.path
 
     def abort(self) -> None:
         """Delete the temporary file (idempotent)."""
         self.temporary.unlink(missing_ok=True)
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
 
     def __enter__(self) -> AtomicFile:
         return self
@@ -128,9 +146,17 @@ def atomic_folder(path: str | os.PathLike[str], before_swap: Callable[[], None] 
     """
     out = Path(path)
     parent = _folder(out)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=parent))
-    os.chmod(staging, 0o777 & ~umask())  # mkdtemp makes 0700
+    remove_stale(out)
+    lock_fd, lock_name = tempfile.mkstemp(prefix=f".{out.name}.lock-", dir=parent)  # locked before the folder exists
     aside: Path | None = None
+    staging = parent / f".{out.name}.tmp-{Path(lock_name).name.rsplit('.lock-', 1)[1]}"
+    try:
+        _lock(lock_fd)
+        os.mkdir(staging, 0o777 & ~umask())
+    except BaseException:
+        os.close(lock_fd)
+        os.unlink(lock_name)
+        raise
     try:
         yield staging
         if before_swap is not None:
@@ -152,6 +178,70 @@ def atomic_folder(path: str | os.PathLike[str], before_swap: Callable[[], None] 
                                  "replaced\n")
             else:
                 shutil.rmtree(aside, ignore_errors=True)
+        os.unlink(lock_name)  # the staging folder is gone (renamed or removed): its lock goes last
+        os.close(lock_fd)
 
 
-__all__ = ["AtomicFile", "atomic_folder", "umask", "write_atomic"]
+def _lock(fd: int) -> None:
+    """Hold an exclusive lock on ``fd`` (released when the last descriptor of its open file closes: at exit, or at
+    the death of the process, whatever kills it)."""
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def _free(path: Path) -> bool:
+    """Whether no process holds the lock of ``path`` (a missing file is free)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return True
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
+def remove_stale(path: str | os.PathLike[str]) -> list[Path]:
+    """Remove what killed writers of ``path`` left beside it: temporary files ".NAME.XXXXXXXX.tmp.SUFFIX" and
+    staging folders ".NAME.tmp-XXXXXXXX" (with their lock files) whose lock no process holds (module docstring);
+    one line on stderr names them. A replaced folder moved aside (".NAME.old-XXXXXXXX", a crash between the two
+    renames of a swap) is only named: it may be the only copy of the previous output.
+
+    Returns:
+        What was removed.
+    """
+    out = Path(path)
+    parent = _folder(out)
+    try:
+        entries = [entry for entry in parent.iterdir() if entry.name.startswith(f".{out.name}.")]
+    except OSError:
+        return []
+    removed: list[Path] = []
+    for entry in entries:
+        rest = entry.name[len(out.name) + 2:]
+        if rest.startswith("tmp-") and entry.is_dir() and not entry.is_symlink():
+            lock = parent / f".{out.name}.lock-{rest[4:]}"
+            if _free(lock):
+                shutil.rmtree(entry, ignore_errors=True)
+                lock.unlink(missing_ok=True)
+                removed.append(entry)
+        elif rest.startswith("lock-") and entry.is_file() and not (parent / f".{out.name}.tmp-{rest[5:]}").exists():
+            if _free(entry):
+                entry.unlink(missing_ok=True)
+        elif (rest.endswith(f".tmp{out.suffix}") and len(rest) == 8 + len(f".tmp{out.suffix}") and entry.is_file()
+              and not entry.is_symlink() and _free(entry)):
+            entry.unlink(missing_ok=True)
+            removed.append(entry)
+        elif rest.startswith("old-") and entry.is_dir() and (entry / out.name).exists():
+            sys.stderr.write(f"an earlier {out} replaced by an interrupted write is kept at {entry / out.name}\n")
+    if removed:
+        sys.stderr.write(f"removed {', '.join(p.name for p in removed)} beside {out}: left by a run that was killed "
+                         "while writing it\n")
+    return removed
+
+
+__all__ = ["AtomicFile", "atomic_folder", "remove_stale", "umask", "write_atomic"]

@@ -15,6 +15,7 @@ them: weights with torch.save(state_dict) / torch.load(weights_only=True), the r
 from __future__ import annotations
 
 import json
+import math
 import pickle
 import warnings
 from dataclasses import asdict, dataclass, fields
@@ -26,6 +27,8 @@ import numpy.typing as npt
 import torch
 from torch import nn
 
+from numerics.errors import shown
+from pihutil.bounds import LOG_SCALE_CLAMP
 from rflow.dynamics import StableLinearDynamics
 from rflow.errors import RFlowError
 from rflow.flow import ACTIVATIONS, CouplingFlow
@@ -76,6 +79,16 @@ class ModelConfig:
     min_rate: float = 0.05
 
     def __post_init__(self) -> None:
+        for name in ("layers", "width", "hidden_layers"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise RFlowError(f"{name}={value!r} must be an integer")
+        for name in ("log_scale_clamp", "min_rate"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise RFlowError(f"{name}={value!r} must be a number")
+        if not isinstance(self.activation, str):
+            raise RFlowError(f"activation={self.activation!r} must be a name, one of {sorted(ACTIVATIONS)}")
         if not 1 <= self.layers <= 64:
             raise RFlowError(f"layers {self.layers} must be in 1..64")
         if not (1 <= self.width <= MAX_WIDTH and 1 <= self.hidden_layers <= MAX_HIDDEN_LAYERS):
@@ -83,8 +96,9 @@ class ModelConfig:
                              f"and 1..{MAX_HIDDEN_LAYERS}")
         if self.activation not in ACTIVATIONS:
             raise RFlowError(f"unknown activation {self.activation!r}; expected one of {sorted(ACTIVATIONS)}")
-        if not (self.log_scale_clamp > 0 and self.min_rate > 0):
-            raise RFlowError("log_scale_clamp and min_rate must be > 0")
+        if not (LOG_SCALE_CLAMP.contains(self.log_scale_clamp) and self.min_rate > 0):
+            raise RFlowError(f"log_scale_clamp {self.log_scale_clamp!r} must be {LOG_SCALE_CLAMP.text()} and min_rate "
+                             f"{self.min_rate!r} > 0")
 
 
 class ImitationFlow(nn.Module):
@@ -312,20 +326,30 @@ class RiemannianFlow:
         """
         src = Path(directory)
         record = read_json(src / CONFIG_FILE, f"no {CONFIG_FILE} in model directory {src}")
+        if record.get("format") != FORMAT:
+            raise RFlowError(f"{src / CONFIG_FILE} has format {record.get('format')!r}, expected {FORMAT!r}")
         try:
-            if record.get("format") != FORMAT:
-                raise RFlowError(f"{src / CONFIG_FILE} has format {record.get('format')!r}, expected {FORMAT!r}")
             names = {f.name for f in fields(ModelConfig)}
-            config = ModelConfig(**{k: v for k, v in record["model"].items() if k in names})
+            model = record["model"]
+            if not isinstance(model, dict):
+                raise RFlowError(f"'model' must be an object, got {shown(model)}")
+            try:
+                config = ModelConfig(**{k: v for k, v in model.items() if k in names})
+            except RFlowError as err:
+                raise RFlowError(f"model.{err}") from None
             normalisation = Normalisation.from_dict(record["normalisation"])
-            dim = int(record["dim"])
-            dt = float(record["dt"])
+            dim, dt = record["dim"], record["dt"]
+            if isinstance(dim, bool) or not isinstance(dim, int):
+                raise RFlowError(f"dim={shown(dim)} must be an integer")
+            if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
+                raise RFlowError(f"dt={shown(dt)} must be a positive number of seconds")
             manifold = record["manifold"]
             goal = np.asarray(record["goal"], dtype=np.float64)
-        except (KeyError, TypeError, ValueError, AttributeError) as err:
-            if isinstance(err, RFlowError):
-                raise
-            raise RFlowError(f"corrupt {src / CONFIG_FILE}: bad field {err}") from None
+        except KeyError as err:
+            raise RFlowError(f"corrupt {src / CONFIG_FILE}: missing field {err}") from None
+        except (RFlowError, TypeError, ValueError, AttributeError) as err:
+            what = err if isinstance(err, RFlowError) else f"a field of the wrong type ({err})"
+            raise RFlowError(f"corrupt {src / CONFIG_FILE}: {what}") from None
         if dim != normalisation.mean.size:  # checked before the network is built: its size follows dim
             raise RFlowError(f"corrupt {src / CONFIG_FILE}: dim={dim} differs from the normalisation's "
                              f"{normalisation.mean.size} dimensions")

@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from numerics.small_linalg import eigh_sym, matmul
+from pihutil.bounds import STIFFNESS
 from rflow.errors import RFlowError
 from rflow.manifolds import spd
 
@@ -47,9 +48,10 @@ class StiffnessBounds:
     k_max_n_m: float = 3000.0
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.k_min_n_m) and np.isfinite(self.k_max_n_m) and 0.0 < self.k_min_n_m < self.k_max_n_m):
-            raise RFlowError(f"stiffness bounds need 0 < k_min < k_max (finite), got k_min={self.k_min_n_m!r} "
-                             f"N/m, k_max={self.k_max_n_m!r} N/m")
+        if not (STIFFNESS.contains(self.k_min_n_m) and STIFFNESS.contains(self.k_max_n_m)
+                and self.k_min_n_m < self.k_max_n_m):
+            raise RFlowError(f"stiffness bounds need k_min < k_max, both {STIFFNESS.text()} (what the controller "
+                             f"commands), got k_min={self.k_min_n_m!r} N/m, k_max={self.k_max_n_m!r} N/m")
 
     def contains(self, stiffness: npt.ArrayLike, rtol: float = 1e-9) -> bool:
         """True when every eigenvalue of every matrix lies in [k_min, k_max] (relative tolerance ``rtol``)."""

@@ -17,7 +17,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from numerics.cpu_dispatch import check_torch_dispatch
 from pihutil.atomic import write_atomic
+from pihutil.bounds import LEARNING_RATE, PRIOR_RADIUS, PRIOR_WEIGHT
 from rflow.adam import FusedAdam
 from rflow.errors import RFlowError
 from rflow.manifolds import Manifold, get_manifold
@@ -118,8 +119,9 @@ class TrainConfig:
             raise RFlowError(f"model must be a ModelConfig, got {type(self.model).__name__}")
         if self.optimizer not in OPTIMIZERS:
             raise RFlowError(f"unknown optimizer {self.optimizer!r}; expected one of {OPTIMIZERS}")
-        if not (self.lr > 0 and 0 < self.lr_final_fraction <= 1):
-            raise RFlowError(f"need lr > 0 and 0 < lr_final_fraction <= 1, got {self.lr}, {self.lr_final_fraction}")
+        if not (LEARNING_RATE.contains(self.lr) and 0 < self.lr_final_fraction <= 1):
+            raise RFlowError(f"need lr {LEARNING_RATE.text()} and 0 < lr_final_fraction <= 1, got {self.lr}, "
+                             f"{self.lr_final_fraction}")
         counts = {"batch_size": self.batch_size, "epochs": self.epochs, "transitions_per_epoch":
                   self.transitions_per_epoch, "horizon": self.horizon, "horizon_groups": self.horizon_groups}
         for name, value in counts.items():
@@ -132,15 +134,55 @@ class TrainConfig:
             raise RFlowError(f"val_fraction {self.val_fraction} must be in [0, 1)")
         if not (self.grad_clip > 0 and self.init_noise > 0 and self.goal_tolerance >= 0):
             raise RFlowError("grad_clip and init_noise must be > 0, goal_tolerance >= 0")
-        if not (np.isfinite(self.prior_weight) and self.prior_weight >= 0 and np.isfinite(self.prior_radius)
-                and self.prior_radius > 0):
-            raise RFlowError(f"need prior_weight >= 0 and prior_radius > 0, got {self.prior_weight}, {self.prior_radius}")
+        if not (PRIOR_WEIGHT.contains(self.prior_weight) and PRIOR_RADIUS.contains(self.prior_radius)):
+            raise RFlowError(f"need prior_weight {PRIOR_WEIGHT.text()} and prior_radius {PRIOR_RADIUS.text()}, got "
+                             f"{self.prior_weight}, {self.prior_radius}")
         if self.threads is not None and self.threads < 1:
             raise RFlowError(f"threads {self.threads} must be >= 1")
         if self.patience is not None and not (isinstance(self.patience, int) and 1 <= self.patience <= MAX_COUNT):
             raise RFlowError(f"patience {self.patience!r} must be None or an integer in 1..{MAX_COUNT:,}")
         if self.patience is not None and self.val_fraction == 0:
             raise RFlowError("patience (early stopping) needs a validation split: val_fraction > 0")
+
+
+def training_bytes(config: TrainConfig, dim: int) -> int:
+    """A generous estimate of the memory `fit` takes for a model of tangent dimension ``dim`` (measured peaks on 2 to
+    22 layers of width 64 to 1024 and batches of 1e3 to 1e5 lie below it): the weights in float32 with their
+    gradients and Adam's two moments, and float64 copies (x 6); the activations autograd keeps, about four float32
+    values per hidden unit of each layer for every transition of a batch; and an epoch's sampled transitions (start
+    and end index, horizon and time step, 48 bytes each)."""
+    m = config.model
+    per_layer = dim * m.width + (m.hidden_layers - 1) * m.width ** 2 + 2 * dim * m.width + 3 * m.width + 2 * dim
+    steps = max(1, math.ceil(config.transitions_per_epoch / config.batch_size))
+    return (6 * 4 * m.layers * per_layer + 4 * 4 * config.batch_size * m.layers * m.width * m.hidden_layers
+            + 48 * steps * config.batch_size)
+
+
+def available_bytes() -> int | None:
+    """The memory the system can give this process without swapping (Linux: MemAvailable), or None when unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def check_training_memory(config: TrainConfig, dims: Sequence[int], what: str = "the training") -> None:
+    """Refuse, before any work, a training whose models (of tangent dimensions ``dims``, trained at the same time)
+    would need more memory than the system has free (`training_bytes`): the kernel would kill it without a message.
+
+    Raises:
+        RFlowError: one line with the estimate, what is free, and the options that set it.
+    """
+    need, free = sum(training_bytes(config, dim) for dim in dims), available_bytes()
+    if free is not None and need > free:
+        raise RFlowError(f"{what} would need about {need / 2**30:,.1f} GiB of memory, more than the "
+                         f"{free / 2**30:,.1f} GiB free: lower the batch size ({config.batch_size:,}), width "
+                         f"({config.model.width}), layers ({config.model.layers}) or transitions per epoch "
+                         f"({config.transitions_per_epoch:,})")
 
 
 @dataclass

@@ -43,6 +43,7 @@ from envs.io.owned_output import MiB, check_output, write_json
 from envs.media.video import EpisodeVideo, VideoConfig, episode_overlay
 from envs.policies.expert_plan import ExpertConfig, plan_expert_path
 from envs.sim.env import PegInHoleEnv
+from scripts.options import work_begins
 
 Benchmark = tuple[str, Callable[[bool], dict[str, Any]]]
 
@@ -429,6 +430,7 @@ def main(args: argparse.Namespace) -> int:
         if unknown:
             raise EnvError(f"unknown benchmark(s) {unknown}; available: {[name for name, _ in benchmarks]}")
         benchmarks = [b for b in benchmarks if b[0] in args.only]
+    work_begins()
     results: dict[str, Any] = {"machine": machine()}
     for name, function in benchmarks:
         start = time.perf_counter()

@@ -31,10 +31,9 @@ from envs.evaluation.benchmark import (
     summary_lines,
 )
 from scripts.evaluate import adaptation_parts, add_adaptation_options
-from scripts.options import DEFAULT_WORKERS, MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_WORKERS, count, seed
+from scripts.options import DEFAULT_WORKERS, MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_WORKERS, count, seed, work_begins
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
-MAX_SEEDS = 1000
 REPLICATE_BYTES = 200 * 2**20
 """Generous size of one replicate's folder (demos, a checkpoint, the record and its journal)."""
 
@@ -46,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih benchmark`."""
     run = parser.add_argument_group("protocol")
     run.add_argument("--demo-seeds", default="0-4", help="one replicate per demo seed: '0-4', '0,3,9' (default 0-4)")
-    run.add_argument("--episodes", type=int, default=200, help="evaluation episodes per replicate (default 200)")
+    run.add_argument("--episodes", type=count(MAX_EPISODES), default=200,
+                     help=f"evaluation episodes per replicate, 1..{MAX_EPISODES:,} (default 200)")
     run.add_argument("--start-seed-offset", type=seed, default=1000,
                      help="replicate s evaluates starts and hole errors of seed s + offset (default 1000)")
     run.add_argument("--demos", type=count(MAX_DEMOS), default=7, help="demos per replicate (default 7, as the paper)")
@@ -74,13 +74,10 @@ def protocol_from_args(args: argparse.Namespace) -> ProtocolConfig:
     from envs.evaluation.evaluate import EvaluationConfig
 
     task = task_from_args(args)
-    seeds = parse_seeds(args.demo_seeds)
-    if len(seeds) > MAX_SEEDS:
-        raise EnvError(f"--demo-seeds {args.demo_seeds!r}: at most {MAX_SEEDS} replicates")
-    if not 1 <= args.episodes <= MAX_EPISODES:
-        raise EnvError(f"--episodes {args.episodes}: must be 1..{MAX_EPISODES}")
-    if args.workers < 1:
-        raise EnvError(f"--workers {args.workers}: must be >= 1")
+    try:
+        seeds = parse_seeds(args.demo_seeds)
+    except EnvError as err:
+        raise EnvError(f"--demo-seeds: {err}") from None
     evaluation = EvaluationConfig(episodes=args.episodes, task=task.override(shape=task.shape or "square"),
                                   hole_at_goal=args.demo_noise is not None,
                                   contact_adaptation=not args.no_contact_adaptation,
@@ -96,7 +93,8 @@ def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
     from envs.io.jsonable import to_jsonable
 
     evaluation = {k: v for k, v in config.evaluation.settings().items()
-                  if k not in ("seed", "workers", "unit_timeout_s", "backend", "ray_address", "lockstep")}
+                  if k not in ("seed", "workers", "unit_timeout_s", "start_timeout_s", "backend", "ray_address",
+                               "lockstep")}
     noise = {} if config.demo_noise is None else {"demo_noise": config.demo_noise}
     return to_jsonable({"command": "pih benchmark", **noise, "demo_seeds": list(config.demo_seeds),
                         "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "epochs": config.epochs,
@@ -123,10 +121,12 @@ def prepare_folder(out: Path, record: dict[str, Any]) -> None:
                 earlier.pop(MARKER_KEY, None)  # which pih version wrote it does not decide the results
             if earlier != json.loads(json.dumps(record)):
                 raise EnvError(f"--out {out} holds a protocol with other settings: choose another --out")
+            work_begins()
             return
         foreign = [p.name for p in out.iterdir()]
         if foreign:
             raise EnvError(f"--out {out} is not a `pih benchmark` folder (it holds {', '.join(sorted(foreign)[:5])})")
+    work_begins()
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / PROTOCOL_FILE, record)
 

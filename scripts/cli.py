@@ -3,21 +3,24 @@
 Each subcommand module exposes ``add_arguments(parser)``, ``main(args) -> int`` and ``EXAMPLES`` (command lines
 shown at the end of its --help). Exit statuses: 2 for bad input (a bad option value, a bad file, an output that may
 not be written: the project's own exception types), 1 for an operating-system error while working (a read-only folder,
-a full disk), each as one line on stderr ``pih COMMAND: error: ...``; 130 when interrupted. Every option's help shows
-its default; a command's usage line names what it requires and "[options]" for the rest (the options follow).
+a full disk), each as one line on stderr ``pih COMMAND: error: ...``; 130 when interrupted (Ctrl-C, or SIGTERM, which
+stops a command the same way). Every option's help shows its default; a command's usage line names what it requires
+and "[options]" for the rest (the options follow).
 """
 
 from __future__ import annotations
 
 import argparse
 import atexit
+import contextlib
 import ctypes
 import importlib
 import os
+import signal
 import sys
 import textwrap
 import threading
-from typing import NoReturn, Sequence
+from typing import Iterator, NoReturn, Sequence
 
 from numerics.cpu_dispatch import pin_cpu_dispatch
 
@@ -186,7 +189,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     set_command(args.command)
     try:
-        return int(args._main(args) or 0)
+        with _sigterm_interrupts():
+            return int(args._main(args) or 0)
     except USER_ERRORS as err:
         print(f"pih {args.command}: error: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -197,6 +201,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"pih {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM (a scheduler's or a CI's stop, `kill`) raises KeyboardInterrupt in the main thread while a command runs,
+    as Ctrl-C does: the command stops the same way (its journal kept, its temporary outputs removed) and exits 130,
+    instead of dying at once with 143 and leaving its staging folders behind."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def run() -> NoReturn:

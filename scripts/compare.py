@@ -37,7 +37,7 @@ from envs.statistics.comparison import compare_evaluations, load_evaluation, seq
 from envs.statistics.fixed_sample import DECISIONS
 from envs.statistics.pairing import pair_records
 from envs.statistics.sequential import SequentialComparison
-from scripts.options import MAX_EPISODES, count, refuse_unused
+from scripts.options import MAX_EPISODES, count, number, refuse_unused, work_begins
 
 KIND = "pih compare"
 EXIT_REGRESSION = 1
@@ -59,9 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih compare`."""
     parser.add_argument("evaluations", nargs="*", type=Path, metavar="EVAL.json",
                         help="BASE.json CAND.json: two `pih evaluate --json` files of the same episodes")
-    parser.add_argument("--margin", type=float, default=0.0,
+    parser.add_argument("--margin", type=number(minimum=0.0, maximum=1.0), default=0.0,
                         help="success-rate drop tolerated, as a fraction (0.02 = 2 points; default 0)")
-    parser.add_argument("--alpha", type=float, default=0.05,
+    parser.add_argument("--alpha", type=number(minimum=0.0, maximum=0.5), default=0.05,
                         help="probability of calling a regression that is not there (default 0.05)")
     parser.add_argument("--json", type=Path, help="write the comparison here (strict JSON)")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier `pih compare --json` output")
@@ -74,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f"stop undecided after this many pairs (default {DEFAULT_MAX_EPISODES})")
     group.add_argument("--chunk", type=count(MAX_EPISODES), default=DEFAULT_CHUNK,
                        help=f"episodes per model run between updates (default {DEFAULT_CHUNK})")
-    group.add_argument("--progress-margin", type=float,
+    group.add_argument("--progress-margin", type=number(minimum=0.0, maximum=1.0),
                        help="margin of the mean insertion progress (0-1) in the sequential test (default: --margin)")
     group.add_argument("--quiet", action="store_true", help="no progress bars or per-chunk lines")
     evaluate_cli.add_evaluation_options(parser)
@@ -136,7 +136,12 @@ def main(args: argparse.Namespace) -> int:
     check_args(args)
     if args.sequential:
         return run_sequential(args)
+    from envs.evaluation.replay import check_recorded
+
     base, cand = (load_evaluation(path, label) for path, label in zip(args.evaluations, ("BASE", "CAND")))
+    for path, label in zip(args.evaluations, ("BASE", "CAND")):  # its counts, its starts and perturbations
+        check_recorded(json.loads(Path(path).read_text()), f"{label} {path}")
+    work_begins()
     comparison = compare_evaluations(base, cand, args.margin, args.alpha)
     print(comparison.table())
     write_output(args.json, {"mode": "paired", **comparison.to_dict()})
@@ -160,15 +165,14 @@ def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
 
 def run_sequential(args: argparse.Namespace) -> int:
     """Sequential mode (module docstring)."""
-    from envs.evaluation.evaluate import evaluate
-    from envs.evaluation.starts import evaluation_starts
+    from envs.evaluation.evaluate import evaluate, skill_file
+    from envs.evaluation.starts import evaluation_starts, metadata_starts
     from rflow.skill_io import load_skill
 
     config = evaluate_cli.checked_config(args)
-    demo_starts = load_skill(args.base_model).metadata.get("demo_starts")
-    if not isinstance(demo_starts, dict) or "pos" not in demo_starts or "quat" not in demo_starts:
-        raise EnvError(f"--base-model {args.base_model} has no demo start poses (metadata 'demo_starts')")
+    demo_starts = metadata_starts(load_skill(args.base_model).metadata, f"--base-model {skill_file(args.base_model)}")
     starts = evaluation_starts(demo_starts, config)
+    work_begins()
     margin = args.margin if args.progress_margin is None else args.progress_margin
     test = SequentialComparison({"success": args.margin, "progress": margin}, args.alpha)
     runs: dict[str, list[Any]] = {"base": [], "candidate": []}

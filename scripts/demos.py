@@ -23,7 +23,8 @@ import numpy as np
 from envs.errors import EnvError  # noqa: E402
 from envs.io.owned_output import MiB, check_distinct, check_output  # noqa: E402
 from scripts.demos_import import add_import_arguments, run_import  # noqa: E402
-from scripts.options import (MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera, count, number,  # noqa: E402
+from pihutil.bounds import ENTRY_SPEED_M_S  # noqa: E402
+from scripts.options import (MAX_DEMOS, MAX_EPISODES, MAX_SAMPLES, check_camera, count, number, work_begins,  # noqa: E402
                              refuse_unused, seed)
 from scripts.task_options import add_task_arguments, task_from_args  # noqa: E402
 
@@ -57,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     demos.add_argument("--shape", help="peg and hole shape (default: the task's, else square)")
     demos.add_argument("--samples", type=count(MAX_SAMPLES, minimum=2), default=4000,
                        help=f"samples M per demo, 2..{MAX_SAMPLES:,} (default 4000, as the paper)")
-    demos.add_argument("--entry-speed-mm-s", type=number(above=0.0), default=10.0,
+    demos.add_argument("--entry-speed-mm-s", type=number(above=0.0, maximum=ENTRY_SPEED_M_S.high * 1e3), default=10.0,
                        help="speed at which the peg enters the hole, mm/s (default 10; 5 for a 0.2 mm clearance)")
     demos.add_argument("--noise", metavar="SPEC",
                        help="record the demos as a real cell would (envs/demos/noise.py): 'realistic' (3 mm / 3 deg "
@@ -131,14 +132,19 @@ def main(args: argparse.Namespace) -> int:
     if args.video is None:
         refuse_unused(args, add_arguments, ["camera"], "applies to --video only")
     from envs.demos.record import collect_demos, demo_episode_config
-    from envs.policies.expert_plan import ExpertConfig
+    from envs.policies.expert_plan import ExpertConfig, check_entry_speed
     from envs.sim.env import PegInHoleEnv
 
     task = task_from_args(args)
     scene = task.scene_config(shape=task.shape or "square")
     schedule = {} if args.expert_stiffness is None else {"stiffness": args.expert_stiffness}
     expert = ExpertConfig(num_samples=args.samples, entry_speed_m_s=args.entry_speed_mm_s * 1e-3, **schedule)
+    try:
+        check_entry_speed(expert, scene.insertion_depth_m)
+    except EnvError as err:
+        raise EnvError(f"--entry-speed-mm-s {args.entry_speed_mm_s:g}: {err}") from None
     if args.check is not None:
+        work_begins()
         return _check(args, scene, expert)
     noise = None
     if args.noise is not None:
@@ -148,6 +154,7 @@ def main(args: argparse.Namespace) -> int:
     check_outputs(args, [], args.num, args.samples)
     if args.video is not None:
         check_camera(args.camera)
+    work_begins()
     env = PegInHoleEnv(scene, episode_config=demo_episode_config(expert))
     video = None
     if args.video is not None:

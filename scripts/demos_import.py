@@ -20,7 +20,8 @@ import numpy as np
 from envs.datasets import LAYOUTS
 from envs.errors import EnvError
 from envs.io.owned_output import check_free_space, check_output
-from scripts.options import number
+from pihutil.bounds import SAMPLE_PERIOD_S
+from scripts.options import number, work_begins
 from scripts.task_options import task_from_args
 
 
@@ -39,7 +40,7 @@ def add_import_arguments(parser: argparse.ArgumentParser) -> None:
                             "w, x, y, z), or 'franka-tcp' (the Franka hand's TCP: 0,0,0.1034,0.92388,0,0,-0.38268, "
                             "103.4 mm along z, -45 deg about z) or 'flange'; write --tool-offset=-0.01,... when the "
                             "first number is negative")
-    group.add_argument("--dt-s", type=number(above=0.0), metavar="SECONDS",
+    group.add_argument("--dt-s", type=number(bound=SAMPLE_PERIOD_S), metavar="SECONDS",
                        help="with --import: sampling time of the recording, s (required when the file has no dt)")
     group.add_argument("--snap-goal", action="store_true",
                        help="with --import: blend demos that end off their common goal onto it (minimum-jerk "
@@ -95,6 +96,7 @@ def run_import(args: argparse.Namespace) -> int:
                        "--tool-offset franka-tcp)")
     tool_offset = grasp if args.tool_offset is None else parse_tool_offset(args.tool_offset)  # tcp: no conversion
     source_config = recorded.source_config or {}
+    work_begins()
     result = import_demos(recorded, tool_offset, grasp, dt, shape, clearance_m, config,
                           provenance={"source_file": str(args.import_file.resolve()),
                                       "tool_offset_arg": args.tool_offset or recorded.tool_frame,

@@ -37,12 +37,13 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 from batch import BACKENDS, describe_event  # noqa: E402
 from envs.errors import EnvError  # noqa: E402
-from envs.evaluation.config import MAX_LOCKSTEP, MAX_SPEED, EvaluationConfig  # noqa: E402
+from envs.evaluation.config import MAX_LOCKSTEP, EvaluationConfig  # noqa: E402
 from envs.io.owned_output import MiB, check_distinct, check_output  # noqa: E402
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
+from pihutil.bounds import FEEDFORWARD_GAIN, LOOKAHEAD_S, SPEED, TIMEOUT_S  # noqa: E402
 from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
 from scripts.options import (CAMERA_NAMES, DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS,  # noqa: E402
-                             check_camera, count, number, refuse_unused, seed)
+                             check_camera, count, number, refuse_unused, seed, work_begins)
 from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
 
 if TYPE_CHECKING:  # the simulator and torch load in main(), never for --help
@@ -100,11 +101,11 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
     run = parser.add_argument_group("starts and run") if run is None else run
     skill.add_argument("--mode", choices=MODES, default=d.mode,
                        help="query the flow at the measured pose every 10 ms, or track its trajectory")
-    skill.add_argument("--lookahead-s", type=number(above=0.0), default=DEFAULT_LOOKAHEAD_S, metavar="S",
+    skill.add_argument("--lookahead-s", type=number(bound=LOOKAHEAD_S), default=DEFAULT_LOOKAHEAD_S, metavar="S",
                        help="closed loop: flow time ahead of the measured pose")
-    skill.add_argument("--feedforward", type=number(minimum=0.0), default=d.feedforward_gain, metavar="GAIN",
-                       help="velocity feed-forward, 0 = off")
-    skill.add_argument("--speed", type=number(above=0.0, maximum=MAX_SPEED), default=d.speed, metavar="X",
+    skill.add_argument("--feedforward", type=number(bound=FEEDFORWARD_GAIN), default=d.feedforward_gain,
+                       metavar="GAIN", help="velocity feed-forward, 0 = off")
+    skill.add_argument("--speed", type=number(bound=SPEED), default=d.speed, metavar="X",
                        help="time scaling of the learned flow")
     skill.add_argument("--stiffness", metavar="SPEC",
                        help="learned, constant:K (N/m) or schedule[:FREE/LATERAL/AXIAL] (default: the "
@@ -118,8 +119,10 @@ def add_evaluation_options(parser: argparse.ArgumentParser, skill: Any = None, r
                      help="episodes a worker runs side by side (records alike)")
     run.add_argument("--backend", choices=BACKENDS, default=d.backend, help="local processes or Ray actors")
     run.add_argument("--ray-address", metavar="HOST:PORT", help="a Ray cluster's head (default: a local Ray)")
-    run.add_argument("--unit-timeout-s", type=number(minimum=0.0), default=d.unit_timeout_s, metavar="S",
-                     help="wall time per episode, 0 = no limit")
+    run.add_argument("--unit-timeout-s", type=number(minimum=0.0, maximum=TIMEOUT_S.high), default=d.unit_timeout_s,
+                     metavar="S", help="wall time per episode, 0 = no limit")
+    run.add_argument("--start-timeout-s", type=number(bound=TIMEOUT_S), default=d.start_timeout_s, metavar="S",
+                     help="wall time a worker may take to start (with --policy: import it, call its factory)")
     task = add_task_arguments(parser)
     task.add_argument("--shape", help="peg/hole shape (default: the task's, else the demos')")
     task.add_argument("--hole-at-goal", action="store_true", help="the hole at the demos' goal (foreign demos)")
@@ -160,7 +163,8 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
         episodes=args.episodes, seed=args.seed, mode=args.mode, lookahead_s=args.lookahead_s,
         feedforward_gain=args.feedforward, speed=args.speed, task=task_from_args(args),
         scene_from_task=scene_from_task(args), hole_at_goal=args.hole_at_goal, workers=args.workers,
-        unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s, backend=args.backend,
+        unit_timeout_s=None if args.unit_timeout_s == 0 else args.unit_timeout_s,
+        start_timeout_s=args.start_timeout_s, backend=args.backend,
         ray_address=args.ray_address, stiffness=args.stiffness,
         contact_adaptation=not args.no_contact_adaptation,
         adaptation_off=adaptation_parts(getattr(args, "adaptation_off", None)),
@@ -320,7 +324,7 @@ def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> Evalua
         return evaluate_it()
     journal = Journal.open(path, run, resume=args.resume, overwrite=args.overwrite)
     try:
-        return evaluate_it(journal)
+        result = evaluate_it(journal)
     except BaseException:
         journal.close()
         if not args.resume and not journal.done():
@@ -328,6 +332,25 @@ def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> Evalua
         raise
     finally:
         journal.close()
+    if not args.resume and not journal.done():  # nothing to continue: it must not block a plain rerun
+        path.unlink(missing_ok=True)
+    return result
+
+
+def fault_text(args: argparse.Namespace, result: EvaluationResult) -> str:
+    """The fault that stopped the batch, for its one line; a policy that no worker could start is named."""
+    if args.policy is not None and result.workers == 0:
+        return f"--policy {args.policy}: no worker could start the policy ({result.fault})"
+    return str(result.fault)
+
+
+def continue_text(args: argparse.Namespace, result: EvaluationResult) -> str:
+    """"; N of M episodes finished (in JOURNAL); continue with: COMMAND" when there is a journal to continue."""
+    path = journal_path(args)
+    if path is None or not path.is_file():
+        return ""
+    return (f"; {len(result.records)} of {result.config.episodes} episodes finished (in {path}); continue with: "
+            f"{resume_command(args)}")
 
 
 def resume_command(args: argparse.Namespace) -> str:
@@ -366,8 +389,8 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
         {"video": path or None, "figure": path or None, "stiffness_figure": path or None, "replayed": [...]}
         for the summary.
     """
-    from envs.evaluation.evaluate import replay_episodes
-    from envs.evaluation.starts import evaluation_starts
+    from envs.evaluation.evaluate import replay_episodes, skill_file
+    from envs.evaluation.starts import evaluation_starts, metadata_starts
     from envs.media.video import EpisodeVideo, VideoConfig, episode_overlay
     from envs.policies.flow_skill import generate_plan
     from rflow.skill_io import load_skill
@@ -377,7 +400,7 @@ def render_and_plot(model_dir: Path, config: EvaluationConfig, result: Evaluatio
     if not episodes or all(p is None for p in (video, figure, stiffness_figure, force_figure)):
         return out
     skill = load_skill(model_dir)
-    meta = skill.metadata["demo_starts"]
+    meta = metadata_starts(skill.metadata, skill_file(model_dir))
     starts_all = evaluation_starts(meta, config)
     starts = [starts_all[i] for i in episodes]
     outcomes = {r.index: "success" if r.success else (r.failure or "failed") for r in result.records}
@@ -482,29 +505,31 @@ def main(args: argparse.Namespace) -> int:
     the record says so), 3 when the batch is incomplete, 1 when a fault stopped it, 130 when interrupted."""
     wall = time.perf_counter()
     config = check_args(args)
+    work_begins()
     result = run_evaluation(args, config)
     if result.goal_mismatch_mm > GOAL_MISMATCH_WARN_MM:
         whose = "demos" if args.policy else "skill"
         print(f"pih evaluate: warning: the {whose}'s goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
               "for demos recorded elsewhere use --hole-at-goal", file=sys.stderr)
+    if result.fault is not None:  # the batch was stopped: one line, no table of a run that did not happen
+        if args.json is not None and result.records:
+            result.save_json(args.json)  # what ran, and the fault (the events are in it)
+        print(f"pih evaluate: error: {fault_text(args, result)}{continue_text(args, result)}", file=sys.stderr)
+        return EXIT_FAULT
     print(result.summary_table())
-    for event in result.infrastructure_events:
+    for event in result.new_events:  # a resumed run's earlier losses are in the JSON, not news
         print(f"pih evaluate: infrastructure: {describe_event(event)}", file=sys.stderr)
     if args.json is not None:
         result.save_json(args.json)
         print(f"wrote {args.json}")
-    if result.fault is not None or result.interrupted or not result.complete:
-        if result.fault is not None:
-            print(f"pih evaluate: error: {result.fault}", file=sys.stderr)
+    if result.interrupted or not result.complete:
         what = "interrupted" if result.interrupted else "incomplete"
         unscored = f" ({len(result.infrastructure_errors)} lost to infrastructure)" if result.infrastructure_errors else ""
         print(f"pih evaluate: {what} after {len(result.records)} of {config.episodes} episodes{unscored}",
               file=sys.stderr)
-        if journal_path(args) is not None:
+        if journal_path(args) is not None and journal_path(args).is_file():
             print(f"pih evaluate: finished episodes are in {journal_path(args)}; continue with: {resume_command(args)}",
                   file=sys.stderr)
-        if result.fault is not None:
-            return EXIT_FAULT
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
     if args.journal is None and journal_path(args) is not None:  # the run's own journal, of a complete run: the JSON
         journal_path(args).unlink(missing_ok=True)                # holds every record, nothing is left to resume

@@ -3,9 +3,12 @@
     pih evaluate --policy mypkg.mymodule:make --demos demos.npz [--policy-option dataset=ds/] [--privileged] ...
 
 The factory is imported from the current folder first (as `python -m` does) and called as
-``factory(task, **options)`` (the options as strings). A spec without ':', a module that cannot be imported, a
-missing attribute or one that is not callable, and a factory that fails or returns no Policy each end `pih
-evaluate` with one line and exit status 2 before any episode runs.
+``factory(task, **options)`` (the options as strings), in the supervised worker processes only (pih's own process
+only finds the module's file): a spec without ':' or a module that is not found ends `pih evaluate` with one line
+and exit status 2 before any work; a module that fails to import, a missing attribute or one that is not callable,
+and a factory that fails or returns no Policy end it with one line and exit status 2 before any episode; a factory
+that takes its worker down or hangs (past --start-timeout-s) is an infrastructure fault: one line, exit status 1
+(envs/evaluation/evaluate_policy.py).
 """
 
 from __future__ import annotations
@@ -50,13 +53,13 @@ def policy_spec(args: argparse.Namespace) -> PolicySpec:
 
 
 def check_policy_args(args: argparse.Namespace) -> None:
-    """The rules of --policy, before any work: --demos given and readable, no skill-only option, a spec whose factory
-    imports (it is called, and its result checked, when the evaluation builds its environment).
+    """The rules of --policy, before any work: --demos given and readable, no skill-only option, a spec whose module is
+    found (without importing it: it is imported, and its factory called, in the supervised workers).
 
     Raises:
         EnvError: naming the offending option.
     """
-    from envs.evaluation.evaluate_policy import demo_metadata, load_factory
+    from envs.evaluation.evaluate_policy import demo_metadata, policy_files
 
     d = EvaluationConfig()
     given = {"--mode": args.mode != d.mode, "--lookahead-s": args.lookahead_s != DEFAULT_LOOKAHEAD_S,
@@ -71,4 +74,4 @@ def check_policy_args(args: argparse.Namespace) -> None:
     if args.demos is None:
         raise EnvError("--policy needs --demos FILE: the demo file whose scene and start poses the episodes use")
     demo_metadata(args.demos)  # readable and valid
-    load_factory(policy_spec(args))
+    policy_files(policy_spec(args))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
 
 from envs.datasets import LAYOUTS, require_layout
 from envs.datasets.export_folder import check_export_folder, staged_folder
@@ -24,7 +25,7 @@ from envs.datasets.features import DEFAULT_FPS, ExportEpisode, ExportMeta, episo
 from envs.datasets.resample import MAX_FPS
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output_folder
-from scripts.options import count, refuse_unused
+from scripts.options import count, refuse_unused, work_begins
 
 DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x128"}
 VIDEO_BYTES = 500 * MiB
@@ -112,12 +113,27 @@ def _write_all(root: Path, layout: str, meta: ExportMeta, episodes: list[ExportE
     writer.close()
 
 
-def export_episodes(args: argparse.Namespace, root: Path) -> tuple[int, dict[int, str]]:
-    """Replay the evaluation's episodes into ``root``; (episodes written, {skipped index: reason})."""
-    from envs.datasets.episode_export import EpisodeExport
-    from envs.evaluation.replay import load_evaluation, replay_evaluation
+def checked_evaluation(args: argparse.Namespace) -> Any:
+    """The evaluation of --episodes, checked field by field (envs.evaluation.replay.check_recorded) and, with
+    --select, the chosen episodes drawn again: before the export folder is staged.
+
+    Raises:
+        EnvError: see `envs.evaluation.replay.load_evaluation` and `recorded_starts`.
+    """
+    from envs.evaluation.replay import load_evaluation, recorded_starts
 
     evaluation = load_evaluation(args.episodes, args.model)
+    chosen = parse_select(args.select)
+    if chosen is not None:
+        recorded_starts(evaluation, chosen)
+    return evaluation
+
+
+def export_episodes(args: argparse.Namespace, root: Path, evaluation: Any) -> tuple[int, dict[int, str]]:
+    """Replay the evaluation's episodes into ``root``; (episodes written, {skipped index: reason})."""
+    from envs.datasets.episode_export import EpisodeExport
+    from envs.evaluation.replay import replay_evaluation
+
     size = parse_size(args.video_size or DEFAULT_VIDEO_SIZE[args.format])
     job = EpisodeExport(root, args.format, str(args.episodes), evaluation, args.camera if args.video else None, size,
                         args.fps or DEFAULT_FPS)
@@ -154,6 +170,8 @@ def main(args: argparse.Namespace) -> int:
         VideoConfig(width=width, height=height, camera=args.camera, fps=args.fps or DEFAULT_FPS)  # H.264: multiples of 8
     elif args.video_size is not None:
         parse_size(args.video_size)
+    evaluation = checked_evaluation(args) if args.episodes is not None else None
+    work_begins()
     start = time.perf_counter()
     with staged_folder(args.out, args.overwrite) as root:
         if args.demos is not None:
@@ -163,7 +181,7 @@ def main(args: argparse.Namespace) -> int:
             _write_all(root, args.format, meta, episodes)
             count, skipped, absent = len(episodes), {}, meta.absent
         else:
-            count, skipped = export_episodes(args, root)
+            count, skipped = export_episodes(args, root, evaluation)
             absent = {}
     wall = time.perf_counter() - start
     print(f"wrote {args.out} ({args.format}, {args.fps or DEFAULT_FPS} fps): {count} "

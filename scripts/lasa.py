@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 import time
 from pathlib import Path
@@ -31,6 +32,7 @@ from envs.io.npz import open_npz
 from envs.io.owned_output import (MiB, check_distinct, check_output, check_output_folder, save_npz, write_json,
                                   write_text)
 from numerics.cpu_dispatch import DISPATCH_VARIABLES
+from pihutil.bounds import LEARNING_RATE, TIMEOUT_S
 from rflow.errors import RFlowError
 from rflow.lasa import (
     BENCHMARK_MANIFOLDS,
@@ -44,9 +46,9 @@ from rflow.lasa import (
     riemannian_lasa,
 )
 from rflow.model import ModelConfig
-from rflow.train import TrainConfig
+from rflow.train import TrainConfig, check_training_memory
 from scripts.lasa_report import MANIFOLD_LABELS, METHOD_LABELS, gains, markdown_table, plot_comparison, plot_results
-from scripts.options import DEFAULT_WORKERS, MAX_EPOCHS, MAX_WORKERS, count, number, refuse_unused, seed
+from scripts.options import DEFAULT_WORKERS, MAX_EPOCHS, MAX_WORKERS, count, number, refuse_unused, seed, work_begins
 
 JOURNAL = "journal.jsonl"
 EXIT_FAILED_UNITS = 1
@@ -55,6 +57,8 @@ EXIT_INTERRUPTED = 130
 _HYPERPARAMETERS = ("epochs", "layers", "lr", "batch_size")  # the options --config replaces
 UNIT_BYTES = 256 * 1024
 """Generous size of one unit of --all on disk (its trajectories, journal line and share of the figures)."""
+LASA_TANGENT_DIM = 3
+"""The tangent dimension of every LASA model (SPD(2) and unit quaternions: 3), for the memory check."""
 
 
 EXAMPLES: tuple[str, ...] = ('pih lasa --shape NShape --manifold spd --json nshape.json',
@@ -83,7 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", default="process", help="--all: process (spawned workers) or ray")
     parser.add_argument("--ray-address", metavar="HOST:PORT",
                         help="--all --backend ray: join this Ray cluster (default: a local Ray instance)")
-    parser.add_argument("--unit-timeout-s", type=number(above=0.0), metavar="S",
+    parser.add_argument("--unit-timeout-s", type=number(bound=TIMEOUT_S), metavar="S",
                         help="--all: record a run taking longer than S seconds as failed (default: no limit)")
     parser.add_argument("--shapes", help="comma-separated subset of shapes for --all (default all 30)")
     parser.add_argument("--manifolds", default="spd,uq", help="comma-separated manifolds for --all")
@@ -97,7 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = TrainConfig()
     parser.add_argument("--epochs", type=count(MAX_EPOCHS), help=f"training epochs (default {defaults.epochs})")
     parser.add_argument("--layers", type=count(64), help=f"coupling layers, 1..64 (default {defaults.model.layers})")
-    parser.add_argument("--lr", type=number(above=0.0), help=f"learning rate (default {defaults.lr:g})")
+    parser.add_argument("--lr", type=number(bound=LEARNING_RATE), help=f"learning rate (default {defaults.lr:g})")
     parser.add_argument("--batch-size", type=count(1_000_000),
                         help=f"transitions per step (default {defaults.batch_size})")
     parser.add_argument("--threads", type=count(256), default=1,
@@ -272,6 +276,7 @@ def run_all(args: argparse.Namespace) -> int:
     manifolds = [_manifold_name(m) for m in _split(args.manifolds, check_manifold, "manifolds")]
     methods = _split(args.methods, _check_method, "methods")
     config = train_config(args)
+    check_training_memory(config, [LASA_TANGENT_DIM] * min(args.workers, os.cpu_count() or 1))  # workers at once
     try:
         batch_config = BatchConfig(workers=args.workers, unit_timeout_s=args.unit_timeout_s, backend=args.backend,
                                    ray_address=args.ray_address, worker_environment=DISPATCH_VARIABLES)
@@ -296,6 +301,7 @@ def run_all(args: argparse.Namespace) -> int:
         raise RFlowError(f"--resume: there is no run to continue in {out} (no {JOURNAL})")
     run = {"command": "lasa", "shapes": shapes, "manifolds": manifolds, "methods": methods,
            "n_points": args.n_points, "config": dataclasses.asdict(config)}
+    work_begins()
     for folder in (out, out / "figures", out / "trajectories"):
         folder.mkdir(parents=True, exist_ok=True)
     try:
@@ -346,7 +352,7 @@ def run_all(args: argparse.Namespace) -> int:
                       for m in methods if m != "rflow" for a, g in gains(ordered, m).items())
     print(f"wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'comparison.png'}: {len(ordered)} of "
           f"{len(units)} runs, {failed} failed, {time.perf_counter() - start:.0f} s. Mean DTW: {means or 'n/a'}")
-    for event in outcome.events:
+    for event in outcome.events[outcome.events_before:]:  # a resumed run's earlier losses are in the JSON
         print(f"pih lasa: infrastructure: {describe_event(event)}", file=sys.stderr)
     if outcome.fault is not None:
         print(f"pih lasa: error: {outcome.fault}; continue with --resume", file=sys.stderr)
@@ -371,10 +377,12 @@ def run_one(args: argparse.Namespace) -> int:
     manifold = _manifold_name(args.manifold)
     method = _check_method(args.method)
     config = train_config(args, args.threads)
+    check_training_memory(config, [LASA_TANGENT_DIM])
     outputs = {"--json": args.json, "--save-trajectories": args.save_trajectories, "--figure": args.figure}
     check_distinct(outputs)
     for (option, path), suffix in zip(outputs.items(), (".json", ".npz", ".png")):
         check_output(option, path, args.overwrite, suffix=suffix, inputs=[args.config], estimate_bytes=4 * MiB)
+    work_begins()
     result = evaluate_shape(shape, manifold, config, args.seed, method, args.n_points, progress=args.progress)
     if args.json is not None:
         write_json(args.json, result.to_dict())

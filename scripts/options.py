@@ -12,15 +12,17 @@ import argparse
 import math
 from typing import Callable, Sequence
 
-MAX_SEED = 2**32 - 1
-MAX_EPISODES = 100_000
-"""Episodes of one evaluation or of one sweep cell (a record is ~2 KB; 100000 take hours on a workstation)."""
-MAX_DEMOS = 1_000
-MAX_SAMPLES = 100_000
+from pihutil.bounds import DEMOS, EPISODES, EPOCHS, SAMPLES, SEED, TRIALS, WORKERS, Bound
+
+MAX_SEED = SEED.high
+MAX_EPISODES = EPISODES.high
+"""Episodes of one evaluation or of one sweep cell (pihutil.bounds.EPISODES)."""
+MAX_DEMOS = DEMOS.high
+MAX_SAMPLES = SAMPLES.high
 """Samples per demo (M = 4000 in the paper)."""
-MAX_WORKERS = 1_024
-MAX_EPOCHS = 1_000_000
-MAX_TRIALS = 100_000
+MAX_WORKERS = WORKERS.high
+MAX_EPOCHS = EPOCHS.high
+MAX_TRIALS = TRIALS.high
 DEFAULT_WORKERS = 2
 """Worker processes of every command that runs episodes or trains in parallel (one default for all of them)."""
 CAMERA_NAMES = "front, side, top, closeup, wrist, cutaway"
@@ -33,13 +35,16 @@ def seed(text: str) -> int:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer seed") from None
-    if not 0 <= value <= MAX_SEED:
+    if not SEED.contains(value):
         raise argparse.ArgumentTypeError(f"{text} is outside 0..{MAX_SEED} (2**32 - 1)")
     return value
 
 
+seed.bound = SEED  # type: ignore[attr-defined]
+
+
 def count(maximum: int, minimum: int = 1) -> Callable[[str], int]:
-    """An option type: an integer in ``minimum`` .. ``maximum``."""
+    """An option type: an integer in ``minimum`` .. ``maximum`` (its `pihutil.bounds.Bound` as ``.bound``)."""
     def parse(text: str) -> int:
         try:
             value = int(text)
@@ -50,13 +55,19 @@ def count(maximum: int, minimum: int = 1) -> Callable[[str], int]:
         return value
 
     parse.__name__ = "count"
+    parse.bound = Bound(minimum, maximum, integer=True)  # type: ignore[attr-defined]
     return parse
 
 
 def number(minimum: float | None = None, maximum: float | None = None, above: float | None = None,
-           infinite: bool = False) -> Callable[[str], float]:
+           infinite: bool = False, bound: Bound | None = None) -> Callable[[str], float]:
     """An option type: a finite float (or +inf with ``infinite``: "no limit"), >= ``minimum``, <= ``maximum``
-    and > ``above`` where given."""
+    and > ``above`` where given; or within ``bound`` (a `pihutil.bounds.Bound`, the quantity's one range). The
+    range is the parser's ``.bound``."""
+    if bound is not None:
+        minimum, above = (None, bound.low) if bound.low_open else (bound.low, None)
+        maximum, infinite = (None if math.isinf(bound.high) else bound.high), bound.infinite
+
     def parse(text: str) -> float:
         try:
             value = float(text)
@@ -73,7 +84,22 @@ def number(minimum: float | None = None, maximum: float | None = None, above: fl
         return value
 
     parse.__name__ = "number"
+    low = above if above is not None else (minimum if minimum is not None else -math.inf)
+    parse.bound = bound or Bound(low, math.inf if maximum is None else maximum,  # type: ignore[attr-defined]
+                                 low_open=above is not None, infinite=infinite)
     return parse
+
+
+WORK_BEGINS_HOOKS: list[Callable[[], None]] = []
+"""Called by `work_begins` (none in a command run; the tests of the option bounds stop a command there)."""
+
+
+def work_begins() -> None:
+    """Called by every command once its whole input is checked, right before its first piece of work (an episode, a
+    training epoch, a demo recorded, an output written): bad input is refused before this line, with one line and
+    exit status 2 (tests/scripts/test_option_bounds.py stops every command here through WORK_BEGINS_HOOKS)."""
+    for hook in WORK_BEGINS_HOOKS:
+        hook()
 
 
 def check_camera(camera: str) -> None:

@@ -33,7 +33,7 @@ from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
 from envs.sim.observation import StepResult
 from envs.sim.trajectory import replay_trajectory
-from scripts.options import CAMERA_NAMES, MAX_EPISODES, check_camera, count, number, refuse_unused
+from scripts.options import CAMERA_NAMES, MAX_DEMOS, MAX_EPISODES, check_camera, count, number, refuse_unused, work_begins
 
 VIDEO_BYTES = 100 * MiB
 """Generous size of one rendered demo (640x480 H.264, a 10-20 s demo takes a few MiB)."""
@@ -199,6 +199,7 @@ def main(args: argparse.Namespace) -> int:
               f"{stats['wall_s']:.1f} s; {stats['reason']}")
         return 0
     source = trajectory_source(args)
+    work_begins()
     stats = render_trajectory(source, args.out, video, hold_s=args.hold_s)
     print(f"wrote {args.out}: {source.label}, {stats['frames']} frames ({stats['sim_s']:.2f} s simulated) in "
           f"{stats['wall_s']:.1f} s; final peg_tip {stats['final_pos_error_mm']:.3f} mm from the goal, "

@@ -22,7 +22,8 @@ from typing import Any
 
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output, check_output_folder, write_json
-from scripts.options import DEFAULT_WORKERS, MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed
+from scripts.options import (DEFAULT_WORKERS, MAX_DEMOS, MAX_EPISODES, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, seed,
+                             work_begins)
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
 RUN_OUTPUTS = ("demos.npz", "model", "eval.json", "skill.png", "outcomes.png", "forces.png", "episodes.mp4",
@@ -107,6 +108,7 @@ def main(args: argparse.Namespace) -> int:
                        f"at most {samples - 1}")
     out = args.root / args.name
     check_run_folder(out, args.overwrite, video=not args.no_video)
+    work_begins()
     out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     wall = time.perf_counter()

@@ -20,7 +20,7 @@ from typing import Any
 from rflow.errors import RFlowError
 from rflow.lasa import LASA_POINTS, LASA_SHAPES
 from rflow.train import TrainConfig
-from scripts.options import MAX_EPOCHS, MAX_TRIALS, count, seed
+from scripts.options import MAX_EPOCHS, MAX_TRIALS, count, seed, work_begins
 
 OUTPUT_BYTES_PER_TRIAL = 64 * 1024
 """Generous size of one trial in search.json and the SQLite study."""
@@ -127,6 +127,7 @@ def main(args: argparse.Namespace) -> int:
     study_name = args.study or f"{config.shape}-{manifold}-seed{args.seed}"
     if not study_name.strip():
         raise RFlowError("--study must not be empty")
+    work_begins()
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     study = run_search(config, storage, study_name, on_trial=lambda line: print(line, flush=True))

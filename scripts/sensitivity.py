@@ -7,20 +7,27 @@ Runs the skill on the task (default the contact preset: the ideal cell), then on
 envs/evaluation/sensitivity.py alone and with all of them (the "realistic" preset's magnitudes), every variant on the
 same --seed and --episodes, so each pairs with the ideal cell episode for episode. Writes into --out:
 sensitivity.md (the table), sensitivity.json (every row with its paired comparison) and sensitivity.png (the
-figure), and prints the table and the imperfection that costs most. Exit status: 0, or 2 on bad input (checked
-before any episode).
+figure), and prints the table and the imperfection that costs most.
+
+Long runs: every finished episode of a variant goes into its journal, --out/journals/VARIANT.jsonl, so after Ctrl-C
+or SIGTERM (exit 130) the same command with --resume runs only what is missing, to the same table. Exit status: 0;
+2 on bad input (checked before any episode); 130 when interrupted, 3 when a variant lost episodes to infrastructure,
+1 when a fault stopped it (the Ray head lost): each with the command that continues.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import shlex
 import sys
 from pathlib import Path
+from typing import Any, Iterator
 
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output, check_output_folder
-from scripts.options import DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS, count, seed
+from scripts.options import DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS, count, seed, work_begins
 from scripts.task_options import add_task_file_arguments, task_from_args
 
 IMPERFECTION_NAMES = ("friction", "compliant_pads", "in_hand_pose", "grasp_offset", "payload", "joint_friction",
@@ -28,6 +35,11 @@ IMPERFECTION_NAMES = ("friction", "compliant_pads", "in_hand_pose", "grasp_offse
 """The names of envs.evaluation.sensitivity.IMPERFECTIONS, then ALTERNATIVES (spelled here so --help does not load the
 simulator)."""
 OUTPUTS = {"table": "sensitivity.md", "json": "sensitivity.json", "figure": "sensitivity.png"}
+JOURNALS = "journals"
+"""The folder in --out holding one journal per variant (VARIANT.jsonl)."""
+RECORD_BYTES = 8 * 1024
+"""Generous size of one episode in a journal (a record is ~2 KB)."""
+EXIT_FAULT, EXIT_INCOMPLETE, EXIT_INTERRUPTED = 1, 3, 130
 
 
 EXAMPLES: tuple[str, ...] = ('pih sensitivity --model model/ --out sens/ --episodes 100 --seed 1000',)
@@ -37,7 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih sensitivity`."""
     parser.add_argument("--model", type=Path, required=True, help="checkpoint directory from `pih train`")
     parser.add_argument("--out", type=Path, default=Path("runs/sensitivity"), help="folder for the table, JSON, figure")
-    parser.add_argument("--overwrite", action="store_true", help="replace outputs an earlier pih run wrote there")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace outputs (and the journals of an unfinished run) an earlier pih run wrote there")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run whose journals are in --out/journals: only missing episodes run")
     parser.add_argument("--episodes", type=count(MAX_EPISODES), default=100, help="episodes per variant")
     parser.add_argument("--seed", type=seed, default=1000, help="seed of the starts (keep it apart from demo seeds)")
     parser.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS, help="evaluation processes")
@@ -47,26 +62,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    """Run the variants and write the outputs; returns 0."""
+    """Run (or continue) the variants and write the outputs; returns the exit status (module docstring)."""
     from envs.evaluation.config import EvaluationConfig
-    from envs.evaluation.sensitivity import costliest, plot_sensitivity, run_sensitivity, sensitivity_table
+    from envs.evaluation.sensitivity import Stopped, costliest, plot_sensitivity, run_sensitivity, sensitivity_table
+    from envs.evaluation.sensitivity import variants as variants_of
     from envs.io.owned_output import write_json, write_text
 
     if not args.model.is_dir():
         raise EnvError(f"--model {args.model}: no such checkpoint folder")
+    if args.resume and args.overwrite:
+        raise EnvError("--resume continues an earlier run and --overwrite replaces it: choose one")
     from rflow.skill_io import load_skill
 
     load_skill(args.model)  # a corrupt checkpoint is one line before any output or episode
-    check_output_folder("--out", args.out, inputs=[args.model], estimate_bytes=4 * MiB)
+    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task_from_args(args))
+    names = [n for n in IMPERFECTION_NAMES if n in args.only]
+    planned = [name for name, _, _ in variants_of(config, names)]
+    journals = args.out / JOURNALS
+    check_output_folder("--out", args.out, inputs=[args.model],
+                        estimate_bytes=4 * MiB + RECORD_BYTES * args.episodes * len(planned))
     paths = {key: args.out / name for key, name in OUTPUTS.items()}
     # Before any episode runs: the outputs already there are ours, and so is the registry the figure joins.
     for path in paths.values() if args.out.is_dir() else ():
-        check_output("--out", path, args.overwrite, inputs=[args.model], estimate_bytes=2 * MiB)
-    config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task_from_args(args))
-    names = [n for n in IMPERFECTION_NAMES if n in args.only]
-    rows = run_sensitivity(args.model, config, names,
-                           on_variant=lambda name: print(f"evaluating: {name}", file=sys.stderr, flush=True))
-    args.out.mkdir(parents=True, exist_ok=True)  # made once there is something to write: a bad model leaves nothing
+        check_output("--out", path, args.overwrite or args.resume, inputs=[args.model], estimate_bytes=2 * MiB)
+    check_journals(journals, planned, args.resume, args.overwrite, args.model)
+    work_begins()
+    journals.mkdir(parents=True, exist_ok=True)
+    try:
+        rows = run_sensitivity(args.model, config, names, journal=variant_journal(journals, args),
+                               on_variant=lambda name: print(f"evaluating: {name}", file=sys.stderr, flush=True))
+    except Stopped as stop:
+        return stopped(args, stop.name, stop.result, planned)
+    except KeyboardInterrupt:  # between two batches (a variant's batch handles its own)
+        return stopped(args, None, None, planned)
     table = sensitivity_table(rows)
     worst = costliest(rows)
     verdict = ("no imperfection alone lowered the success rate on these episodes" if worst is None else
@@ -79,6 +107,78 @@ def main(args: argparse.Namespace) -> int:
     print(table)
     print(verdict)
     return 0
+
+
+def check_journals(journals: Path, planned: list[str], resume: bool, overwrite: bool, model: Path) -> None:
+    """The journals of an earlier run in ``journals`` are continued with --resume, replaced with --overwrite (each
+    only if pih wrote it: `batch.Journal.open`), and otherwise keep a plain run from starting over them.
+
+    Raises:
+        EnvError: journals there without --resume or --overwrite; a file pih did not write among the planned ones.
+    """
+    found = sorted(p.name for p in journals.glob("*.jsonl")) if journals.is_dir() else []
+    if journals.exists() and not journals.is_dir():
+        raise EnvError(f"--out {journals.parent}: {journals} is not a folder of journals")
+    if found and not (resume or overwrite):
+        raise EnvError(f"--out {journals.parent} holds the journals of an unfinished or earlier run ({', '.join(found)}"
+                       f"): continue it with --resume, or start again with --overwrite")
+    for name in planned:
+        path = journals / f"{name}.jsonl"
+        if path.exists() or path.is_symlink():
+            check_output("--out", path, True, suffix=".jsonl", inputs=[model])
+
+
+def variant_journal(journals: Path, args: argparse.Namespace) -> Any:
+    """The ``journal`` of `run_sensitivity`: a variant's journal in ``journals``, continued when it is there (with
+    --resume), else new (replacing one with --overwrite)."""
+    from batch import Journal
+    from envs.evaluation.evaluate import journal_run
+
+    @contextlib.contextmanager
+    def open_journal(name: str, config: Any) -> Iterator[Any]:
+        path = journals / f"{name}.jsonl"
+        resume = args.resume and path.is_file()
+        with Journal.open(path, journal_run(args.model, config), resume=resume, overwrite=args.overwrite) as journal:
+            yield journal
+
+    return open_journal
+
+
+def resume_command(args: argparse.Namespace) -> str:
+    """The command line that continues this run."""
+    argv = [a for a in sys.argv[1:] if a not in ("--overwrite", "--resume")]
+    if not argv or argv[0] != "sensitivity":
+        return f"the same command with --resume (journals in {args.out / JOURNALS})"
+    return shlex.join(["pih", *argv, "--resume"])
+
+
+def stopped(args: argparse.Namespace, name: str | None, result: Any, planned: list[str]) -> int:
+    """Say where the run stopped and how to continue it; the exit status (module docstring)."""
+    from batch import describe_event
+
+    journals = args.out / JOURNALS
+    done = [v for v in planned if _finished(journals / f"{v}.jsonl", args.episodes)]
+    where = f"in variant {name!r} " if name is not None else ""
+    if result is not None:
+        for event in result.new_events:
+            print(f"pih sensitivity: infrastructure: {describe_event(event)}", file=sys.stderr)
+        if result.fault is not None:
+            print(f"pih sensitivity: error: {result.fault}", file=sys.stderr)
+    what = ("interrupted" if result is None or result.interrupted else
+            "stopped by a fault" if result.fault is not None else "incomplete")
+    print(f"pih sensitivity: {what} {where}after {len(done)} of {len(planned)} variants; finished episodes are in "
+          f"{journals}; continue with: {resume_command(args)}", file=sys.stderr)
+    if result is None or result.interrupted:
+        return EXIT_INTERRUPTED
+    return EXIT_FAULT if result.fault is not None else EXIT_INCOMPLETE
+
+
+def _finished(path: Path, episodes: int) -> bool:
+    """Whether the journal at ``path`` holds ``episodes`` episodes."""
+    try:
+        return sum('"kind": "unit"' in line for line in path.read_text().splitlines()) >= episodes
+    except OSError:
+        return False
 
 
 __all__ = ["EXAMPLES", "add_arguments", "main"]

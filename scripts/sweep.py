@@ -26,7 +26,8 @@ from envs.errors import EnvError
 from envs.evaluation.config import EvaluationConfig
 from envs.io.owned_output import MiB, check_output, check_output_folder, write_json
 from envs.policies.skill_settings import MODES
-from scripts.options import DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS, count, number, seed
+from pihutil.bounds import TIME_LIMIT_S, TIMEOUT_S
+from scripts.options import DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS, count, number, seed, work_begins
 from scripts.task_options import add_task_file_arguments, check_option_value, scene_from_task, task_from_args
 
 AXIS_OPTIONS: dict[str, tuple[str, float]] = {
@@ -66,12 +67,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run = parser.add_argument_group("run")
     run.add_argument("--episodes", type=count(MAX_EPISODES), default=30, help=f"episodes per cell, 1..{MAX_EPISODES:,}")
     run.add_argument("--seed", type=seed, default=0, help="seed of the starts and perturbations, 0..2**32-1")
-    run.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0),
+    run.add_argument("--time-limit-s", type=number(bound=TIME_LIMIT_S),
                      help=f"simulated seconds per episode (default: the task's, {d.task.time_limit_s:g})")
     run.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS, help="parallel workers")
     run.add_argument("--backend", choices=BACKENDS, default=d.backend, help="process or ray")
     run.add_argument("--ray-address", help="HOST:PORT of a Ray cluster's head (default: a local Ray)")
-    run.add_argument("--unit-timeout-s", type=number(minimum=0.0), default=d.unit_timeout_s,
+    run.add_argument("--unit-timeout-s", type=number(minimum=0.0, maximum=TIMEOUT_S.high), default=d.unit_timeout_s,
                      help="wall seconds per episode before its worker is killed; 0 = none")
     run.add_argument("--resume", action="store_true", help="continue the sweep recorded in --out/journal.jsonl")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -160,6 +161,7 @@ def main(args: argparse.Namespace) -> int:
     for name in OUTPUTS if out.is_dir() else ():  # those there are ours; a registry there is ours (sweep.png)
         check_output("--out", out / name, args.overwrite or args.resume)
     checksum = journal_run(args.model, cells[0].config)["skill_sha256"]
+    work_begins()
     out.mkdir(parents=True, exist_ok=True)
     wall = time.perf_counter()
     journal_path = out / "journal.jsonl"
@@ -173,6 +175,10 @@ def main(args: argparse.Namespace) -> int:
             if created and not any(out.iterdir()):
                 out.rmdir()
         raise
+    if result.fault is not None:  # the batch was stopped: one line, no success map of a sweep that did not happen
+        print(f"pih sweep: error: {result.fault}; finished episodes are in {journal_path}; continue with the same "
+              "command and --resume", file=sys.stderr)
+        return 1
     write_json(out / "sweep.json", result.to_dict())
     active = axes.active()
     rows: str | None
@@ -192,11 +198,8 @@ def main(args: argparse.Namespace) -> int:
               f"contact {100 * summary['contact_rate']:.0f} %, "
               f"median peak wrist force {'-' if force is None else f'{force:.1f} N'}")
     print(f"wrote {out / 'sweep.json'} and {out / 'sweep.png'} ({time.perf_counter() - wall:.0f} s)")
-    for event in result.infrastructure_events:
+    for event in result.infrastructure_events[result.events_before:]:  # a resumed sweep's earlier ones: in the JSON
         print(f"pih sweep: infrastructure: {describe_event(event)}", file=sys.stderr)
-    if result.fault is not None:
-        print(f"pih sweep: error: {result.fault}; continue with the same command and --resume", file=sys.stderr)
-        return 1
     if result.interrupted:
         print("interrupted: continue with the same command and --resume", flush=True)
         return 130

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 
+from scripts.options import work_begins
 from scripts.task_options import add_start_arguments, add_task_arguments, task_from_args
 
 
@@ -25,7 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Print the resolved task as TOML; returns 0."""
-    print(task_from_args(args).to_toml(), end="")
+    task = task_from_args(args)
+    work_begins()
+    print(task.to_toml(), end="")
     return 0
 
 

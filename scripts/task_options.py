@@ -21,6 +21,7 @@ from typing import Any
 from envs.errors import EnvError
 from envs.task.perturbation import HOLE_OBSERVATIONS
 from envs.task.task import AROUND, DEFAULT_PRESET, PRESET_NAMES, Task, load_task
+from pihutil.bounds import TIME_LIMIT_S
 from scripts.options import number
 
 OPTION_FIELDS: dict[str, tuple[str, float | None]] = {
@@ -126,7 +127,7 @@ def add_start_arguments(group: Any, expanded: bool = False) -> None:
     group.add_argument("--around", choices=AROUND,
                        help=_shown("the task's centre of the start perturbations: the mean demo start or a random "
                                    f"demo's start (default {start.around})", expanded))
-    group.add_argument("--time-limit-s", type=number(above=0.0, maximum=3600.0), metavar="S",
+    group.add_argument("--time-limit-s", type=number(bound=TIME_LIMIT_S), metavar="S",
                        help=_shown(f"the task's time limit: simulated seconds per episode (default {limit})", expanded))
 
 

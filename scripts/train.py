@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from rflow.stiffness import StiffnessBounds
+from scripts.options import work_begins
 
 DEFAULT_SUBSAMPLE = 10
 """Demo samples kept: every 10th (M = 4000 -> 400, dt ~17.5 ms); generation steps are exact for any dt."""
@@ -51,6 +52,7 @@ EXAMPLES: tuple[str, ...] = ('pih train --demos demos.npz --out model/',
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the options of `pih train`, in groups: input, output, skill, training, run."""
+    from pihutil.bounds import LEARNING_RATE, LOG_SCALE_CLAMP, PRIOR_RADIUS, PRIOR_WEIGHT, STIFFNESS
     from rflow.model import MAX_WIDTH
     from scripts.options import DEFAULT_WORKERS, MAX_EPOCHS, MAX_SAMPLES, MAX_WORKERS, count, number, seed
 
@@ -74,9 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "and orientation models (or inside the joint model with --joint): 'expert' = the "
                             "stiffness recorded in the demo file, 'variability' = alpha (Sigma + eps I)^-1 from the "
                             "demos' spread (rflow.stiffness)")
-    skill.add_argument("--k-min-n-m", type=number(above=0.0), default=DEFAULT_BOUNDS.k_min_n_m,
+    skill.add_argument("--k-min-n-m", type=number(bound=STIFFNESS), default=DEFAULT_BOUNDS.k_min_n_m,
                        help="--stiffness: smallest eigenvalue of the commanded stiffness, N/m")
-    skill.add_argument("--k-max-n-m", type=number(above=0.0), default=DEFAULT_BOUNDS.k_max_n_m,
+    skill.add_argument("--k-max-n-m", type=number(bound=STIFFNESS), default=DEFAULT_BOUNDS.k_max_n_m,
                        help="--stiffness: largest eigenvalue of the commanded stiffness, N/m")
     skill.add_argument("--subsample", type=count(MAX_SAMPLES), default=DEFAULT_SUBSAMPLE,
                        help="keep every k-th demo sample, counted from the goal")
@@ -85,13 +87,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     train.add_argument("--layers", type=count(64), default=d.model.layers, help="coupling layers, 1..64")
     train.add_argument("--width", type=count(MAX_WIDTH), default=d.model.width,
                        help=f"hidden units per coupling MLP, 1..{MAX_WIDTH}")
-    train.add_argument("--log-scale-clamp", type=number(above=0.0), default=DEFAULT_LOG_SCALE_CLAMP,
+    train.add_argument("--log-scale-clamp", type=number(bound=LOG_SCALE_CLAMP), default=DEFAULT_LOG_SCALE_CLAMP,
                        help="bound c of each coupling layer's log-scale")
-    train.add_argument("--prior-weight", type=number(minimum=0.0), default=DEFAULT_PRIOR_WEIGHT,
+    train.add_argument("--prior-weight", type=number(bound=PRIOR_WEIGHT), default=DEFAULT_PRIOR_WEIGHT,
                        help="weight of the off-data identity prior, 0 for the paper's plain likelihood")
-    train.add_argument("--prior-radius", type=number(above=0.0), default=d.prior_radius,
+    train.add_argument("--prior-radius", type=number(bound=PRIOR_RADIUS), default=d.prior_radius,
                        help="prior box half-width in multiples of the demos' extent")
-    train.add_argument("--lr", type=number(above=0.0), default=d.lr, help="Adam learning rate")
+    train.add_argument("--lr", type=number(bound=LEARNING_RATE), default=d.lr, help="Adam learning rate")
     train.add_argument("--batch-size", type=count(1_000_000), default=d.batch_size, help="batch size")
     train.add_argument("--transitions-per-epoch", type=count(100_000_000), default=d.transitions_per_epoch,
                        help="transitions sampled per epoch")
@@ -188,6 +190,7 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     from envs.demos.file import anchored_at_goal, load_demos
     from envs.media.figures import plot_loss
     from rflow.skill_io import check_checkpoint_target, file_sha256, fit_pose_skill, save_skill, stiffness_reproduction, subsample as take_every
+    from rflow.train import check_training_memory
     cfg = skill_train_config() if config is None else config
     check_checkpoint_target(out, overwrite)
     demos = load_demos(demos_path)
@@ -197,8 +200,11 @@ def train_skill(demos_path: str | Path, out: str | Path, config: Any = None, joi
     k_demo = None if stiffness is None else demo_stiffness(demos, stiffness, bounds, demos_path)
     k = None if k_demo is None else take_every(k_demo, subsample)
     dt = demos.dt * subsample
-    wall = time.perf_counter()
     layout = "joint" if joint else "separate" if k is None else "separate_stiffness"
+    dims = {"joint": [6 if k is None else 12], "separate": [3, 3], "separate_stiffness": [3, 3, 6]}[layout]
+    check_training_memory(cfg, dims if workers > 1 else [max(dims)])  # the models that train at the same time
+    work_begins()
+    wall = time.perf_counter()
     skill = fit_pose_skill(pos, quat, dt, cfg, layout, progress, stiffness=k, bounds=bounds, workers=workers)
     train_s = time.perf_counter() - wall
     scene = demos.config.get("scene") if isinstance(demos.config.get("scene"), dict) else None

@@ -285,6 +285,12 @@ def _read_parquet(path: Path, columns: Sequence[str] | None, root: Path) -> Any:
     if not path.is_file():
         raise EnvError(f"{source}: {path.relative_to(root)} is missing")
     try:
+        if columns is not None:  # a readable file without a column the dataset should hold is not a corrupt file
+            present = set(pq.read_schema(path).names)
+            missing = [name for name in columns if name not in present]
+            if missing:
+                raise EnvError(f"{source}: {path.relative_to(root)} has no column {missing[0]!r} (its columns: "
+                               f"{', '.join(sorted(present))[:200]})")
         return pq.read_table(path, columns=list(columns) if columns is not None else None)
     except (OSError, ValueError, KeyError) as err:  # pyarrow.ArrowInvalid is a ValueError
         raise EnvError(f"{source}: {path.name} is not a readable Parquet file, truncated or corrupt "

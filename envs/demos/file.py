@@ -54,6 +54,7 @@ from envs.errors import EnvError
 from envs.io.npz import open_npz
 from envs.io.owned_output import save_npz, strict_json
 from envs.poses import quat_angle_rad
+from pihutil.bounds import SAMPLE_PERIOD_S
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -184,8 +185,8 @@ def validate_demos(demos: DemoSet, source: str = "demos") -> None:
         if not np.all(np.isfinite(arr)):
             bad = np.argwhere(~np.isfinite(arr))[0].tolist()
             raise EnvError(f"{source}: '{name}' contains NaN or inf (first at index {bad})")
-    if not (np.isfinite(demos.dt) and demos.dt > 0.0):
-        raise EnvError(f"{source}: 'dt' must be a finite positive number of seconds, got {demos.dt}")
+    if not SAMPLE_PERIOD_S.contains(float(demos.dt)):
+        raise EnvError(f"{source}: 'dt' must be a number of seconds {SAMPLE_PERIOD_S.text()}, got {demos.dt}")
     if not (np.isfinite(demos.clearance_m) and demos.clearance_m >= 0.0):
         raise EnvError(f"{source}: 'clearance_m' must be finite and >= 0, got {demos.clearance_m}")
     if not demos.shape:

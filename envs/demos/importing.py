@@ -48,6 +48,7 @@ from envs.io.npz import open_npz
 from envs.poses import QUAT_NORM_TOL, Pose, make_continuous, mean_quat, minimum_jerk, resample_trajectory
 from numerics.quaternion import quat_angle_rad, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, rotate
 from numerics.small_linalg import norm
+from pihutil.bounds import SAMPLE_PERIOD_S, TOOL_OFFSET_M
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -182,6 +183,9 @@ def parse_tool_offset(text: str) -> Pose:
     if values.shape != (7,) or not np.all(np.isfinite(values)):
         raise EnvError(f"--tool-offset {text!r} must be 7 finite numbers X,Y,Z,QW,QX,QY,QZ (metres, quaternion "
                        f"w, x, y, z) or one of {', '.join(TOOL_OFFSETS)}")
+    if not TOOL_OFFSET_M.contains(norm(values[:3])):
+        raise EnvError(f"--tool-offset {text!r}: the offset's length {norm(values[:3]):.3g} m must be "
+                       f"{TOOL_OFFSET_M.text()} (a tool longer than the arm's reach is none the Panda carries)")
     length = norm(values[3:])
     if abs(length - 1.0) > TOOL_QUAT_UNIT_TOL:
         raise EnvError(f"--tool-offset {text!r}: the quaternion {values[3:].tolist()} has norm {length:.9g}, not 1 "
@@ -202,7 +206,10 @@ def resolve_dt(file_dt: float | None, flag_dt: float | None, source: str) -> flo
         raise EnvError(f"{source} has no 'dt': give the sampling time with --dt-s SECONDS")
     if file_dt is not None and flag_dt is not None and abs(file_dt - flag_dt) > 1e-9 * max(file_dt, flag_dt):
         raise EnvError(f"--dt-s {flag_dt} differs from the file's dt {file_dt} ({source}); give one of them")
-    return float(flag_dt if flag_dt is not None else file_dt)  # type: ignore[arg-type]
+    dt = float(flag_dt if flag_dt is not None else file_dt)  # type: ignore[arg-type]
+    if not SAMPLE_PERIOD_S.contains(dt):
+        raise EnvError(f"{source}: the sampling time {dt:g} s must be {SAMPLE_PERIOD_S.text()}")
+    return dt
 
 
 def check_trajectory(pos: Any, quat: Any, label: str, source: str) -> tuple[FloatArray, FloatArray]:

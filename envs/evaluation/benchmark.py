@@ -43,6 +43,7 @@ from envs.evaluation.config import EvaluationConfig
 from envs.evaluation.result import failure_kinds
 from envs.statistics.fixed_sample import wilson_interval
 from envs.task.task import Task
+from pihutil.bounds import REPLICATES, SEED
 
 REPLICATE_PREFIX = "seed-"
 PROTOCOL_FILE = "protocol.json"
@@ -109,27 +110,28 @@ class ProtocolConfig:
 
 
 def parse_seeds(spec: str) -> tuple[int, ...]:
-    """Seeds from "0-4", "0,2,7" or "0-2,10" (ranges inclusive).
+    """Seeds from "0-4", "0,2,7" or "0-2,10" (ranges inclusive), each a seed (pihutil.bounds.SEED), at most
+    REPLICATES.high of them (counted before the list is built, so "0-99999999999" costs no memory).
 
     Raises:
-        EnvError: malformed list, a negative seed or an empty range.
+        EnvError: malformed list, a seed outside the seed range, an empty range or too many seeds.
     """
-    seeds: list[int] = []
+    ranges: list[tuple[int, int]] = []
     for part in spec.split(","):
         part = part.strip()
         try:
-            if "-" in part[1:]:
-                low, high = (int(x) for x in part.split("-", 1))
-                if high < low:
-                    raise ValueError
-                seeds.extend(range(low, high + 1))
-            else:
-                seeds.append(int(part))
+            low, high = (int(x) for x in part.split("-", 1)) if "-" in part[1:] else (int(part), int(part))
         except ValueError:
             raise EnvError(f"seeds {spec!r}: expected integers and ranges like 0-4,7") from None
-    if not seeds or min(seeds) < 0:
-        raise EnvError(f"seeds {spec!r}: need at least one seed, all >= 0")
-    return tuple(seeds)
+        if high < low:
+            raise EnvError(f"seeds {spec!r}: the range {part} is empty")
+        if not (SEED.contains(low) and SEED.contains(high)):
+            raise EnvError(f"seeds {spec!r}: every seed must be {SEED.text()}")
+        ranges.append((low, high))
+    total = sum(high - low + 1 for low, high in ranges)
+    if total > REPLICATES.high:
+        raise EnvError(f"seeds {spec!r}: {total:,} replicates, at most {REPLICATES.high:,}")
+    return tuple(seed for low, high in ranges for seed in range(low, high + 1))
 
 
 # --------------------------------------------------------------------------------------------- statistics

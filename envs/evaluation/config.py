@@ -13,8 +13,10 @@ from batch.config import BatchConfig
 from batch.errors import BatchError
 from envs.errors import EnvError
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES, StiffnessSetting
-from envs.task.task import Task, check_number
+from envs.task.task import Task
 from numerics.cpu_dispatch import DISPATCH_VARIABLES
+from numerics.errors import shown
+from pihutil.bounds import EPISODES, FEEDFORWARD_GAIN, LOOKAHEAD_S, SEED, SPEED
 
 DEFAULT_LOCKSTEP = 8
 """Episodes a worker runs in lockstep by default (`EvaluationConfig.lockstep`)."""
@@ -27,8 +29,8 @@ SCENE_FROM_TASK: tuple[str, ...] = ("peg_mode", "clearance_m", "chamfer_m", "gra
 the hole depth and the goal are always the demos': a skill is evaluated at the depth it was taught."""
 
 
-MAX_SPEED = 10.0
-"""The largest time scaling of the learned flow an evaluation runs (10x the demonstrated speed)."""
+MAX_SPEED = SPEED.high
+"""The largest time scaling of the learned flow an evaluation runs (10x the demonstrated speed; pihutil.bounds)."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,9 @@ class EvaluationConfig:
         workers: processes (1: in this process) or Ray actors.
         unit_timeout_s: wall-clock seconds one episode may take before its worker is killed and the episode
             recorded "wall_timeout" (None: no limit).
+        start_timeout_s: wall-clock seconds a worker process may take to start (import the libraries, build the
+            scene; with a user's policy: import it and call its factory) before it is killed and counts as lost at
+            start (`batch.BatchConfig.start_timeout_s`).
         backend: "process" (local processes) or "ray".
         ray_address: HOST:PORT of a Ray cluster (None: a local Ray instance on all cores).
         stiffness: the translational stiffness commanded ("learned": the skill's, "constant:K": K I in N/m,
@@ -83,6 +88,7 @@ class EvaluationConfig:
     hole_at_goal: bool = False
     workers: int = 1
     unit_timeout_s: float | None = 300.0
+    start_timeout_s: float = 600.0
     backend: str = "process"
     ray_address: str | None = None
     stiffness: str | None = None
@@ -92,23 +98,31 @@ class EvaluationConfig:
     follow_observed_hole: bool = False
 
     def __post_init__(self) -> None:
-        if not isinstance(self.episodes, int) or self.episodes < 1:
-            raise EnvError(f"episodes={self.episodes!r} must be an integer >= 1")
+        if not EPISODES.contains(self.episodes):
+            raise EnvError(f"episodes={shown(self.episodes)} must be an integer {EPISODES.text()}")
+        if not SEED.contains(self.seed):
+            raise EnvError(f"seed={shown(self.seed)} must be an integer {SEED.text()}")
+        for name in ("hole_at_goal", "contact_adaptation"):
+            if not isinstance(getattr(self, name), bool):
+                raise EnvError(f"{name}={getattr(self, name)!r} must be True or False")
         if self.stiffness is not None:
             StiffnessSetting.parse(self.stiffness)
         if self.mode not in MODES:
             raise EnvError(f"mode={self.mode!r} must be one of {', '.join(MODES)}")
-        check_number("lookahead_s", self.lookahead_s, strict=True)
-        if not check_number("speed", self.speed, strict=True) <= MAX_SPEED:
-            raise EnvError(f"speed={self.speed!r} must be <= {MAX_SPEED} (a time scaling of the learned flow)")
-        check_number("feedforward_gain", self.feedforward_gain)
+        for name, bound in (("lookahead_s", LOOKAHEAD_S), ("speed", SPEED), ("feedforward_gain", FEEDFORWARD_GAIN)):
+            if not bound.contains(getattr(self, name)):
+                raise EnvError(f"{name}={getattr(self, name)!r} must be a number {bound.text()}")
         if not isinstance(self.task, Task):
             raise EnvError(f"task={self.task!r} must be an envs.task.task.Task")
+        if not isinstance(self.scene_from_task, (tuple, list)) or not all(isinstance(n, str) for n in self.scene_from_task):
+            raise EnvError(f"scene_from_task={self.scene_from_task!r} must be a list of scene field names")
         object.__setattr__(self, "scene_from_task", tuple(self.scene_from_task))
         unknown = [name for name in self.scene_from_task if name not in SCENE_FROM_TASK]
         if unknown:
             raise EnvError(f"scene_from_task names {unknown}: only {', '.join(SCENE_FROM_TASK)} may replace the "
                            "demos' scene")
+        if not isinstance(self.adaptation_off, (tuple, list)):
+            raise EnvError(f"adaptation_off={self.adaptation_off!r} must be a list of parts")
         object.__setattr__(self, "adaptation_off", tuple(self.adaptation_off))
         if self.adaptation_off:
             from envs.policies.adaptation import adaptation_parts  # numba through envs.poses: only when asked for
@@ -135,7 +149,8 @@ class EvaluationConfig:
     def batch_config(self) -> BatchConfig:
         """How the episodes run as a batch (workers, wall-time limit, backend); worker processes are forked, as
         every episode worker runs torch on one thread (`batch.BatchConfig.start_method`)."""
-        return BatchConfig(workers=self.workers, unit_timeout_s=self.unit_timeout_s, backend=self.backend,
+        return BatchConfig(workers=self.workers, unit_timeout_s=self.unit_timeout_s,
+                           start_timeout_s=self.start_timeout_s, backend=self.backend,
                            ray_address=self.ray_address, start_method="fork", worker_environment=DISPATCH_VARIABLES)
 
     def settings(self) -> dict[str, Any]:

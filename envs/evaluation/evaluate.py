@@ -257,6 +257,11 @@ def _failed_unit(key: str, start: StartPose, reason: str) -> dict[str, Any]:
                          reason=reason, perturbation=start.perturbation.to_dict()).to_dict()
 
 
+def skill_file(model_dir: str | os.PathLike[str]) -> str:
+    """The checkpoint's skill.json, as an error about its metadata names it."""
+    return str(Path(model_dir) / "skill.json")
+
+
 def journal_run(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> dict[str, Any]:
     """What identifies an evaluation for its journal: the checkpoint (path and skill.json checksum), the task and
     every other config field that changes a record (not workers, backend, address or the wall-time limit).
@@ -278,8 +283,8 @@ def journal_run(model_dir: str | os.PathLike[str], config: EvaluationConfig) -> 
 def run_settings(config: EvaluationConfig) -> dict[str, Any]:
     """{"config": the config's settings that change a record, its task (versioned) among them}: what a journal's run
     holds of an evaluation (`journal_run`, envs.evaluation.evaluate_policy.policy_journal_run)."""
-    settings = {k: v for k, v in config.settings().items() if k not in ("workers", "unit_timeout_s", "backend",
-                                                                         "ray_address", "lockstep")}
+    settings = {k: v for k, v in config.settings().items() if k not in ("workers", "unit_timeout_s", "start_timeout_s",
+                                                                         "backend", "ray_address", "lockstep")}
     return {"config": to_jsonable({**settings, "task": config.task.to_dict()})}
 
 
@@ -310,7 +315,7 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     goal_mismatch_mm = norm(skill.goal_pos - env.goal.pos) * 1e3
     env_scene = env.scene.config
     if starts is None:
-        starts = evaluation_starts(metadata_starts(skill.metadata, f"checkpoint {model_dir}"), config)
+        starts = evaluation_starts(metadata_starts(skill.metadata, skill_file(model_dir)), config)
     here = {"env": env, "policy": policy, "gain": config.feedforward_gain,
             "slots": SlotPool(env, policy, SlotMaker(skill, config, env))}
     del env, policy  # forked workers take their copy of ``here``, others build their own
@@ -321,7 +326,8 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, str(model_dir), skill.metadata,
                             to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
-                            outcome.workers, outcome.fault, task=config.task.with_scene(env_scene))
+                            outcome.workers, outcome.fault, task=config.task.with_scene(env_scene),
+                            events_before=outcome.events_before)
 
 
 def run_episodes(starts: Sequence[StartPose], setup: Any, init_worker: Callable[[Any], dict[str, Any]],

@@ -1,15 +1,22 @@
 """Score any `Policy` as the RiemannianFlow skill is scored: `pih evaluate --policy package.module:factory`.
 
 The factory. ``package.module:factory`` names a callable that the evaluation imports (the current folder first on
-``sys.path``, as ``python -m`` does) and calls once per process, before the first episode, as
+``sys.path``, as ``python -m`` does) and calls once per worker process, before the worker's first episode, as
 
     factory(task: PolicyTask, **options: str) -> Policy
 
 with the nominal task (envs.policies.interface.PolicyTask: shape, clearance, control period, time and force
 limits, nominal hole and goal, the controller's default stiffness) and the ``--policy-option KEY=VALUE`` pairs as
 string keyword arguments. It returns an object with ``reset(observation, period_s)`` and ``act(observation) ->
-Action`` (envs.policies.interface). With worker processes each worker imports and calls it again, so the
-policy must not rely on state from the parent process.
+Action`` (envs.policies.interface). The policy must not rely on state from the parent process.
+
+Supervised. A user's module, its factory and its policy run only in supervised worker processes (even with one
+worker), never in pih's own: this process finds the module's file without importing it (`policy_files`), and each
+worker imports it and calls the factory while it starts, under the batch's start limit
+(``EvaluationConfig.start_timeout_s``), then runs the episodes under the wall-time limit. A factory that takes its
+process down (``os._exit``, a segfault) or hangs loses that worker's start, an infrastructure event with its reason,
+and after the retries the run ends with one line (`batch.supervision.Fault`); one that raises is one line and exit
+status 2. A resumed run checks the policy's source files against the journal's digest (`policy_digest`).
 
 The same episodes. The scene is the demos' (shape, clearance, chamfer, peg mount, hole depth, from the demo file's
 recorded scene, as `pih train` keeps it for the skill) with the task options given; the starts are drawn around the
@@ -32,7 +39,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from batch import Journal
+from batch import Journal, WorkerInitError
 from envs.errors import EnvError
 from envs.evaluation.config import EvaluationConfig
 from envs.evaluation.evaluate import SlotPool, build_env, run_episodes, run_settings
@@ -142,6 +149,74 @@ def load_factory(spec: PolicySpec) -> Callable[..., Any]:
     return target
 
 
+MAX_POLICY_FILES = 2_000
+"""At most this many source files enter a policy's digest (a package larger than that is cut, in sorted order)."""
+
+
+def policy_files(spec: PolicySpec) -> list[Path]:
+    """The source files of the spec's module, found on its search path (``spec.search_path`` first, then
+    ``sys.path``) without importing or running any of it: the module's file and, when it sits in a package, every
+    .py file of that package's folder and below (what it most likely imports); a package named as the module: its
+    folder's.
+
+    Raises:
+        EnvError: the module is not found (one line naming the spec).
+    """
+    import importlib.machinery
+    import importlib.util
+
+    parts = spec.module.split(".")
+    path = ([spec.search_path] if spec.search_path else []) + [p for p in sys.path if p != spec.search_path]
+    found = None
+    for depth in range(len(parts)):
+        name = ".".join(parts[:depth + 1])
+        try:
+            found = importlib.machinery.PathFinder.find_spec(name, path)
+            if found is None and depth == 0 and name not in sys.builtin_module_names:
+                found = importlib.util.find_spec(name)  # an installed package's own finder (a top level name
+                #                                          is found without importing anything)
+        except (ImportError, ValueError):
+            found = None
+        if found is None or (depth < len(parts) - 1 and found.submodule_search_locations is None):
+            raise EnvError(f"--policy {spec.spec}: cannot import module {spec.module!r} (no module named {name!r} "
+                           f"on the path, the current folder first)")
+        path = list(found.submodule_search_locations or [])
+    assert found is not None
+    if found.origin is None or not Path(found.origin).is_file():
+        folders = [Path(p) for p in found.submodule_search_locations or []]  # a namespace package
+        return sorted(f for folder in folders for f in folder.rglob("*.py"))[:MAX_POLICY_FILES]
+    origin = Path(found.origin)
+    package = origin.parent if origin.name == "__init__.py" or len(parts) > 1 else None
+    if package is None:
+        return [origin]
+    files = sorted(f for f in package.rglob("*.py") if "__pycache__" not in f.parts)[:MAX_POLICY_FILES]
+    return files if origin in files else [origin, *files]
+
+
+def policy_digest(spec: PolicySpec) -> str:
+    """SHA-256 of the policy's source files (`policy_files`: their paths relative to the first one's folder and
+    their bytes): what a resumed run compares with the journal's, so that an edited policy is not mixed into a run
+    begun with another version.
+
+    Raises:
+        EnvError: the module is not found, or a file cannot be read.
+    """
+    import hashlib
+
+    files = policy_files(spec)
+    root = files[0].parent if files else Path(".")
+    digest = hashlib.sha256(spec.module.encode())
+    for path in files:
+        try:
+            data = path.read_bytes()
+        except OSError as err:
+            raise EnvError(f"--policy {spec.spec}: cannot read {path} ({err.strerror or err})") from None
+        name = os.path.relpath(path, root)
+        digest.update(f"{name}\0{len(data)}\0".encode())
+        digest.update(data)
+    return digest.hexdigest()
+
+
 def make_user_policy(spec: PolicySpec, task: PolicyTask) -> Policy:
     """Call the spec's factory with the task and options and check that it returned a `Policy`.
 
@@ -226,10 +301,14 @@ class _PolicySlotMaker:
 
 
 def policy_journal_run(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig) -> dict[str, Any]:
-    """What identifies a policy evaluation for its journal: the spec and options, the demo file's checksum and every
-    config field that changes a record."""
-    return {"task": "pih evaluate --policy", "policy": spec.to_dict(), "demo_sha256": metadata.get("demo_sha256"),
-            **run_settings(config)}
+    """What identifies a policy evaluation for its journal: the spec and options, the digest of the policy's source
+    files (`policy_digest`), the demo file's checksum and every config field that changes a record.
+
+    Raises:
+        EnvError: the policy's module is not found.
+    """
+    return {"task": "pih evaluate --policy", "policy": spec.to_dict(), "policy_sha256": policy_digest(spec),
+            "demo_sha256": metadata.get("demo_sha256"), **run_settings(config)}
 
 
 def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig = EvaluationConfig(),
@@ -250,24 +329,29 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
         EvaluationResult with ``policy`` set (``model_dir`` empty).
 
     Raises:
-        EnvError: a bad spec, a factory that fails or returns no Policy, an invalid scene, no demo starts.
-        BatchError: workers that cannot build the environment or the policy.
+        EnvError: a bad spec, a factory that fails or returns no Policy (in the worker that calls it), an invalid
+            scene, no demo starts.
+        BatchError: workers that cannot build the environment.
     """
     wall = time.perf_counter()
-    env, policy = build_policy_setup(spec, metadata, config)  # every check in this process first
+    goal = Pose(pos=metadata["goal_pos"], quat=metadata["goal_quat"])
+    env = build_env(metadata, goal, config)  # every check of ours in this process first; the user's code: none
     goal_mismatch_mm = norm(env.goal.pos - metadata["goal_pos"]) * 1e3
     scene_config = env.scene.config
     scene = to_jsonable(asdict(scene_config))
     if starts is None:
-        starts = evaluation_starts(metadata_starts(metadata, "the demo file"), config)
-    here = {"env": env, "policy": policy, "gain": config.feedforward_gain, "privileged": spec.privileged,
-            "slots": SlotPool(env, policy, _PolicySlotMaker(_PolicySetup(spec, metadata, config)))}
-    del env, policy  # workers build their own
-    outcome, records, earlier_s = run_episodes(starts, _PolicySetup(spec, metadata, config), _init_policy_worker,
-                                               here, config, progress, journal, f"evaluate ({spec.spec})",
-                                               isolate=True)  # a user's code may take its process down
+        starts = evaluation_starts(metadata_starts(metadata, f"--demos {metadata.get('demo_file')}"), config)
+    del env  # the workers build their own, with the policy
+    try:
+        outcome, records, earlier_s = run_episodes(starts, _PolicySetup(spec, metadata, config), _init_policy_worker,
+                                                   {}, config, progress, journal, f"evaluate ({spec.spec})",
+                                                   isolate=True)  # a user's code may take its process down
+    except WorkerInitError as err:
+        if err.kind == "EnvError":  # the factory (or its module) failed in the worker: the user's input
+            raise EnvError(err.detail) from None
+        raise
     return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, "", metadata, scene,
                             goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
                             outcome.workers, outcome.fault, policy=spec.to_dict(),
-                            task=config.task.with_scene(scene_config))
+                            task=config.task.with_scene(scene_config), events_before=outcome.events_before)

@@ -6,6 +6,11 @@ the starts are drawn again from the checkpoint's demo starts with the recorded s
 (`evaluation_starts`), checked against the recorded start poses, and each replayed episode is checked
 against its record (success, end reason, steps), so a replay made with other code or another checkpoint is
 an error instead of a silently different trajectory.
+
+A JSON is input like an option (`check_recorded`, for `pih export` and `pih compare`): its config's types and ranges,
+its episode indexes against its own counts (each below the episodes it ran, none twice: an index of 2^40 would ask
+for that many starts), and every record's start pose and perturbation against those its seed draws again, so a
+hand-edited perturbation never reaches a dataset's table or a comparison while the episode replays the real one.
 """
 
 from __future__ import annotations
@@ -23,9 +28,11 @@ import numpy as np
 from envs.errors import EnvError
 from envs.evaluation.config import SCENE_FROM_TASK
 from envs.evaluation.evaluate import EvaluationConfig, iter_replays
-from envs.evaluation.starts import evaluation_starts
+from envs.evaluation.starts import evaluation_starts, metadata_starts, seeded_perturbations
 from envs.rollout.episode import EpisodeRecord, EpisodeTrace, StartPose
 from envs.task.task import Task
+from numerics.errors import shown
+from pihutil.bounds import EPISODES
 
 #: Largest difference between a recorded and a redrawn start position (m) or quaternion component.
 START_TOL: float = 1e-12
@@ -102,6 +109,89 @@ def _legacy_task(values: dict[str, Any], source: str) -> dict[str, Any]:
     return {"task": task, "scene_from_task": tuple(k for k in SCENE_FROM_TASK if values.get(k) is not None)}
 
 
+PERTURBATION_TOL: float = 1e-9
+"""Largest difference between a recorded and a redrawn perturbation value (mm, deg, ...)."""
+
+
+def check_recorded(data: dict[str, Any], source: str) -> EvaluationConfig | None:
+    """An evaluation JSON's episodes checked field by field (module docstring): the config (for a JSON of this format,
+    with its "task"), the number of episodes it says it ran and holds, each episode's index (an integer below that
+    number, none twice) and, where the JSON carries what draws them (its task and the demos' start poses in
+    "skill"), each record's start pose and perturbation against the ones its seed draws again.
+
+    Returns:
+        The JSON's EvaluationConfig (None for a JSON of before task files, checked against its counts only).
+
+    Raises:
+        EnvError: one line naming ``source``, the episode and the field.
+    """
+    records = data.get("per_episode")
+    if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
+        raise EnvError(f"{source}: 'per_episode' must be a list of episode records")
+    current = isinstance(data.get("task"), dict)
+    values = data.get("config")
+    config = evaluation_config_from_dict(values, source, data["task"]) if current else None
+    declared = config.episodes if config is not None else (values or {}).get("episodes", data.get("episodes",
+                                                                                                  len(records)))
+    if not EPISODES.contains(declared):
+        raise EnvError(f"{source}: its number of episodes {declared!r} must be an integer {EPISODES.text()}")
+    count = data.get("episodes", len(records))
+    if count != len(records) or len(records) > declared:
+        raise EnvError(f"{source}: it holds {len(records)} episode records but says {count!r} of {declared} ran")
+    seen: set[int] = set()
+    for position, record in enumerate(records):
+        index = record.get("index")
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < declared:
+            raise EnvError(f"{source}: record {position} has index {shown(index)}, not an episode of 0..{declared - 1}")
+        if index in seen:
+            raise EnvError(f"{source}: episode {index} is recorded twice")
+        seen.add(index)
+    if config is None or not records:
+        return config
+    skill = data.get("skill") if isinstance(data.get("skill"), dict) else {}
+    if skill.get("demo_starts") is not None:  # what the start poses are drawn around (a JSON of `pih evaluate`)
+        drawn = evaluation_starts(metadata_starts(skill, f"{source}: 'skill'"),
+                                  dataclasses.replace(config, episodes=max(seen) + 1))
+        for record in records:
+            pose = drawn[record["index"]].pose
+            recorded = _numbers(record.get("start_pos"), 3) + _numbers(record.get("start_quat"), 4)
+            redrawn = [*pose.pos.tolist(), *pose.quat.tolist()]
+            if len(recorded) != 7 or max(abs(a - b) for a, b in zip(recorded, redrawn)) > START_TOL:
+                raise EnvError(f"{source}: episode {record['index']}'s start pose differs from the one its seed draws "
+                               f"(seed {config.seed}): edited, or run with explicit starts")
+    perturbations = seeded_perturbations(config.task.perturbations, config.seed, max(seen) + 1)
+    for record in records:
+        what = _perturbation_difference(record.get("perturbation"), perturbations[record["index"]].to_dict())
+        if what is not None:
+            raise EnvError(f"{source}: episode {record['index']}'s perturbation {what} from the one its seed draws "
+                           f"(seed {config.seed}): edited, or not this evaluation's")
+    return config
+
+
+def _numbers(value: Any, length: int) -> list[float]:
+    """``value`` as ``length`` finite floats, or [] when it is not that."""
+    if not isinstance(value, list) or len(value) != length:
+        return []
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
+        return []
+    return [float(v) for v in value]
+
+
+def _perturbation_difference(recorded: Any, drawn: dict[str, float]) -> str | None:
+    """What differs between a recorded perturbation and the drawn one (None: equal)."""
+    if not isinstance(recorded, dict):
+        return f"is {shown(recorded)}, not an object, and differs"
+    if not recorded:  # an episode that never ran (no trajectory) may carry none
+        return None
+    for key in sorted(set(recorded) | set(drawn)):
+        was, now = recorded.get(key), drawn.get(key)
+        if key not in drawn or key not in recorded:
+            return f"{'has' if key in recorded else 'lacks'} {key!r}, which differs"
+        if isinstance(was, bool) or not isinstance(was, (int, float)) or abs(was - now) > PERTURBATION_TOL:
+            return f"{key} = {shown(was)} differs"
+    return None
+
+
 def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[str] | None = None) -> RecordedEvaluation:
     """Read an evaluation JSON written by `pih evaluate --json`.
 
@@ -132,6 +222,7 @@ def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[s
     records = data["per_episode"]
     if not isinstance(records, list) or not records or not all(isinstance(r, dict) for r in records):
         raise EnvError(f"{src}: 'per_episode' must be a non-empty list of episode records")
+    check_recorded(data, str(src))
     if model_dir is None:
         candidates = [Path(str(data["model"])), src.parent / str(data["model"])]
         found = next((c for c in candidates if c.is_dir()), None)
@@ -157,9 +248,7 @@ def recorded_starts(evaluation: RecordedEvaluation, indices: Sequence[int] | Non
     absent = [i for i in chosen if i not in by_index]
     if absent:
         raise EnvError(f"{evaluation.path}: no episode record with index {absent} (it holds {len(by_index)})")
-    meta = evaluation.skill.get("demo_starts")
-    if not isinstance(meta, dict) or "pos" not in meta or "quat" not in meta:
-        raise EnvError(f"{evaluation.path}: the skill metadata has no demo starts to draw the episodes' starts from")
+    meta = metadata_starts(evaluation.skill, f"{evaluation.path}: 'skill'")
     drawn = evaluation_starts(meta, dataclasses.replace(evaluation.config,
                                                         episodes=max(evaluation.config.episodes, max(chosen) + 1)))
     starts = []

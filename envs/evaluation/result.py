@@ -64,6 +64,8 @@ class EvaluationResult:
         infrastructure_events: lost workers, actors, nodes and retried episodes (batch.supervision).
         workers: processes or actors the episodes ran on (0: all were in the journal already).
         fault: what stopped the whole evaluation (e.g. the Ray head lost), else None.
+        events_before: how many of ``infrastructure_events`` (the first ones) happened in the earlier parts of a
+            resumed evaluation (`new_events` are the others).
         policy: a user policy's spec, options and privilege (`pih evaluate --policy`); None for the skill.
         task: the task the episodes ran: ``config.task`` with the scene it ran in (`Task.with_scene`); None: the
             config's.
@@ -84,6 +86,12 @@ class EvaluationResult:
     fault: str | None = None
     policy: dict[str, Any] | None = None
     task: Task | None = None
+    events_before: int = 0
+
+    @property
+    def new_events(self) -> list[dict[str, Any]]:
+        """The infrastructure events of this part of the run (a resumed run's earlier ones are not news)."""
+        return self.infrastructure_events[self.events_before:]
 
     @property
     def ran(self) -> Task:
@@ -196,7 +204,9 @@ class EvaluationResult:
             ("policy", self.policy["spec"]) if self.policy is not None else ("mode", self.config.mode),
             ("episodes", str(len(self.records))),
             ("success rate", f"{100 * self.success_rate:.1f} % ({self.num_success}/{len(self.records)}), "
-                             f"95 % CI [{100 * low:.1f}, {100 * high:.1f}] %"),
+                             f"95 % CI [{100 * low:.1f}, {100 * high:.1f}] %" if self.records else
+                             "none: no episode completed" + (f" ({len(self.infrastructure_errors)} lost to "
+                                                              "infrastructure)" if self.infrastructure_errors else "")),
             ("time to insert (median/max)", f"{fmt(s['median_time_to_insert_s'], 's')} / {fmt(s['max_time_to_insert_s'], 's')}"),
             ("final position error (median)", fmt(s["median_final_pos_error_mm"], "mm")),
             ("final angle error (median)", fmt(s["median_final_angle_error_deg"], "deg")),

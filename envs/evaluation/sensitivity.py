@@ -126,9 +126,37 @@ def _row(name: str, settings: Mapping[str, Any], result: Any, comparison: Compar
         failure_kinds(records), comparison)
 
 
+class Stopped(Exception):
+    """A variant's evaluation did not finish (Ctrl-C or SIGTERM, a fault that stopped its batch, episodes lost to
+    infrastructure): ``name`` and its ``result``; the variants before it finished, and every finished episode is in
+    its journal (`run_sensitivity`'s ``journal``), so the same run continues from there."""
+
+    def __init__(self, name: str, result: Any):
+        super().__init__(f"variant {name!r} did not finish")
+        self.name, self.result = name, result
+
+
+def variants(config: EvaluationConfig, names: Sequence[str]) -> list[tuple[str, dict[str, Any], Task]]:
+    """(name, task fields it sets, task) of every variant `run_sensitivity` runs, in its order: "ideal", each of
+    ``names``, then "all" when more than one of IMPERFECTIONS is among them.
+
+    Raises:
+        EnvError: an unknown imperfection.
+    """
+    found: list[tuple[str, dict[str, Any], Task]] = [("ideal", {}, config.task)]
+    for name in names:
+        found.append((name, imperfection_settings(name), with_imperfection(config.task, name)))
+    cell = [name for name in names if name in IMPERFECTIONS]
+    if len(cell) > 1:
+        combined = {k: v for name in cell for k, v in IMPERFECTIONS[name].items()}
+        found.append(("all", combined, config.task.override(**combined)))
+    return found
+
+
 def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig, names: Sequence[str],
                     evaluate: Callable[..., Any] | None = None,
-                    on_variant: Callable[[str], None] | None = None) -> list[SensitivityRow]:
+                    on_variant: Callable[[str], None] | None = None,
+                    journal: Callable[[str, EvaluationConfig], Any] | None = None) -> list[SensitivityRow]:
     """Evaluate the skill on ``config.task`` (the ideal row), on it with each imperfection of ``names`` alone and,
     with more than one of IMPERFECTIONS, with those at once ("all"; ALTERNATIVES only alone); every variant on the
     same seed and episodes, paired with the ideal row.
@@ -139,26 +167,29 @@ def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig,
         names: imperfections of IMPERFECTIONS or ALTERNATIVES.
         evaluate: the evaluation function (default envs.evaluation.evaluate.evaluate).
         on_variant: called with each variant's name before it runs (progress).
+        journal: called with a variant's name and evaluation, returns the `batch.Journal` its episodes go into (and
+            are taken from, when it holds some already), used as a context manager around the variant; None: none.
 
     Raises:
+        Stopped: a variant's evaluation did not finish (the rows before it did).
         EnvError: an unknown imperfection, episodes that do not pair (they always do: a bug), or an evaluation's
             own errors. RFlowError: a missing or corrupt checkpoint.
     """
     if evaluate is None:
         from envs.evaluation.evaluate import evaluate
-    variants: list[tuple[str, dict[str, Any], Task]] = [("ideal", {}, config.task)]
-    for name in names:
-        variants.append((name, imperfection_settings(name), with_imperfection(config.task, name)))
-    cell = [name for name in names if name in IMPERFECTIONS]
-    if len(cell) > 1:
-        combined = {k: v for name in cell for k, v in IMPERFECTIONS[name].items()}
-        variants.append(("all", combined, config.task.override(**combined)))
     rows: list[SensitivityRow] = []
     base_sample = None
-    for name, settings, task in variants:
+    for name, settings, task in variants(config, names):
         if on_variant is not None:
             on_variant(name)
-        result = evaluate(model_dir, replace(config, task=task), progress=False)
+        variant = replace(config, task=task)
+        if journal is None:
+            result = evaluate(model_dir, variant, progress=False)
+        else:
+            with journal(name, variant) as log:
+                result = evaluate(model_dir, variant, progress=False, journal=log)
+        if result.interrupted or result.fault is not None or not result.complete:
+            raise Stopped(name, result)
         sample = load_evaluation(result.to_dict(), name)
         comparison = None if base_sample is None else compare_evaluations(base_sample, sample, treatment=TREATMENT)
         base_sample = sample if base_sample is None else base_sample

@@ -23,6 +23,7 @@ from envs.poses import Pose, StartRegion, mean_quat, sample_start_poses
 from envs.rollout.episode import StartPose
 from envs.task.perturbation import PerturbationRanges, sample_perturbation
 from envs.task.task import StartRange
+from numerics.errors import shown
 from numerics.small_linalg import norm
 
 
@@ -53,15 +54,20 @@ def sample_starts(demo_start_pos: npt.ArrayLike, demo_start_quat: npt.ArrayLike,
         raise EnvError("demo start poses contain NaN or inf")
     region = StartRegion(pos_half_width_m=(pos_range_m,) * 3, max_angle_deg=rot_range_deg)
     rng = np.random.default_rng(seed)
-    task_rng = np.random.default_rng([seed, 1])
     mean = Pose(pos=p.mean(axis=0), quat=mean_quat(q))
     starts = []
-    for k in range(num):
+    for k, perturbation in enumerate(seeded_perturbations(perturbations, seed, num)):
         n = int(rng.integers(p.shape[0])) if around == "demo" else -1
         centre = Pose(pos=p[n], quat=q[n] / norm(q[n])) if n >= 0 else mean
-        starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0],
-                                sample_perturbation(perturbations, task_rng)))
+        starts.append(StartPose(k, n, sample_start_poses(centre, region, rng, 1)[0], perturbation))
     return starts
+
+
+def seeded_perturbations(perturbations: PerturbationRanges, seed: int, num: int) -> list[Any]:
+    """The perturbations of episodes 0..num-1 of an evaluation with ``seed``: drawn in order from a generator seeded
+    with (seed, 1), apart from the start poses (what `sample_starts` gives each episode; needs no demo starts)."""
+    task_rng = np.random.default_rng([seed, 1])
+    return [sample_perturbation(perturbations, task_rng) for _ in range(num)]
 
 
 def evaluation_starts(demo_starts: dict[str, Any], config: EvaluationConfig) -> list[StartPose]:
@@ -77,12 +83,31 @@ def evaluation_starts(demo_starts: dict[str, Any], config: EvaluationConfig) -> 
 
 
 def metadata_starts(metadata: dict[str, Any], source: str) -> dict[str, Any]:
-    """The demos' start poses of a checkpoint's (or demo file's) metadata, {"pos": (N, 3), "quat": (N, 4)}.
+    """The demos' start poses of a checkpoint's (or demo file's) metadata, {"pos": (N, 3), "quat": (N, 4)} as
+    float arrays, every field checked.
 
     Raises:
-        EnvError: naming ``source`` when there are none.
+        EnvError: naming ``source`` and the field when there are none, or when one is not finite numbers of its
+            shape (a hand-edited file).
     """
-    meta_starts = metadata.get("demo_starts")
-    if not isinstance(meta_starts, dict) or "pos" not in meta_starts or "quat" not in meta_starts:
+    meta_starts = metadata.get("demo_starts") if isinstance(metadata, dict) else None
+    if meta_starts is None:
         raise EnvError(f"{source} has no demo start poses (metadata 'demo_starts')")
-    return meta_starts
+    if not isinstance(meta_starts, dict) or "pos" not in meta_starts or "quat" not in meta_starts:
+        raise EnvError(f"{source}: metadata 'demo_starts' must be an object with 'pos' and 'quat', got "
+                       f"{shown(meta_starts)}")
+    arrays = {}
+    for key, width in (("pos", 3), ("quat", 4)):
+        value = meta_starts[key]
+        try:
+            array = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            array = np.zeros(0)
+        if array.ndim != 2 or array.shape[0] < 1 or array.shape[1] != width or not np.all(np.isfinite(array)):
+            raise EnvError(f"{source}: metadata 'demo_starts.{key}' must be finite numbers of shape (N, {width}), got "
+                           f"{shown(value)}")
+        arrays[key] = array
+    if arrays["pos"].shape[0] != arrays["quat"].shape[0]:
+        raise EnvError(f"{source}: metadata 'demo_starts' holds {arrays['pos'].shape[0]} positions and "
+                       f"{arrays['quat'].shape[0]} orientations")
+    return arrays

@@ -23,7 +23,9 @@ from typing import Any, Sequence
 
 from envs.errors import EnvError
 from envs.evaluation.config import SCENE_FROM_TASK
-from envs.evaluation.evaluate import EvaluationConfig, SlotMaker, SlotPool, _failed_unit, build_setup, run_settings
+from envs.evaluation.evaluate import (EvaluationConfig, SlotMaker, SlotPool, _failed_unit, build_setup, run_settings,
+                                      skill_file)
+from envs.evaluation.starts import metadata_starts
 from envs.evaluation.result import failure_kinds, finite_max, finite_median, finite_min
 from envs.rollout.episode import StartPose, run_episode
 from envs.rollout.episode import record_from_dict
@@ -224,6 +226,8 @@ class SweepResult:
     infrastructure_errors: dict[str, dict[str, Any]] = field(default_factory=dict)
     infrastructure_events: list[dict[str, Any]] = field(default_factory=list)
     fault: str | None = None
+    events_before: int = 0
+    """How many of ``infrastructure_events`` (the first) happened in the earlier parts of a resumed sweep."""
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON record of the sweep (sweep.json)."""
@@ -284,9 +288,7 @@ def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal:
         skill, env, _ = build_setup(model_dir, cell.config)
         ran[cell.index] = cell.config.task.with_scene(env.scene.config)
         del env
-    meta = skill.metadata.get("demo_starts") if skill is not None else None
-    if not isinstance(meta, dict) or "pos" not in meta or "quat" not in meta:
-        raise EnvError(f"checkpoint {model_dir} has no demo start poses (metadata 'demo_starts')")
+    meta = metadata_starts(skill.metadata if skill is not None else {}, skill_file(model_dir))
     units = sweep_units(cells, meta)
     done = journal.done() if journal is not None else {}
     bar = tqdm(total=len(units), initial=sum(k in done for k, _ in units), desc="sweep", unit="ep",
@@ -305,4 +307,4 @@ def sweep(model_dir: str, cells: Sequence[Cell], progress: bool = True, journal:
     earlier_s = journal.earlier_wall_s if journal is not None else 0.0
     return SweepResult(str(model_dir), list(cells), summaries, dict(outcome.records), outcome.complete,
                        outcome.interrupted, earlier_s + time.perf_counter() - wall, outcome.infrastructure_errors,
-                       outcome.events, outcome.fault)
+                       outcome.events, outcome.fault, outcome.events_before)

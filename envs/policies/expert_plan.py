@@ -158,9 +158,8 @@ def plan_expert_path(start: Pose, opening_pos: npt.ArrayLike, hole_axis: npt.Arr
         raise EnvError(f"goal depth {depth * 1e3:.1f} mm is not below the entry depth {d_e * 1e3:.1f} mm")
     approach = (h0, 0.0, h_e, -v_e * t_a)
     insertion = (-d_e, -v_e * t_i, -depth, 0.0)
-    grid = np.linspace(0.0, 1.0, 201)  # both quintics must descend monotonically
     for p0, v0, p1, v1 in (approach, insertion):
-        if np.any(np.diff(quintic_hermite(grid, p0, v0, p1, v1)) > 1e-12):
+        if not _descends(p0, v0, p1, v1):
             raise EnvError(f"entry speed {v_e} m/s is too high for a monotone descent from {p0 * 1e3:.1f} mm to "
                            f"{p1 * 1e3:.1f} mm (start {format_pose(start)})")
     height = np.where(t < t_a, quintic_hermite(t / t_a, *approach),
@@ -170,6 +169,31 @@ def plan_expert_path(start: Pose, opening_pos: npt.ArrayLike, hole_axis: npt.Arr
     pos = opening + height[:, None] * axis + (1.0 - sigma)[:, None] * lateral0
     quat = slerp(start.quat, goal.quat, sigma)
     return pos, make_continuous(quat, reference=goal.quat)
+
+
+def _descends(p0: float, v0: float, p1: float, v1: float) -> bool:
+    """Whether the quintic from (p0, v0) to (p1, v1) descends monotonically (checked on 201 points)."""
+    return not np.any(np.diff(quintic_hermite(np.linspace(0.0, 1.0, 201), p0, v0, p1, v1)) > 1e-12)
+
+
+def check_entry_speed(config: ExpertConfig, depth_m: float) -> None:
+    """Refuse an entry speed that no start can use: the insertion from the entry depth down to the goal ``depth_m``
+    below the opening (in ``config.insertion_duration_s``, starting at the entry speed) must descend monotonically,
+    whatever the start (`plan_expert_path` checks the approach too, which depends on the start's height).
+
+    Raises:
+        EnvError: naming the speed and the largest one this insertion allows.
+    """
+    d_e, t_i = config.entry_depth_m, config.insertion_duration_s
+    if depth_m <= d_e or _descends(-d_e, -config.entry_speed_m_s * t_i, -depth_m, 0.0):
+        return
+    low, high = 0.0, config.entry_speed_m_s
+    for _ in range(40):  # the largest speed that still descends, for the message
+        low, high = ((low + high) / 2, high) if _descends(-d_e, -(low + high) / 2 * t_i, -depth_m, 0.0) else (
+            low, (low + high) / 2)
+    raise EnvError(f"entry speed {config.entry_speed_m_s * 1e3:g} mm/s is too high for the insertion from "
+                   f"{d_e * 1e3:g} mm to {depth_m * 1e3:g} mm below the opening in {t_i:g} s: at most "
+                   f"{low * 1e3:.1f} mm/s")
 
 
 def plan_twists(pos: FloatArray, quat: FloatArray, period_s: float) -> tuple[FloatArray, FloatArray]:

@@ -8,9 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from envs.errors import EnvError
+from pihutil.bounds import STIFFNESS
 
 if TYPE_CHECKING:
     from envs.policies.stiffness_schedule import StiffnessSchedule
@@ -38,8 +37,9 @@ class StiffnessSetting:
     def __post_init__(self) -> None:
         if self.kind not in STIFFNESS_KINDS:
             raise EnvError(f"stiffness kind {self.kind!r} must be one of {', '.join(STIFFNESS_KINDS)}")
-        if self.kind == "constant" and not (np.isfinite(self.constant_n_m) and self.constant_n_m > 0.0):
-            raise EnvError(f"constant stiffness {self.constant_n_m!r} N/m must be a positive finite number")
+        if self.kind == "constant" and not STIFFNESS.contains(self.constant_n_m):
+            raise EnvError(f"constant stiffness {self.constant_n_m!r} N/m must be {STIFFNESS.text()} (what the "
+                           "controller commands)")
         if self.kind == "schedule" or self.schedule is not None:
             from envs.policies.stiffness_schedule import StiffnessSchedule  # imports MuJoCo: only when asked for
 
@@ -69,8 +69,8 @@ class StiffnessSetting:
             k = float(value)
         except ValueError:
             raise EnvError(f"stiffness {text!r}: K={value!r} is not a number of N/m") from None
-        if not (np.isfinite(k) and k > 0.0):
-            raise EnvError(f"stiffness {text!r}: K must be a positive finite number of N/m")
+        if not STIFFNESS.contains(k):
+            raise EnvError(f"stiffness {text!r}: K must be {STIFFNESS.text()} (what the controller commands)")
         return cls("constant", k)
 
     def check_skill(self, skill: PoseSkill) -> None:

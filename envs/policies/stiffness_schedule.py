@@ -25,6 +25,7 @@ from controllers.impedance import ImpedanceConfig
 from envs.errors import EnvError
 from envs.poses import minimum_jerk
 from numerics.small_linalg import matmul, norm
+from pihutil.bounds import STIFFNESS
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -51,8 +52,9 @@ class StiffnessSchedule:
     def __post_init__(self) -> None:
         for name in ("free_n_m", "lateral_hole_n_m", "axial_hole_n_m"):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise EnvError(f"StiffnessSchedule.{name}={value!r} must be a positive finite stiffness in N/m")
+            if not STIFFNESS.contains(value):
+                raise EnvError(f"StiffnessSchedule.{name}={value!r} must be a stiffness {STIFFNESS.text()} (what the "
+                               "controller commands)")
         if not (np.isfinite(self.free_height_m) and np.isfinite(self.hole_height_m)
                 and self.free_height_m > self.hole_height_m):
             raise EnvError(f"StiffnessSchedule needs free_height_m > hole_height_m, got {self.free_height_m!r} "

@@ -13,6 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
+from pihutil.bounds import JOINT_TORQUE_NM, SENSOR_CUTOFF_HZ, SENSOR_FORCE_N, SENSOR_TORQUE_NM
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -56,11 +57,13 @@ class WristSensorConfig:
     def __post_init__(self) -> None:
         if self.sensor_mode not in SENSOR_MODES:
             raise EnvError(f"sensor_mode={self.sensor_mode!r} must be one of {', '.join(SENSOR_MODES)}")
-        for name in ("force_noise_n", "torque_noise_nm", "force_bias_n", "torque_bias_nm", "sensor_cutoff_hz",
-                     "joint_torque_noise_nm", "joint_torque_bias_nm"):
+        for name, bound in (("force_noise_n", SENSOR_FORCE_N), ("torque_noise_nm", SENSOR_TORQUE_NM),
+                            ("force_bias_n", SENSOR_FORCE_N), ("torque_bias_nm", SENSOR_TORQUE_NM),
+                            ("sensor_cutoff_hz", SENSOR_CUTOFF_HZ), ("joint_torque_noise_nm", JOINT_TORQUE_NM),
+                            ("joint_torque_bias_nm", JOINT_TORQUE_NM)):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0.0):
-                raise EnvError(f"sensing {name}={value!r} must be a finite number >= 0")
+            if not bound.contains(value):
+                raise EnvError(f"sensing {name}={value!r} must be a number {bound.text()}")
         for mode, names in (("wrist", ("force_noise_n", "torque_noise_nm", "force_bias_n", "torque_bias_nm")),
                             ("joint_torque", ("joint_torque_noise_nm", "joint_torque_bias_nm"))):
             for name in names:

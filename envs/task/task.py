@@ -50,6 +50,8 @@ from envs.cell.sorter import check_chamfer, check_clearance, check_hole_depth
 from envs.errors import EnvError
 from envs.task.perturbation import PerturbationRanges
 from envs.task.sensor_config import WristSensorConfig
+from pihutil.bounds import (FLOOR_FORCE_N, PENETRATION_TOLERANCE_M, REST_SPEED_M_S, SEAT_TOLERANCE_M,
+                            TIME_LIMIT_S)
 
 if TYPE_CHECKING:
     from envs.cell.scene_config import SceneConfig
@@ -119,8 +121,11 @@ class SuccessConfig:
     floor_force_n: float = 0.0
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            check_number(f.name, getattr(self, f.name))
+        for name, bound in (("seat_tolerance_m", SEAT_TOLERANCE_M), ("penetration_tolerance_m", PENETRATION_TOLERANCE_M),
+                            ("max_speed_m_s", REST_SPEED_M_S), ("hold_s", TIME_LIMIT_S), ("floor_force_n", FLOOR_FORCE_N)):
+            check_number(name, getattr(self, name))
+            if not bound.contains(getattr(self, name)) and not (name == "hold_s" and getattr(self, name) == 0):
+                raise EnvError(f"success.{name}={getattr(self, name)!r} must be a number {bound.text()}")
 
 
 MAX_POS_RANGE_M = 0.5
@@ -201,10 +206,16 @@ class Task:
         check_pad_stiffness(self.pad_stiffness_nm_rad)
         check_hole_depth(self.hole_depth_m)
         check_force_limit(self.force_limit_n)
-        check_number("time_limit_s", self.time_limit_s, strict=True)
+        if not TIME_LIMIT_S.contains(self.time_limit_s):
+            raise EnvError(f"time_limit_s={self.time_limit_s!r} must be a number of simulated seconds "
+                           f"{TIME_LIMIT_S.text()}")
         for name, kind in _NESTED.items():
             if not isinstance(getattr(self, name), kind):
                 raise EnvError(f"{name}={getattr(self, name)!r} must be a {kind.__name__}")
+        # a floor force no episode can press would fail every episode for a reason the task file caused
+        if self.success.floor_force_n >= self.force_limit_n:
+            raise EnvError(f"success.floor_force_n={self.success.floor_force_n!r} must be below force_limit_n="
+                           f"{self.force_limit_n!r}: pressing the floor that hard ends the episode first")
 
     # ------------------------------------------------------------------------------------------- derived
 

@@ -141,3 +141,37 @@ def test_a_resume_of_another_run_names_the_first_value_that_differs(tmp_path) ->
     other = {"cells": [{"settings": {"clearance_m": 0.0002}}, {"settings": {"clearance_m": 0.0004}}], "seed": 0}
     with pytest.raises(BatchError, match=r"'cells\[1\]\.settings\.clearance_m' was 0\.0003, now 0\.0004"):
         Journal.open(path, other, resume=True)
+
+
+HOLDER = """
+import sys, time
+from batch import Journal
+journal = Journal.open(sys.argv[1], {"run": 1})
+journal.append("u0", {"n": 0})
+print("holding", flush=True)
+time.sleep(60)
+"""
+
+
+def test_a_journal_a_run_owns_is_refused_to_a_second_run(tmp_path):
+    """A --resume (or an --overwrite) started while the first run still goes would duplicate its work and tear
+    its file: refused in one line while the first run holds the journal, and free once it ended."""
+    import subprocess
+    import sys
+
+    from tests.helpers import REPO
+
+    path = tmp_path / "j.jsonl"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(path)], cwd=REPO, stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout.readline() == b"holding\n"
+        for how in ({"resume": True}, {"overwrite": True}):
+            with pytest.raises(BatchError, match="is in use by another run") as info:
+                Journal.open(path, {"run": 1}, **how)
+            assert "\n" not in str(info.value)
+        assert path.read_text().count("\n") == 2  # the first run's header and unit, untouched
+    finally:
+        holder.kill()
+        holder.wait()
+    with Journal.open(path, {"run": 1}, resume=True) as journal:  # its owner is gone: the lock went with it
+        assert journal.done() == {"u0": {"n": 0}}

@@ -239,3 +239,16 @@ def test_an_evaluation_sends_the_cpu_dispatch_to_a_clusters_workers():
     from numerics.cpu_dispatch import DISPATCH_VARIABLES, PINNED_ENVIRONMENT
 
     assert set(PINNED_ENVIRONMENT) < set(EvaluationConfig().batch_config().worker_environment) == set(DISPATCH_VARIABLES)
+
+
+def test_a_resumed_run_tells_its_own_infrastructure_events_from_the_earlier_parts(tmp_path):
+    """The journal keeps the events of the earlier parts (the JSON lists them all), and the outcome says how many
+    came first, so a resumed run does not report an earlier worker loss as news."""
+    todo = units(4, {1: {"do": "kill_first", "counter": str(tmp_path / "c")}})
+    path = tmp_path / "j.jsonl"
+    with Journal.open(path, {"run": 1}) as journal:
+        first = run(todo[:2], BatchConfig(workers=2), journal=journal)
+    assert [e["event"] for e in first.events] == ["worker_lost"] and first.events_before == 0
+    with Journal.open(path, {"run": 1}, resume=True) as journal:
+        resumed = run(todo, BatchConfig(workers=2), journal=journal)
+    assert resumed.complete and resumed.events == first.events and resumed.events_before == 1

@@ -83,3 +83,17 @@ class ExitsInAct(HoldStart):
 def exits(task: PolicyTask) -> ExitsInAct:
     """A policy whose act() ends the process."""
     return ExitsInAct()
+
+
+def exits_at_start(task: PolicyTask) -> Any:
+    """A factory that takes its process down (as a crashing extension would while loading its weights)."""
+    import os
+
+    os._exit(9)
+
+
+def hangs_at_start(task: PolicyTask) -> Any:
+    """A factory that never returns (a lock never released, a download that never ends)."""
+    import time
+
+    time.sleep(3600.0)

@@ -116,3 +116,62 @@ def test_a_file_that_appears_between_the_check_and_the_swap_is_kept(tmp_path: Pa
     kept = [p for p in tmp_path.glob(".ck.old-*/ck/theirs.txt")]
     assert len(kept) == 1 and kept[0].read_text() == "keep me"
     assert "kept the replaced" in capsys.readouterr().err
+
+
+# ---- what a killed writer leaves: removed by the next write of the same output, a live writer's left alone ------
+
+KILLED_WRITER = """
+import sys, time
+from pathlib import Path
+from pihutil.atomic import AtomicFile, atomic_folder
+out = Path(sys.argv[1])
+if sys.argv[2] == "folder":
+    with atomic_folder(out) as staging:
+        (staging / "half.txt").write_text("half")
+        print("writing", flush=True)
+        time.sleep(60)
+else:
+    with AtomicFile(out) as tmp:
+        tmp.temporary.write_text("half")
+        print("writing", flush=True)
+        time.sleep(60)
+"""
+
+
+def _killed_while_writing(out: Path, kind: str) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    from tests.helpers import REPO
+
+    proc = subprocess.Popen([sys.executable, "-c", KILLED_WRITER, str(out), kind], cwd=REPO, stdout=subprocess.PIPE)
+    assert proc.stdout.readline() == b"writing\n"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+
+
+@pytest.mark.parametrize("kind", ["folder", "file"])
+def test_what_a_killed_writer_left_is_removed_by_the_next_write(tmp_path: Path, capsys, kind: str) -> None:
+    out = tmp_path / ("model" if kind == "folder" else "a.json")
+    _killed_while_writing(out, kind)
+    assert leftovers(tmp_path) != []
+    if kind == "folder":
+        with atomic_folder(out) as staging:
+            (staging / "x.txt").write_text("x")
+    else:
+        write_atomic(out, lambda handle: handle.write("x"))
+    assert leftovers(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == [out.name]
+    assert "left by a run that was killed" in capsys.readouterr().err
+
+
+def test_a_live_writers_staging_folder_is_left_alone(tmp_path: Path) -> None:
+    out = tmp_path / "model"
+    with atomic_folder(out) as first:
+        (first / "a.txt").write_text("a")
+        with pytest.raises(RuntimeError):
+            with atomic_folder(out):  # another writer of the same output, while the first one lives
+                raise RuntimeError("stop")
+        assert (first / "a.txt").read_text() == "a"
+    assert (out / "a.txt").read_text() == "a" and leftovers(tmp_path) == []
+    assert not any(".lock-" in p.name for p in tmp_path.iterdir())

@@ -92,6 +92,16 @@ def _model_json(key: str, value: object) -> Callable[[Path], None]:
     return prepare
 
 
+def _model_field(key: str, value: object) -> Callable[[Path], None]:
+    """The position model's model.json with its architecture's ``key`` (record["model"]) set to ``value``."""
+    def prepare(tmp: Path) -> None:
+        path = tmp / "model" / "position" / "model.json"
+        record = json.loads(path.read_text())
+        record["model"][key] = value
+        path.write_text(json.dumps(record))
+    return prepare
+
+
 def _pickled_weights(tmp: Path) -> None:
     """weights.pt as a pickle of a plain dict (pickle protocol 4): refused without unpickling."""
     import pickle
@@ -113,6 +123,13 @@ def _nan_goal(tmp: Path) -> None:
     demos = synthetic_demos()
     np.savez(tmp / "nan.npz", pos=demos.pos, quat=demos.quat, dt=demos.dt, goal_pos=np.array([np.nan, 0.0, 0.0]),
              goal_quat=demos.goal_quat, shape="square", clearance_m=0.001, config_json="{}")
+
+
+def _task_file(time_limit: str) -> Callable[[Path], None]:
+    """A task file with the given time limit."""
+    def prepare(tmp: Path) -> None:
+        (tmp / "t.toml").write_text(f"version = 1\ntime_limit_s = {time_limit}\n")
+    return prepare
 
 
 @dataclass(frozen=True)
@@ -195,6 +212,20 @@ CASES: dict[str, Case] = {
                                              (_metadata("clearance_m", "x"),)),
     "evaluate-metadata-scene-number": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "'scene' must be a JSON",
                                            (_metadata("scene", 5),)),
+    "evaluate-metadata-demo-starts-pos-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}",
+                                                   "skill.json: metadata 'demo_starts.pos' must be finite numbers",
+                                                   (_metadata("demo_starts", {"pos": "abc", "quat": [[1, 0, 0, 0]]}),)),
+    "evaluate-metadata-demo-starts-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}",
+                                               "skill.json: metadata 'demo_starts' must be an object",
+                                               (_metadata("demo_starts", "some text"),)),
+    "evaluate-model-width-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}",
+                                      "position/model.json: model.width='16' must be an integer",
+                                      (_model_field("width", "16"),)),
+    "evaluate-model-layers-float": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}",
+                                        "position/model.json: model.layers=2.5 must be an integer",
+                                        (_model_field("layers", 2.5),)),
+    "evaluate-model-dim-text": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "model.json: dim='3' must be an integer",
+                                    (_model_json("dim", "3"),)),
     "evaluate-model-dim-huge": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "dim=1000000000000 differs",
                                     (_model_json("dim", 10**12),)),
     "evaluate-pickled-weights": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL}", "which pih never does",
@@ -247,6 +278,30 @@ CASES: dict[str, Case] = {
     "evaluate-pickled-preview": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --figure {{tmp}}/f.png",
                                      "not a readable demo preview", (_pickled_preview,)),
     "train-nan-goal": Case("train --demos {tmp}/nan.npz --out {tmp}/ck", "'goal_pos' contains NaN", (_nan_goal,)),
+    # numbers past what the code below takes (pihutil.bounds): refused before any work, not failed in every episode
+    "evaluate-unit-timeout-1e10": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --unit-timeout-s 1e10",
+                                       "argument --unit-timeout-s"),
+    "sweep-unit-timeout-1e10": Case("sweep --model {tmp}/model --clearance-mm 0.2 --out {tmp}/sw --unit-timeout-s 1e10",
+                                    "argument --unit-timeout-s"),
+    "evaluate-stiffness-1e300": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --stiffness constant:1e300",
+                                     "K must be in [0.001, 1e+06] N/m"),
+    "evaluate-lookahead-1e300": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --lookahead-s 1e300",
+                                     "argument --lookahead-s"),
+    "evaluate-feedforward-1e300": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --feedforward 1e300",
+                                       "argument --feedforward"),
+    "benchmark-workers-1e20": Case("benchmark --workers 100000000000000000000 --out {tmp}/b", "argument --workers"),
+    "benchmark-demo-seeds-huge": Case("benchmark --demo-seeds 0-99999999999 --out {tmp}/b",
+                                      "every seed must be in 0..4,294,967,295"),
+    "benchmark-demo-seeds-many": Case("benchmark --demo-seeds 0-999999 --out {tmp}/b", "1,000,000 replicates, at most"),
+    "benchmark-episodes-huge": Case("benchmark --episodes 1000000 --out {tmp}/b", "argument --episodes"),
+    "evaluate-task-file-time-limit-1e12": Case(f"evaluate --model {{tmp}}/model {FAST_EVAL} --task {{tmp}}/t.toml",
+                                               "time_limit_s=1000000000000.0 must be", (_task_file("1e12"),)),
+    "import-tool-offset-1e300": Case("demos --import {tmp}/rec.npz --tool-offset 1e300,0,0,1,0,0,0 --out {tmp}/d.npz",
+                                     "the offset's length", (_recording,)),
+    "train-memory": Case("train --demos {tmp}/demos.npz --out {tmp}/ck --width 4096 --layers 64 --batch-size 1000000",
+                         "of memory, more than the"),
+    "lasa-memory": Case("lasa --shape NShape --layers 64 --batch-size 1000000", "of memory, more than the"),
+    "train-lr-1e300": Case("train --demos {tmp}/demos.npz --out {tmp}/ck --lr 1e300", "argument --lr"),
     "import-non-unit-tool-quaternion": Case("demos --import {tmp}/rec.npz --tool-offset 0,0,0.1,0.7071,0,0,0.7071 "
                                             "--out {tmp}/d.npz", "not 1", (_recording,)),
 }

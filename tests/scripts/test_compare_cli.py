@@ -60,7 +60,7 @@ def test_exit_status_says_whether_the_candidate_regressed(files, capsys, cand, e
     (["base", "other_seed"], "episode 0: start_pos differs"),
     (["base", "fewer"], "episode 40 is only in the base"),
     (["base"], "give two evaluations"),
-    (["base", "base", "--margin", "1.5"], "--margin 1.5"),
+    (["base", "base", "--margin", "1.5"], "argument --margin"),
     (["base", "base", "--alpha", "0"], "--alpha 0"),
     (["base", "base", "--sequential"], "--sequential runs the episodes itself"),
     (["--sequential", "--cand-model", "base"], "--sequential needs --base-model"),
@@ -123,7 +123,7 @@ def test_sequential_mode_runs_paired_episodes_until_a_decision_independent_of_th
 
 
 @pytest.mark.parametrize("field, value, message", [
-    ("index", True, "integer 'index'"),
+    ("index", True, "record 0 has index True, not an episode"),
     ("time_to_insert_s", "fast", "time_to_insert_s='fast', not a number or null"),
     ("peak_sustained_wrist_force_n", True, "peak_sustained_wrist_force_n=True, not a number or null"),
 ])

@@ -174,6 +174,12 @@ def nan_pose(root: Path) -> None:
                    path)
 
 
+def drop_state_column(root: Path) -> None:
+    """The data file without the observation.state column that info.json lists: a readable file missing a column."""
+    path = root / "data" / "chunk-000" / "file-000.parquet"
+    pq.write_table(pq.read_table(path).drop_columns(["observation.state"]), path)
+
+
 def edit_info(change: Callable[[dict[str, Any]], None]) -> Callable[[Path], None]:
     def edit(root: Path) -> None:
         path = root / "meta" / "info.json"
@@ -186,6 +192,7 @@ def edit_info(change: Callable[[dict[str, Any]], None]) -> Callable[[Path], None
 @pytest.mark.parametrize("damage, message", [
     (truncate_data, "not a readable Parquet file"),
     (nan_pose, "NaN"),
+    (drop_state_column, "file-000.parquet has no column 'observation.state'"),
     (lambda root: (root / "meta" / "info.json").unlink(), "no meta/info.json"),
     (lambda root: (root / "data" / "chunk-000" / "file-000.parquet").unlink(), "is missing"),
     (edit_info(lambda info: info["features"]["observation.state"].update(shape=[6])), "shape \\[7\\]"),

@@ -76,7 +76,7 @@ def test_a_replicate_that_could_not_run_makes_the_protocol_incomplete():
 
 @pytest.mark.parametrize("argv, message", [
     (["--demo-seeds", "4-1"], "seeds"),
-    (["--episodes", "0"], "--episodes 0"),
+    (["--episodes", "0"], "argument --episodes"),
     (["--shape", "star"], "shape='star' is unknown"),
     (["--demo-seeds", "0,1000"], "equal demo seeds"),
     (["--adaptation-off", "push,blob"], "--adaptation-off 'push,blob'"),

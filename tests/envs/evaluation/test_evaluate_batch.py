@@ -225,20 +225,21 @@ def test_a_resumed_evaluation_counts_the_wall_time_of_the_earlier_part(model, tm
 
 
 def test_a_fault_is_one_error_line_with_the_resume_command_and_exit_1(model, tmp_path, capsys, monkeypatch):
-    """A batch stopped by a fault (the Ray head lost) ends `pih evaluate` with exit 1, the fault on one line
-    and how to resume; the summary counts the workers that ran, not the --workers asked for."""
+    """A batch stopped by a fault (the Ray head lost) ends `pih evaluate` with exit 1 and one line on stderr: the
+    fault and how to resume; no success table of the run that did not happen."""
     import envs.evaluation.evaluate as evaluate_module
     from envs.evaluation.result import EvaluationResult
 
     def lost_head(model_dir, config, progress=True, journal=None):
+        journal.append("0", {"index": 0})  # one episode finished before the head was lost
         return EvaluationResult(config, [], 1.0, str(model_dir), complete=False, workers=2,
                                 fault="lost the Ray head at 10.0.0.1:6379: its GCS has not answered for 3 s")
 
     monkeypatch.setattr(evaluate_module, "evaluate", lost_head)  # scripts.evaluate imports it when it runs
     assert pih(["evaluate", "--model", str(model), *FAST, "--json", str(tmp_path / "e.json")]) == 1
     out, err = capsys.readouterr()
-    assert "pih evaluate: error: lost the Ray head at 10.0.0.1:6379" in err and "--resume" in err
-    assert "(2 worker(s))" in out
+    assert err.startswith("pih evaluate: error: lost the Ray head at 10.0.0.1:6379") and err.count("\n") == 1
+    assert "continue with:" in err and "--resume" in err and "success rate" not in out, (out, err)
 
 
 @pytest.mark.parametrize("workers", [1, 2])
@@ -324,3 +325,14 @@ def test_forked_workers_run_on_the_context_built_before_the_fork(model, monkeypa
     a, b = without_wall_times(here.to_dict()), without_wall_times(forked.to_dict())
     assert (a["config"].pop("workers"), b["config"].pop("workers")) == (1, 2)
     assert a == b and len(a["per_episode"]) == 4
+
+
+def test_a_run_with_no_completed_episode_says_so_instead_of_a_rate_of_0_of_0():
+    from envs.evaluation.result import EvaluationResult
+    from envs.rollout.episode import EpisodeRecord
+
+    lost = [EpisodeRecord(i, -1, [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], reason="infrastructure: worker_died after 3 "
+                          "tries") for i in range(2)]
+    table = EvaluationResult(EvaluationConfig(episodes=2), [], 1.0, "m", complete=False,
+                             infrastructure_errors=lost).summary_table()
+    assert "(0/0)" not in table and "none: no episode completed (2 lost to infrastructure)" in table

@@ -5,6 +5,9 @@ episode."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +15,7 @@ import pytest
 
 from rflow.skill_io import save_skill
 from scripts.cli import main
+from tests.helpers import REPO
 from tests.helpers.skill_fixtures import tiny_skill, write_demo_file
 
 POLICIES = "tests.helpers.policies_for_tests"
@@ -134,3 +138,47 @@ def test_a_policy_that_takes_its_process_down_loses_its_episodes_not_the_run(dem
     assert code != 0 and out.is_file()
     data = json.loads(out.read_text())
     assert len(data["infrastructure_errors"]) == 2 and data["successes"] == 0
+
+
+# ---- user code runs supervised: a factory that exits or hangs is one line and exit 1, never pih's death or hang ----
+
+def _pih(*argv: str, cwd: Path, timeout_s: float = 240.0) -> subprocess.CompletedProcess:
+    """`pih` in a process of its own (a factory that takes its process down must not take the test's)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.run([sys.executable, "-m", "scripts.cli", *argv], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=timeout_s)
+
+
+@pytest.mark.parametrize("factory,limit,words", [("exits_at_start", [], "with exit code 9"),
+                                                 ("hangs_at_start", ["--start-timeout-s", "1"],
+                                                  "not ready 1 s after it was started")])
+def test_a_factory_that_exits_or_hangs_is_one_line_and_exit_1(demos, tmp_path, factory, limit, words) -> None:
+    """pih survives it, says why in one line, and leaves nothing (no journal blocks a plain rerun)."""
+    done = _pih("evaluate", "--policy", f"{POLICIES}:{factory}", "--demos", str(demos), "--episodes", "2", "--quiet",
+                "--json", str(tmp_path / "e.json"), *limit, cwd=REPO)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith(f"pih evaluate: error: --policy {POLICIES}")
+    assert words in done.stderr and done.stdout == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+POLICY_SOURCE = '''
+from tests.helpers.policies_for_tests import HoldStart
+
+
+def make(task, **options):
+    return HoldStart()  # VERSION
+'''
+
+
+def test_a_resume_refuses_a_policy_whose_source_changed(demos, tmp_path, monkeypatch, capsys) -> None:
+    (tmp_path / "pih_resumed_policy.py").write_text(POLICY_SOURCE.replace("VERSION", "first"))
+    monkeypatch.chdir(tmp_path)  # the policy's module is found in the current folder first
+    argv = ["evaluate", "--policy", "pih_resumed_policy:make", "--demos", str(demos), "--episodes", "2",
+            "--time-limit-s", "0.05", "--quiet", "--json", str(tmp_path / "e.json")]
+    assert main(argv) == 0 and main([*argv, "--resume"]) == 0  # the same source: the run continues (all done)
+    (tmp_path / "pih_resumed_policy.py").write_text(POLICY_SOURCE.replace("VERSION", "second"))
+    capsys.readouterr()
+    assert main([*argv, "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "policy_sha256" in err and err.count("\n") == 1, err

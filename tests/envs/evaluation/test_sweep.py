@@ -131,7 +131,7 @@ def test_sweep_over_stiffness_records_it_and_resume_needs_the_same_axis(model_di
     assert "\n" not in capsys.readouterr().err.strip()
 
 
-@pytest.mark.parametrize("spec, words", [("constant:0,learned", "positive"), ("constant:-1", "positive"),
+@pytest.mark.parametrize("spec, words", [("constant:0,learned", "K must be in"), ("constant:-1", "K must be in"),
                                          ("soft", "learned"), ("learned", "needs a skill trained")])
 def test_bad_stiffness_axis_exits_2_before_any_work(model_dir, tmp_path, capsys, spec, words) -> None:
     out = tmp_path / "sweep"
@@ -188,3 +188,21 @@ def test_a_foreign_registry_is_refused_before_any_episode(model_dir, tmp_path, c
             "--workers", "1", "--out", str(out), "--quiet"]
     assert cli.main(argv) == 2 and ".pih-outputs.json" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == [".pih-outputs.json"]
+
+
+def test_a_fault_is_one_error_line_and_no_success_map(model_dir, tmp_path, capsys, monkeypatch) -> None:
+    """A sweep stopped by a fault (the Ray head lost) prints no cell's success line and writes no map: one line on
+    stderr with how to continue, exit 1; the journal keeps what finished."""
+    from envs.evaluation import sweep as sweep_module
+
+    def lost_head(model, cells, progress=True, journal=None):
+        return sweep_module.SweepResult(model, cells, [], {}, complete=False, interrupted=False, wall_s=1.0,
+                                        fault="lost the Ray head at 10.0.0.1:6379: its GCS has not answered for 3 s")
+
+    monkeypatch.setattr(sweep_module, "sweep", lost_head)
+    out = tmp_path / "sw"
+    assert cli.main(["sweep", "--model", str(model_dir), "--clearance-mm", "0.2", "--episodes", "1", "--out", str(out),
+                 "--quiet"]) == 1
+    stdout, err = capsys.readouterr()
+    assert err.startswith("pih sweep: error: lost the Ray head") and err.count("\n") == 1 and "--resume" in err
+    assert stdout == "" and sorted(p.name for p in out.iterdir()) == ["journal.jsonl"]

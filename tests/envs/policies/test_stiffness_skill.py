@@ -212,7 +212,7 @@ def test_feedforward_lead_uses_the_commanded_stiffness():
     assert env.controller.stiffness is None  # no stiffness: the controller's default
 
 
-@pytest.mark.parametrize("spec,words", [("constant:-5", "positive"), ("constant:0", "positive"), ("soft", "learned"),
+@pytest.mark.parametrize("spec,words", [("constant:-5", "K must be in"), ("constant:0", "K must be in"), ("soft", "learned"),
                                         ("learned", "no stiffness model")])
 def test_pih_evaluate_bad_stiffness_exits_2_before_any_episode(tmp_path, capsys, spec, words):
     model = save_skill(tmp_path / "ck", tiny_skill())  # a pose skill without stiffness
