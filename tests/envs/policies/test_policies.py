@@ -102,6 +102,18 @@ def test_a_replay_starts_at_the_measured_pose_and_joins_the_recording_after_the_
     assert np.allclose(last.pose.pos, rec_pos[-1]) and not np.any(last.twist)
 
 
+def test_a_replay_without_feedforward_reaches_its_final_pose(env) -> None:
+    start = Pose(env.nominal_goal.pos + np.array([0.0, 0.0, 0.05]), env.nominal_goal.quat)
+    s = np.linspace(0.0, 1.0, 30)[:, None]
+    end = start.pos + [0.0, 0.03, 0.0]
+    policy = ReplayPolicy(0.02 * np.arange(30), start.pos + s * (end - start.pos), np.tile(start.quat, (30, 1)),
+                          feedforward=False)
+    record, trace = run_episode(env, policy, StartPose(0, -1, start), record_trace=True, max_steps=108)
+    assert record.steps == 108 and not record.success  # 0.58 s of replay, then its last pose held for 0.5 s
+    assert np.linalg.norm(trace.tcp_pos[-1] - end) < 1e-3
+    assert np.array_equal(trace.cmd_pos[-1], trace.cmd_pos[-50])
+
+
 def observe_at(env: PegInHoleEnv, pose: Pose) -> Observation:
     """An observation of ``env`` at ``pose`` (reset there)."""
     env.reset(start_pose=pose, perturbation=Perturbation())
