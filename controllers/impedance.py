@@ -643,8 +643,8 @@ class CartesianImpedanceController:
         Raises:
             ControllerError: bad inputs (as `compute_torque`).
         """
-        k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
         _, qpos, qvel, bias, site_pos, site_mat, ctrl = self._data_views(data)
+        k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
         return (self._fns, self.model._address, data._address, self.site_id, self._jac, self._jac_minv, qpos, qvel,
                 bias, site_pos, site_mat, self._target, k, self._params, self._last_tau, ctrl, self._work, self._vec,
                 self._tool, self._tool_point, self._jac_tool, self._jac_tool_arm, data.qfrc_applied[self.dof_slice],
@@ -661,8 +661,6 @@ class CartesianImpedanceController:
         """Check the command, store it in the kernel's target buffer and return the stiffness to use."""
         n = self.model.nu
         target = self._target
-        target[:3] = as_vector(target_pos, 3, "target_pos")
-        target[3:7] = as_unit_quaternion(target_quat, "target_quat")
         if q_nullspace is None:
             target[7 + n] = 0.0
         else:
@@ -672,6 +670,8 @@ class CartesianImpedanceController:
                 raise ControllerError(f"q_nullspace {values} must lie within +-{MAX_JOINT_ANGLE_RAD} rad")
             target[7:7 + n] = q_ref
             target[7 + n] = 1.0
+        target[:3] = as_vector(target_pos, 3, "target_pos")
+        target[3:7] = as_unit_quaternion(target_quat, "target_quat")
         return self.checked_stiffness(stiffness)
 
     def _data_views(self, data: mujoco.MjData) -> tuple:
