@@ -190,7 +190,7 @@ LOCKSTEP_SLOTS: tuple[int, ...] = (1, 8, 32, 128)
 def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
     """Episodes in lockstep (envs.rollout.lockstep) against their own bare physics, one core.
 
-    The same evaluation starts (128; 16 with --quick) run one at a time (`run_episode`, today's loop) and in lockstep
+    The same evaluation starts (128; 16 with --quick) run one at a time (`run_episode`) and in lockstep
     with K = LOCKSTEP_SLOTS slots on one thread, and with K = 32 (8 with --quick) on two threads. Their physics is
     timed apart: bare mj_step from every control period's state of every episode (`episode_physics_rate` after each
     episode, in that episode's model), the least time the episodes need on one core. Each figure's
