@@ -194,7 +194,7 @@ def run_episode(env: PegInHoleEnv, policy: Policy, start: StartPose, record_trac
     that is not an `Action`, or one the controller rejects, ends it as "error: ...").
 
     Args:
-        env: a PegInHoleEnv (stop_on_success=True).
+        env: a PegInHoleEnv (stop_on_success=True for an evaluation; a demo's runs on to its plan's end).
         policy: any `Policy` (``reset(observation, period_s)``, ``act(observation) -> Action``).
         start: the start pose.
         record_trace: also return the executed trajectory.

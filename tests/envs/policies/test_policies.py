@@ -11,7 +11,7 @@ import pytest
 from envs.demos.record import collect_demos
 from envs.errors import EnvError
 from envs.policies.expert import ScriptedExpertPolicy
-from envs.policies.expert_plan import ExpertConfig
+from envs.policies.expert_plan import ExpertConfig, plan_expert_path
 from envs.policies.interface import Action, Observation, is_policy, observe, policy_task
 from envs.policies.replay import ReplayPolicy
 from envs.poses import Pose, quat_angle_rad
@@ -83,6 +83,21 @@ def test_the_privileged_expert_seats_the_peg_in_the_displaced_hole(env) -> None:
         record, _ = run_episode(env, expert, start, privileged=True)
         assert record.success, record.reason
         assert np.allclose(expert.plan_pos[-1], env.goal.pos) and not np.allclose(env.goal.pos, env.nominal_goal.pos)
+
+
+def test_the_expert_follows_a_plan_it_is_given(env) -> None:
+    """`pih demos` plans from the requested start and hands the plan over: the expert commands it as it is."""
+    start = env.nominal_start()
+    env.reset(start_pose=start, perturbation=Perturbation())
+    times = env.control_period_s * np.arange(1, 201)
+    plan = plan_expert_path(start, env.hole.pos, env.hole_axis, env.goal, ExpertConfig(), times)
+    expert = ScriptedExpertPolicy(plan=plan)
+    expert.reset(observe(env, privileged=True), env.control_period_s)
+    actions = [expert.act(observe(env, privileged=True)) for _ in range(3)]
+    assert all(np.array_equal(a.pose.pos, plan[0][k]) for k, a in enumerate(actions))
+    assert actions[1].twist is not None and actions[1].stiffness.shape == (3, 3)
+    with pytest.raises(EnvError, match="expert plan"):
+        ScriptedExpertPolicy(plan=(plan[0], plan[1][:-1]))
 
 
 def test_a_replay_starts_at_the_measured_pose_and_joins_the_recording_after_the_blend(env) -> None:
