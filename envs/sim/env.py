@@ -149,8 +149,8 @@ class PegInHoleEnv:
                 that is not a Controller or comes without the scene it was built on.
         """
         if controller is not None and not isinstance(controller, Controller):
-            raise EnvError(f"controller must implement controllers.interface.Controller (start, set_tool_load, "
-                           f"checked_stiffness, step), got {type(controller).__name__}")
+            raise EnvError(f"controller must implement controllers.interface.Controller (start, settled, "
+                           f"set_tool_load, command, checked_stiffness, step), got {type(controller).__name__}")
         if controller is not None and scene is None:
             raise EnvError("a controller is built on a model: pass the scene whose model it drives (scene=)")
         self.scene = scene if scene is not None else build_scene(scene_config)
