@@ -456,7 +456,7 @@ class PegInHoleEnv:
         try:
             target, stiffness = self.controller.command(self.data, action, feedforward_gain)
         except ControllerError as err:
-            raise EnvError(f"bad action: {err}") from None
+            raise EnvError(f"the controller cannot command this action: {err}") from None
         pose = self._as_pose(target, "target pose")
         if stiffness is not None:
             try:

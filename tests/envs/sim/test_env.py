@@ -150,5 +150,5 @@ def test_the_controller_leads_an_action_with_a_twist(env: PegInHoleEnv) -> None:
     assert np.array_equal(env.step(action, feedforward_gain=0.0).info["target"].pos, start.pos)
     with pytest.raises(EnvError, match="carries its own stiffness"):
         env.step(action, np.eye(6) * 1000.0)
-    with pytest.raises(EnvError, match="bad action: twist"):
+    with pytest.raises(EnvError, match="cannot command this action: twist"):
         env.step(Action(start, twist=np.zeros(5)))
