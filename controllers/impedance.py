@@ -34,12 +34,16 @@ from typing import Callable
 import mujoco
 import numpy as np
 import numpy.typing as npt
+from controllers import feedforward
 from controllers import impedance_kernel as kernel
 from controllers import joint_torque_kernel as jt_kernel
+from controllers.action import Action
 from controllers.errors import ControllerError
+from controllers.feedforward import check_lead_status
 from controllers.mujoco_c import FUNCTIONS
 from controllers.mujoco_layout import layout
 from controllers.validation import as_unit_quaternion, as_vector, site_id
+from numerics.pose import Pose
 from numerics.small_linalg import eigh_sym
 from pihutil.bounds import STIFFNESS
 
@@ -199,18 +203,6 @@ def modal_factors(
     if not ok:
         raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed)")
     return p, w
-
-
-def check_lead_status(status: int) -> None:
-    """Raise for a failed `impedance_kernel.pose_lead_into` (its LEAD_* status).
-
-    Raises:
-        ControllerError: J M^-1 J^T not positive definite, or a singular stiffness.
-    """
-    if status == kernel.LEAD_NOT_POSITIVE_DEFINITE:
-        raise ControllerError("J M^-1 J^T is not positive definite (Cholesky failed)")
-    if status == kernel.LEAD_SINGULAR_STIFFNESS:
-        raise ControllerError("the stiffness is singular (a zero pivot)")
 
 
 def _is_descendant(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
@@ -507,11 +499,60 @@ class CartesianImpedanceController:
                                                 accel is not None, *scratch, lead))
         return lead
 
+    def command(self, data: mujoco.MjData, action: Action,
+                feedforward_gain: float = 1.0) -> tuple[Pose, npt.NDArray[np.float64]]:
+        """The pose and the 6x6 stiffness this controller holds for one control period of ``action``, at the state
+        of ``data`` (controllers.interface.Controller): the stiffness `action_stiffness` makes, and the action's pose,
+        or with a twist and a gain > 0 its anchor led by gain K^-1 (D(q) xi + Lambda(q) a) + push so the compliant
+        arm moves at the twist instead of lagging behind it (controllers.feedforward).
+
+        Args:
+            data: MuJoCo data of `self.model`, kinematics and mass matrix current (after mj_forward or a physics step).
+            action: the period's command.
+            feedforward_gain: scale of the lead; 0 commands the action's pose.
+
+        Returns:
+            (pose, stiffness): the stiffness is not yet validated (`checked_stiffness` does that) and must not be
+            modified (without a stiffness in the action it is the controller's default).
+
+        Raises:
+            ControllerError: a stiffness of another shape, a twist, acceleration or push that is not 6 finite
+                numbers, an anchor that is not a pose, a bad stiffness with a twist, a singular arm.
+        """
+        stiffness = self.action_stiffness(action)
+        if feedforward_gain == 0.0 or action.twist is None:
+            return action.pose, stiffness
+        return feedforward.led_pose(self, data, action, feedforward_gain, stiffness), stiffness
+
+    def action_stiffness(self, action: Action) -> npt.NDArray[np.float64]:
+        """The 6x6 stiffness ``action`` commands: a (6, 6) stiffness as it is; else `full_stiffness` of its
+        translational and rotational stiffness, each the config's where the action has none; the default stiffness
+        (not to be modified) when it has neither. Not validated here (`checked_stiffness`).
+
+        Raises:
+            ControllerError: a stiffness that is not (3, 3) or (6, 6), or a (6, 6) one with a rotational stiffness
+                beside it.
+        """
+        k = action.stiffness
+        if k is None and action.rotational_stiffness is None:
+            return self.default_stiffness
+        if k is not None:
+            shape = np.shape(k)
+            if shape == (6, 6):
+                if action.rotational_stiffness is not None:
+                    raise ControllerError("an action with a (6, 6) stiffness must leave rotational_stiffness None")
+                return np.asarray(k, dtype=np.float64)
+            if shape != (3, 3):
+                raise ControllerError(f"action stiffness must be (3, 3) or (6, 6), got shape {shape}")
+        config = self.config
+        k_trans = config.translational_stiffness * np.eye(3) if k is None else k
+        k_rot = config.rotational_stiffness if action.rotational_stiffness is None else action.rotational_stiffness
+        return full_stiffness(k_trans, k_rot)
+
     def lead_arguments(self, data: mujoco.MjData, stiffness: npt.ArrayLike | None = None) -> tuple:
         """What `impedance_kernel.pose_lead_into` needs of this controller for ``data`` and a stiffness (validated
         here, the config's when None): (fns, m, d, site, J and J M^-1 buffers, K, regularisation, 2 zeta, its
-        scratch buffers), for `pose_lead` and for a compiled caller that adds the lead to a pose
-        (envs.policies.feedforward_kernel).
+        scratch buffers), for `pose_lead` and for the compiled lead of an action (controllers.feedforward).
 
         Raises:
             ControllerError: a bad stiffness.
@@ -604,8 +645,8 @@ class CartesianImpedanceController:
         Raises:
             ControllerError: bad inputs (as `compute_torque`).
         """
-        k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
         _, qpos, qvel, bias, site_pos, site_mat, ctrl = self._data_views(data)
+        k = self._validate(target_pos, target_quat, stiffness, q_nullspace)
         return (self._fns, self.model._address, data._address, self.site_id, self._jac, self._jac_minv, qpos, qvel,
                 bias, site_pos, site_mat, self._target, k, self._params, self._last_tau, ctrl, self._work, self._vec,
                 self._tool, self._tool_point, self._jac_tool, self._jac_tool_arm, data.qfrc_applied[self.dof_slice],
@@ -622,8 +663,6 @@ class CartesianImpedanceController:
         """Check the command, store it in the kernel's target buffer and return the stiffness to use."""
         n = self.model.nu
         target = self._target
-        target[:3] = as_vector(target_pos, 3, "target_pos")
-        target[3:7] = as_unit_quaternion(target_quat, "target_quat")
         if q_nullspace is None:
             target[7 + n] = 0.0
         else:
@@ -633,6 +672,8 @@ class CartesianImpedanceController:
                 raise ControllerError(f"q_nullspace {values} must lie within +-{MAX_JOINT_ANGLE_RAD} rad")
             target[7:7 + n] = q_ref
             target[7 + n] = 1.0
+        target[:3] = as_vector(target_pos, 3, "target_pos")
+        target[3:7] = as_unit_quaternion(target_quat, "target_quat")
         return self.checked_stiffness(stiffness)
 
     def _data_views(self, data: mujoco.MjData) -> tuple:

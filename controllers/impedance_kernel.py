@@ -174,8 +174,8 @@ def pose_lead_into(fns: np.ndarray, m: int, d: int, site: int, jac: np.ndarray, 
 
 
 # The quaternion formulas are numerics.quaternion's, compiled here once: the same Python source as the array versions,
-# so the same rounding (tests/test_numba_twins.py). ik_kernel, envs.sim.observation_kernel and the policies'
-# closed-loop and feed-forward kernels (envs.policies.closed_loop_kernel, feedforward_kernel) use these too.
+# so the same rounding (tests/test_numba_twins.py). ik_kernel, the feed-forward lead (feedforward_kernel),
+# envs.sim.observation_kernel and the policies' closed-loop kernel (envs.policies.closed_loop_kernel) use these too.
 hamilton = _jit(quaternion.hamilton)
 matrix_to_quat_components = _jit(quaternion.matrix_to_quat_components)
 matrix_components = _jit(quaternion.matrix_components)

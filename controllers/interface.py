@@ -1,11 +1,14 @@
 """What the episode stepping (envs.sim.env.PegInHoleEnv) needs of a controller: the `Controller` protocol.
 
-A controller is bound to one MuJoCo model (it knows the arm's joints and the site it controls) and owns the
-physics steps of a control period: the environment hands it the command of the period and the simulator state, and
-the controller steps the physics, calling the environment's sensing hook after every physics step. Per episode:
+A controller is bound to one MuJoCo model (it knows the arm's joints and the site it controls) and owns what happens
+between a policy's `Action` (controllers.action) and the arm: it turns the action into the command it holds for the
+period, and it runs the physics steps of the period, calling the environment's sensing hook after every physics step.
+Per episode:
 
     start(data)                           once the start state is in ``data`` (after mj_forward), before any step
+    settled()                             once the arm has held its start pose at rest (the grasp settled)
     set_tool_load(mass_kg, depth_m)       the grasped peg, a known tool load (once, when the scene has one)
+    command(data, action, gain)           per period: the action's target pose and stiffness (e.g. with a lead)
     checked_stiffness(stiffness)          per commanded stiffness, before the period: a bad one is the caller's error
     step(data, pos, quat, stiffness, q_nullspace, n_substeps, after_substep=hook) -> physics steps taken
 
@@ -14,9 +17,9 @@ few IK iterations per period), which a redundant arm uses for its posture and a 
 A ``step`` that cannot control the arm raises ControllerError (numpy's LinAlgError and FloatingPointError are
 accepted too): the environment records it as an instability and ends the episode, it does not raise.
 
-`controllers.impedance.CartesianImpedanceController` is the one the environment builds by default. Skill execution
-reads more of it than this protocol (its gains for the default stiffness, `pose_lead` for the feed-forward,
-envs.policies.feedforward), so evaluating a policy needs that controller; the environment itself needs only this.
+`controllers.impedance.CartesianImpedanceController` is the one the environment builds by default; its ``command``
+adds the velocity feed-forward lead (controllers.feedforward) that only a controller can compute, from its own gains
+and the arm's inertia at the simulator's state.
 """
 
 from __future__ import annotations
@@ -25,6 +28,9 @@ from typing import TYPE_CHECKING, Callable, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
+
+from controllers.action import Action
+from numerics.pose import Pose
 
 if TYPE_CHECKING:
     import mujoco
@@ -55,6 +61,19 @@ class Controller(Protocol):
 
         Raises:
             ControllerError: a negative or non-finite mass or depth.
+        """
+
+    def command(self, data: mujoco.MjData, action: Action,
+                feedforward_gain: float = 1.0) -> tuple[Pose, FloatArray | None]:
+        """The target pose and the 6x6 Cartesian stiffness (N/m, N m/rad, world frame; None: the controller's
+        default) to hold for one control period of ``action``, at the state of ``data`` (the period's start): the
+        action's pose, or with a ``twist`` and a gain > 0 what the controller commands to move at that twist (e.g.
+        the pose led by its feed-forward, scaled by ``feedforward_gain``). The stiffness is checked afterwards by
+        `checked_stiffness`.
+
+        Raises:
+            ControllerError: an action it cannot command (a malformed stiffness, twist, acceleration, push or anchor),
+                or a state it cannot compute the command at.
         """
 
     def checked_stiffness(self, stiffness: npt.ArrayLike | None) -> FloatArray | None:

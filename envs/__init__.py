@@ -24,12 +24,13 @@ from pihutil.lazy import lazy_exports  # noqa: E402
 EXPORTS: dict[str, str] = {
     # name -> the sub-package (or base module) that exports it; a sub-package's own table names the defining module
     "EnvError": "envs.errors",
-    "Pose": "envs.poses",
+    "Pose": "numerics.pose",
     "StartRegion": "envs.poses",
     **{name: "envs.task" for name in ("Task", "SuccessConfig", "StartRange", "PRESET_NAMES", "preset", "load_task")},
     "SceneConfig": "envs.cell",
     **{name: "envs.sim" for name in ("PegInHoleEnv", "EpisodeConfig", "SimulatorState")},
-    **{name: "envs.policies" for name in ("Policy", "Observation", "Action", "PolicyTask", "PrivilegedState")},
+    "Action": "controllers.action",
+    **{name: "envs.policies" for name in ("Policy", "Observation", "PolicyTask", "PrivilegedState")},
     **{name: "envs.rollout" for name in ("run_episode", "EpisodeRecord")},
     **{name: "envs.evaluation" for name in ("EvaluationConfig", "EvaluationResult")},
     "evaluate": "envs.evaluation.evaluate",

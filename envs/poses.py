@@ -1,4 +1,5 @@
-"""Poses of the peg tip: the Pose type, pose validation, start-pose sampling and trajectory resampling.
+"""Poses of the peg tip: the Pose type (`numerics.pose`, re-exported here), pose validation, start-pose sampling and
+trajectory resampling.
 
 All quaternions are unit quaternions in (w, x, y, z) order, the MuJoCo convention. A pose is a
 position in metres and a quaternion mapping the body frame to the world frame. The quaternion algebra is
@@ -15,6 +16,7 @@ import numpy.typing as npt
 
 from envs.errors import EnvError
 from envs.geometry import all_finite
+from numerics.pose import Pose
 from numerics.quaternion import (quat_angle_rad, quat_conj, quat_from_rotvec, quat_from_rotvec_one, quat_mul,
                                  quat_mul_one, quat_to_rotvec, quat_to_rotvec_one, rotate, slerp)
 from numerics.small_linalg import matvec, norm
@@ -23,14 +25,6 @@ FloatArray = npt.NDArray[np.float64]
 
 #: Largest |norm - 1| accepted for a quaternion given by a user before it is normalised.
 QUAT_NORM_TOL: float = 1e-3
-
-
-@dataclass(frozen=True)
-class Pose:
-    """A rigid pose: ``pos`` (3,) in metres and ``quat`` (4,) unit quaternion (w, x, y, z)."""
-
-    pos: FloatArray
-    quat: FloatArray
 
 
 def make_continuous(quat: npt.ArrayLike, reference: npt.ArrayLike | None = None) -> FloatArray:

@@ -1,5 +1,5 @@
 """Numerics at the bottom of the project, on numpy, numba and the standard library only: unit quaternions
-(`quaternion`), BLAS-free small linear algebra (`small_linalg`), the numpy/torch dispatch of array maps that never
+(`quaternion`), the rigid pose as a value (`pose`), BLAS-free small linear algebra (`small_linalg`), the numpy/torch dispatch of array maps that never
 imports torch (`arrays`), the pin of numpy's, torch's and MKL's CPU-dependent code paths (`cpu_dispatch`) and the
 package's exception (`errors`). `controllers`, `envs` and `rflow` take these from here.
 
@@ -13,4 +13,4 @@ from numerics.cpu_dispatch import check_numpy_dispatch, pin_cpu_dispatch
 pin_cpu_dispatch()
 check_numpy_dispatch()
 
-__all__ = ["arrays", "cpu_dispatch", "errors", "quaternion", "small_linalg"]
+__all__ = ["arrays", "cpu_dispatch", "errors", "pose", "quaternion", "small_linalg"]

@@ -13,10 +13,10 @@ samples, then the medians of
     (the paper: 20 s per 1000 samples, about 50 Hz).
 
 A second benchmark, "training": the default skill's training (`pih train`: both models at once in two processes,
-`rflow.fit_processes`, the skill's log-scale bound and off-data prior) on the same synthetic demos with the former
-default schedule (`PAPER_SCHEDULE`: batch 128, lr 1e-3, 80 epochs) and the current one (`SKILL_SCHEDULE`), timed
-alternately in this run (wall seconds of `fit_pose_skill`, process start-up included), medians and their ratio.
-Both run on today's code, so the ratio is that of the schedules alone.
+`rflow.fit_processes`, the skill's log-scale bound and off-data prior) on the same synthetic demos with the paper's
+schedule (`PAPER_SCHEDULE`: batch 128, lr 1e-3, 80 epochs; "former" in the output) and the skill's default one
+(`SKILL_SCHEDULE`; "current"), timed alternately in this run (wall seconds of `fit_pose_skill`, process start-up
+included), medians and their ratio. Both run on the same code, so the ratio is that of the schedules alone.
 """
 
 from __future__ import annotations
@@ -123,7 +123,8 @@ def skill_training_configs() -> tuple[Any, Any]:
 
 
 def bench_training(quick: bool) -> dict[str, Any]:
-    """The default skill's training with the former and the current schedule, alternately (module docstring)."""
+    """The default skill's training with the paper's ("former") and the skill's ("current") schedule, alternately
+    (module docstring)."""
     import dataclasses
 
     from rflow.skill_io import fit_pose_skill

@@ -5,10 +5,10 @@ Three layouts, as in the paper, jointly (its "future work"), or as in the paper 
     Log_{g_q}(q)), each its own RiemannianFlow;
   - "separate_stiffness": the same two models, and beside them a model on R^3 x SPD(3) (`POSITION_STIFFNESS`:
     points [p, vec(K)] (12,), tangent (9,)) that generates the translational stiffness K from the position, so
-    that learning the stiffness leaves the pose skill the two-model one (issue #22);
+    that learning the stiffness leaves the pose skill the two-model one;
   - "joint": one model on the product R^3 x S^3 (`POSE`): points [p, q] (7,), tangent
     [p - g_p, Log_{g_q}(q)] (6,), built from the same two maps, one 6-D flow; or, for a skill that also
-    varies its translational stiffness K (issue #10), one model on R^3 x S^3 x SPD(3) (`POSE_STIFFNESS`):
+    varies its translational stiffness K, one model on R^3 x S^3 x SPD(3) (`POSE_STIFFNESS`):
     points [p, q, vec(K)] (16,), tangent (12,), one 12-D flow. Generated stiffness is SPD by construction
     (Exp map) and converges to the goal stiffness; `PoseSkill.bound_stiffness` clips its eigenvalues to
     [k_min, k_max] (stored in skill.json's metadata) and says where it acted.

@@ -41,7 +41,9 @@ from envs.demos.record import demo_episode_config
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output, write_json
 from envs.media.video import EpisodeVideo, VideoConfig, episode_overlay
+from envs.policies.expert import ScriptedExpertPolicy
 from envs.policies.expert_plan import ExpertConfig, plan_expert_path
+from envs.rollout.episode import StartPose, run_episode
 from envs.sim.env import PegInHoleEnv
 from scripts.options import work_begins
 
@@ -103,7 +105,6 @@ def bench_episode_steps(quick: bool, model: Path | None = None) -> dict[str, Any
         from envs.evaluation.evaluate import EvaluationConfig, build_setup
         from envs.evaluation.profile import law_floor_periods, profile_periods
         from envs.evaluation.starts import evaluation_starts
-        from envs.rollout.episode import run_episode
 
         config = EvaluationConfig(episodes=2 if quick else 5)
         skill, env, policy = build_setup(model, config)
@@ -191,7 +192,7 @@ LOCKSTEP_SLOTS: tuple[int, ...] = (1, 8, 32, 128)
 def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
     """Episodes in lockstep (envs.rollout.lockstep) against their own bare physics, one core.
 
-    The same evaluation starts (128; 16 with --quick) run one at a time (`run_episode`, today's loop) and in lockstep
+    The same evaluation starts (128; 16 with --quick) run one at a time (`run_episode`) and in lockstep
     with K = LOCKSTEP_SLOTS slots on one thread, and with K = 32 (8 with --quick) on two threads. Their physics is
     timed apart: bare mj_step from every control period's state of every episode (`episode_physics_rate` after each
     episode, in that episode's model), the least time the episodes need on one core. Each figure's
@@ -201,7 +202,6 @@ def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
         return {"skipped": "no trained skill (--model)"}
     from envs.evaluation.evaluate import EvaluationConfig, build_slots
     from envs.evaluation.starts import evaluation_starts
-    from envs.rollout.episode import run_episode
     from envs.rollout.lockstep import run_lockstep
 
     sizes = LOCKSTEP_SLOTS[:2] if quick else LOCKSTEP_SLOTS
@@ -240,8 +240,8 @@ def bench_lockstep(quick: bool, model: Path | None = None) -> dict[str, Any]:
 
 
 def bench_render(quick: bool) -> dict[str, Any]:
-    """A scripted episode (10 s, 3 s with --quick) rendered at 640x480, 30 fps, to MP4 (with the overlay of `pih
-    evaluate --video`), and the same episode's physics without video: "video_over_physics" is what the video adds
+    """A scripted episode (the expert through the episode loop, 10 s, 3 s with --quick) rendered at 640x480, 30 fps,
+    to MP4 (with the overlay of `pih evaluate --video`), and the same episode without video: "video_over_physics" is what the video adds
     (rendering and encoding) over the wall time of the episode's own physics, a ratio that compares across machines
     (`pih evaluate --video` of realistic episodes costs about this much more than without)."""
     expert = ExpertConfig()
@@ -251,22 +251,28 @@ def bench_render(quick: bool) -> dict[str, Any]:
     steps = int(round(seconds / env.control_period_s))
     times = env.control_period_s * np.arange(1, steps + 1)
     env.reset(seed=0)
-    path_pos, path_quat = plan_expert_path(env.start, env.hole.pos, env.hole_axis, env.goal, expert, times)
-    start = time.perf_counter()
-    for k in range(steps):
-        env.step((path_pos[k], path_quat[k]))
-    physics_s = time.perf_counter() - start
-    env.reset(seed=0)
+    start = StartPose(0, -1, env.start)
+    plan = plan_expert_path(env.start, env.hole.pos, env.hole_axis, env.goal, expert, times)
+
+    def run(on_step: Callable[[PegInHoleEnv], None] | None = None) -> None:
+        run_episode(env, ScriptedExpertPolicy(expert, plan=plan), start, on_step=on_step, privileged=True,
+                    max_steps=steps)
+
+    begin = time.perf_counter()
+    run()
+    physics_s = time.perf_counter() - begin
     with tempfile.TemporaryDirectory() as folder:
-        start = time.perf_counter()
+        begin = time.perf_counter()
         with EpisodeVideo(env.model, Path(folder) / "bench.mp4", VideoConfig(), goal=env.goal,
-                          commanded_path=path_pos) as video:
-            video.capture(env.data, 0.0)
-            for k in range(steps):
-                result = env.step((path_pos[k], path_quat[k]))
-                video.capture(env.data, result.obs.time_s, text=lambda: episode_overlay(
-                    "episode 0", None, result.obs.time_s, float(np.linalg.norm(result.obs.wrist_wrench[:3]))))
-        wall = time.perf_counter() - start
+                          commanded_path=plan[0]) as video:
+
+            def capture(sim: PegInHoleEnv) -> None:
+                obs = sim.observation
+                video.capture(sim.data, obs.time_s, text=lambda: episode_overlay(
+                    "episode 0", None, obs.time_s, float(np.linalg.norm(obs.wrist_wrench[:3]))))
+
+            run(capture)
+        wall = time.perf_counter() - begin
         size = (Path(folder) / "bench.mp4").stat().st_size
     render_encode_fps = video.frames / (video.render_s + video.encode_s)
     return {

@@ -167,9 +167,9 @@ def main(args: argparse.Namespace) -> int:
                 video.new_episode()
                 video.set_commanded_path(planned)
 
-        def on_step(result: object) -> None:
+        def on_step(sim: PegInHoleEnv) -> None:
             if video is not None:
-                video.capture(env.data, result.obs.time_s)  # type: ignore[attr-defined]
+                video.capture(sim.data, sim.observation.time_s)
 
         collection = collect_demos(args.num, args.seed, env=env, expert=expert, task=task,
                                    on_attempt=lambda i, a: print(_describe(i, a), flush=True),

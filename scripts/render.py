@@ -3,8 +3,9 @@
     pih render --demos runs/demos.npz --index 0 --out runs/demo0.mp4 [--camera front] [--overwrite]
     pih render --episodes runs/eval.json --index 3 --out runs/episode3.mp4 [--camera cutaway]
 
---demos: the demo's recorded peg_tip trajectory is replayed: the arm starts at its first pose and the impedance
-controller tracks it (resampled to the 100 Hz command rate); the commanded path and the goal frame are drawn. Other
+--demos: the demo's recorded peg_tip trajectory is replayed by the episode loop (envs.policies.replay.ReplayPolicy):
+the arm starts at its first pose and the impedance controller tracks it (resampled to the 100 Hz command rate, without
+the demo's feed-forward and stiffness); the commanded path and the goal frame are drawn. Other
 trajectory sources plug in through ``TrajectorySource``. --episodes: the evaluation's episode is replayed as `pih
 export` replays it (its start and perturbation drawn again from the JSON's seed, the skill run from the checkpoint it
 names, the replay checked against the record; envs.evaluation.replay); an evaluation of --policy cannot be replayed
@@ -29,11 +30,11 @@ from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output
 from envs.media.video import EpisodeVideo, VideoConfig, episode_overlay
 from envs.poses import Pose
+from envs.policies.replay import ReplayPolicy
+from envs.rollout.episode import StartPose, run_episode
 from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
-from envs.sim.observation import StepResult
-from envs.sim.trajectory import replay_trajectory
-from scripts.options import CAMERA_NAMES, MAX_DEMOS, MAX_EPISODES, check_camera, count, number, refuse_unused, work_begins
+from scripts.options import CAMERA_NAMES, MAX_EPISODES, check_camera, count, number, refuse_unused, work_begins
 
 VIDEO_BYTES = 100 * MiB
 """Generous size of one rendered demo (640x480 H.264, a 10-20 s demo takes a few MiB)."""
@@ -100,26 +101,34 @@ def trajectory_source(args: argparse.Namespace) -> TrajectorySource:
 
 
 def render_trajectory(source: TrajectorySource, out: Path, video: VideoConfig, hold_s: float = 0.5) -> dict[str, object]:
-    """Reset at the trajectory's first pose, track it in physics while recording ``out``.
+    """Reset at the trajectory's first pose and replay it in physics (envs.policies.replay.ReplayPolicy through the
+    episode loop, envs.rollout.episode: the recorded poses resampled to the control period, without feed-forward,
+    under the controller's default stiffness), then hold its last pose for ``hold_s``, while recording ``out``.
 
     Returns:
         {"frames", "sim_s", "wall_s", "render_s", "encode_s", "final_pos_error_mm", "success"} and the end reason.
 
     Raises:
-        EnvError: bad video settings, an unreachable first pose, or no OpenGL context.
+        EnvError: bad video settings, an unreachable first pose, a replay that failed, or no OpenGL context.
     """
-    duration = source.dt * (len(source.pos) - 1) + hold_s
-    env = PegInHoleEnv(source.scene, episode_config=EpisodeConfig(time_limit_s=duration + 1.0, stop_on_success=False))
-    env.reset(start_pose=Pose(source.pos[0], source.quat[0]))
+    recorded_s = source.dt * (len(source.pos) - 1)
+    env = PegInHoleEnv(source.scene, episode_config=EpisodeConfig(time_limit_s=recorded_s + hold_s + 1.0,
+                                                                  stop_on_success=False))
+    period = env.control_period_s
+    steps = int(np.ceil(recorded_s / period - 1e-9)) + int(round(hold_s / period))
+    policy = ReplayPolicy(source.dt * np.arange(len(source.pos)), source.pos, source.quat, feedforward=False)
+    label = source.label.split(" of ")[0]
     start = time.perf_counter()
     with EpisodeVideo(env.model, out, video, goal=env.goal, commanded_path=source.pos) as recorder:
-        recorder.capture(env.data, 0.0, text=_overlay(source.label.split(" of ")[0], None, env.observation))
 
-        def on_step(result: StepResult) -> None:
-            recorder.capture(env.data, result.obs.time_s,
-                             text=lambda: _overlay(source.label.split(" of ")[0], None, result.obs))
+        def on_step(sim: PegInHoleEnv) -> None:
+            obs = sim.observation
+            recorder.capture(sim.data, obs.time_s, text=lambda: _overlay(label, None, obs))
 
-        last = replay_trajectory(env, source.pos, source.quat, source.dt, on_step=on_step, hold_s=hold_s)
+        record, _ = run_episode(env, policy, StartPose(0, -1, Pose(source.pos[0], source.quat[0])), on_step=on_step,
+                                max_steps=steps)
+        if record.failure in ("unreachable_start", "error"):
+            raise EnvError(f"{source.label} cannot be replayed: {record.reason}")
     obs = env.observation
     return {
         "frames": recorder.frames,
@@ -129,7 +138,7 @@ def render_trajectory(source: TrajectorySource, out: Path, video: VideoConfig, h
         "encode_s": recorder.encode_s,
         "final_pos_error_mm": float(np.linalg.norm(obs.peg_tip.pos - env.goal.pos) * 1e3),
         "success": bool(obs.success),
-        "reason": last.reason if last is not None else None,
+        "reason": env.reason,
     }
 
 

@@ -314,6 +314,9 @@ def _definitions(name: str) -> list[str]:
     ("StartRange", "envs.task.task"),
     ("check_force_limit", "envs.task.task"),
     ("Controller", "controllers.interface"),  # what the episode stepping needs of a controller
+    ("Action", "controllers.action"),  # what a policy returns and a controller takes (envs re-exports it)
+    ("Pose", "numerics.pose"),  # the pose value of every layer (envs.poses re-exports it)
+    ("led_pose", "controllers.feedforward"),  # the feed-forward lead: the controller's, computed once
     ("EpisodeConfig", "envs.sim.episode_config"),
     ("SceneConfig", "envs.cell.scene_config"),
     ("EpisodeSensing", "envs.sim.sensing"),

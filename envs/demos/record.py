@@ -4,13 +4,14 @@ The recorded frame is the ``tcp`` (the nominal peg_tip on the hand, measured thr
 real robot records a demonstration); with the grasped peg it differs from the peg's own peg_tip only by slip
 and tilt in the grasp. The expert knows the real hole.
 
-The scripted expert and its path are envs.policies.expert_plan (ExpertConfig, plan_expert_path). The impedance
-controller executes the path with the velocity and inertia feed-forward of its own pose lead
-(x_cmd = x_plan + K^-1 (D(q) xi + Lambda(q) xi_dot), controllers.impedance.pose_lead, xi the plan's twist by
-central differences), so the compliant arm follows the plan instead of lagging and swinging beside it (without
-it the peg reached the opening 0.3-0.4 mm beside the axis, a bias every learned skill then copied). The
-MEASURED tcp pose is recorded every control step
-and resampled to M samples on a uniform grid (positions linearly, quaternions by slerp).
+The scripted expert and its path are envs.policies.expert_plan (ExpertConfig, plan_expert_path); the path is planned
+from the requested start and run as a policy (envs.policies.expert.ScriptedExpertPolicy) through the episode loop
+every policy runs through (envs.rollout.episode). Its actions carry the plan's twist by central differences, xi, and
+its rate, so the impedance controller commands the plan led by its own velocity and inertia feed-forward
+(x_cmd = x_plan + K^-1 (D(q) xi + Lambda(q) xi_dot), controllers.feedforward) and the compliant arm follows the plan
+instead of lagging and swinging beside it (without it the peg reaches the opening 0.3-0.4 mm beside the axis, a bias
+every learned skill would copy). The MEASURED tcp pose is recorded every control step and resampled to M samples on
+a uniform grid (positions linearly, quaternions by slerp).
 
 Beside the poses, what the robot did is recorded at the control rate, as it happened (not resampled, not snapped
 to the goal): the joint positions and velocities, the wrist sensor's reading and the command sent after each control
@@ -25,7 +26,7 @@ the last sample is set to the goal, so every demo ends exactly at the shared goa
 recorded motion is changed by at most the residual (reported per demo). Failed demos are recorded with
 their reason and replaced by a new start from the same random stream; none is silently kept.
 
-Stiffness (issue #10, on by default: ``ExpertConfig.stiffness``). The expert also varies the robot's
+Stiffness (on by default: ``ExpertConfig.stiffness``). The expert also varies the robot's
 compliance as a teacher would: each control step it commands the translational stiffness of its schedule
 (envs.policies.stiffness_schedule: stiff in free space, compliant across the hole axis near and in the hole) at the
 MEASURED tcp position, K_k = K(h(p_k)), as the 6x6 stiffness [[K_k, 0], [0, k_rot I]] (k_rot: the
@@ -48,13 +49,14 @@ from typing import Callable
 import numpy as np
 import numpy.typing as npt
 
-from controllers.impedance import ImpedanceConfig, full_stiffness
+from controllers.impedance import ImpedanceConfig
 from envs.cell.contact import ContactConfig
 from envs.cell.scene_config import SceneConfig
 from envs.demos.file import ControlSignals, DemoSet
 from envs.errors import EnvError
 from envs.io.jsonable import to_jsonable
-from envs.policies.expert_plan import ExpertConfig, plan_expert_path, plan_twists
+from envs.policies.expert import ScriptedExpertPolicy
+from envs.policies.expert_plan import ExpertConfig, plan_expert_path
 from envs.policies.stiffness_schedule import expert_stiffness
 from envs.poses import (
     Pose,
@@ -69,9 +71,9 @@ from envs.poses import (
     quat_to_rotvec,
     resample_trajectory,
 )
+from envs.rollout.episode import EpisodeTrace, StartPose, run_episode
 from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
-from envs.sim.observation import StepResult
 from envs.task.task import Task
 from numerics.small_linalg import norm
 from rflow.stiffness import log_euclidean_resample
@@ -121,13 +123,17 @@ def settled_pose(times: FloatArray, pos: FloatArray, quat: FloatArray, window_s:
 
 
 def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
-                 on_step: Callable[[StepResult], None] | None = None) -> DemoAttempt:
+                 on_step: Callable[[PegInHoleEnv], None] | None = None) -> DemoAttempt:
     """Run the scripted expert from ``start`` in physics and judge the result (never raises for a failure).
 
-    The environment must not stop on success (the expert holds the peg to let it settle) and its time
-    limit must exceed ``config.duration_s``. With ``config.stiffness`` every step commands the schedule's
-    stiffness at the measured tcp position (module docstring), and a demo whose final stiffness is not the
-    goal stiffness is not kept.
+    The expert's path is planned from ``start`` into the hole, then the expert policy follows it through the episode
+    loop (envs.rollout.episode, privileged: it knows the real hole) for the plan's duration. The environment must
+    not stop on success (the expert holds the peg to let it settle) and its time limit must exceed
+    ``config.duration_s``. With ``config.stiffness`` every step commands the schedule's stiffness at the measured tcp
+    position (module docstring), and a demo whose final stiffness is not the goal stiffness is not kept.
+
+    Args:
+        on_step: called with the env after the reset and after every control step (e.g. video capture).
 
     Returns:
         DemoAttempt with the measured trajectory at every control step (t = 0 included).
@@ -149,51 +155,28 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
                quat: FloatArray = np.zeros((0, 4))) -> DemoAttempt:
         return DemoAttempt(start, False, reason, times, pos, quat, cmd_pos, nan, nan, time.perf_counter() - wall)
 
-    try:
-        obs = env.reset(start_pose=start)
-    except EnvError as err:
-        return failed(f"{UNREACHABLE_PREFIX}: {err}")
-    times, pos, quat = [0.0], [obs.tcp.pos], [obs.tcp.quat]
-    signals: dict[str, list] = {"joint_pos": [np.array(obs.qpos)], "joint_vel": [np.array(obs.qvel)],
-                                "wrist_wrench": [np.array(obs.sensed_wrench)], "action_pos": [], "action_quat": []}
+    expert = ScriptedExpertPolicy(config, plan=(cmd_pos, cmd_quat))
+    record, trace = run_episode(env, expert, StartPose(0, -1, start), record_trace=True, on_step=on_step,
+                                privileged=True, max_steps=num_steps)
+    if record.failure == "unreachable_start":
+        return failed(f"{UNREACHABLE_PREFIX}: {record.reason.removeprefix('unreachable start: ')}")
+    if trace is None:
+        return failed(record.reason)
+    t_arr, p_arr, q_arr = trace.times_s, trace.tcp_pos, make_continuous(trace.tcp_quat)
     schedule = config.stiffness
-    k_rot = env.controller.config.rotational_stiffness
-    commanded: list[FloatArray] = []
-    result: StepResult | None = None
-    twist, accel = plan_twists(cmd_pos, cmd_quat, period)
-    for k in range(num_steps):
-        stiffness = None
-        if schedule is not None:
-            commanded.append(expert_stiffness(pos[-1], env.hole.pos, env.hole_axis, schedule))
-            stiffness = full_stiffness(commanded[-1], k_rot)
-        lead = env.controller.pose_lead(env.data, twist[k], accel[k], stiffness)
-        lead_quat = quat_mul(quat_from_rotvec(lead[3:]), cmd_quat[k])
-        sent = (cmd_pos[k] + lead[:3], lead_quat / norm(lead_quat))
-        result = env.step(sent, stiffness)
-        if on_step is not None:
-            on_step(result)
-        times.append(result.obs.time_s)
-        pos.append(result.obs.tcp.pos)
-        quat.append(result.obs.tcp.quat)
-        signals["action_pos"].append(np.array(sent[0]))
-        signals["action_quat"].append(np.array(sent[1]))
-        for name, value in (("joint_pos", result.obs.qpos), ("joint_vel", result.obs.qvel),
-                            ("wrist_wrench", result.obs.sensed_wrench)):
-            signals[name].append(np.array(value))
-        if result.done:
-            break
-    t_arr, p_arr, q_arr = np.asarray(times), np.asarray(pos), make_continuous(np.asarray(quat))
     k_arr = None
-    if schedule is not None:
-        commanded.append(expert_stiffness(pos[-1], env.hole.pos, env.hole_axis, schedule))
-        k_arr = np.stack(commanded)
-    control = _control_signals(signals, k_arr, env.controller.config.translational_stiffness, k_rot)
-    if result is not None and result.done and result.reason != "success":
-        return failed(f"episode ended early: {result.reason}", t_arr, p_arr, q_arr)
-    if result is None or not result.obs.success:
-        ins = env.observation.insertion
+    if schedule is not None:  # the commanded stiffness from each sample, then the schedule at the final pose
+        final = expert_stiffness(p_arr[-1], env.hole.pos, env.hole_axis, schedule)
+        k_arr = np.concatenate([trace.stiffness[1:], final[None]])
+    if record.failure == "error":
+        return failed(record.reason, t_arr, p_arr, q_arr)
+    if env.done:
+        return failed(f"episode ended early: {env.reason}", t_arr, p_arr, q_arr)
+    obs = env.observation
+    if record.steps == 0 or not obs.success:
+        ins = obs.insertion
         return failed(f"not inserted (depth {ins.depth_m * 1e3:.1f} mm, lateral {ins.lateral_m * 1e3:.2f} mm, "
-                      f"tilt {ins.tilt_deg:.2f} deg, hole {env.observation.hole})", t_arr, p_arr, q_arr)
+                      f"tilt {ins.tilt_deg:.2f} deg, hole {obs.hole})", t_arr, p_arr, q_arr)
     settled = settled_pose(t_arr, p_arr, q_arr, config.settle_window_s)
     res_pos = norm(settled.pos - goal.pos)
     res_rot = float(np.rad2deg(quat_angle_rad(settled.quat, goal.quat)))
@@ -206,24 +189,23 @@ def execute_demo(env: PegInHoleEnv, start: Pose, config: ExpertConfig,
         if off > STIFFNESS_GOAL_RTOL:
             ok, reason = False, f"final stiffness {off:.2g} (relative) from the goal stiffness"
     return DemoAttempt(start, ok, reason, t_arr, p_arr, q_arr, cmd_pos, res_pos, res_rot, time.perf_counter() - wall,
-                       k_arr, control)
+                       k_arr, _control_signals(trace, k_arr))
 
 
-def _control_signals(signals: dict[str, list], stiffness: FloatArray | None, default_k_n_m: float,
-                     k_rot: float) -> dict[str, FloatArray] | None:
-    """The control samples of an attempt as arrays of K rows (`DemoAttempt.control`): the commands, sent after each
-    sample but the last, get a last row that repeats the one before; the stiffness is the commanded one (the
-    controller's default without a schedule)."""
-    rows = len(signals["joint_pos"])
-    if rows < 2 or len(signals["action_pos"]) != rows - 1:
+def _control_signals(trace: EpisodeTrace, stiffness: FloatArray | None) -> dict[str, FloatArray] | None:
+    """The control samples of an attempt as arrays of K rows (`DemoAttempt.control`): what was measured at each
+    sample, and the command sent after it (the pose the controller held, led by the feed-forward), the last row
+    repeating the one before; the stiffness is ``stiffness`` (the schedule's, K rows) or without one the commanded
+    (the controller's default)."""
+    rows = trace.times_s.shape[0]
+    if rows < 2:
         return None
-    out = {name: np.stack(values) for name, values in signals.items()}
-    for name in ("action_pos", "action_quat"):
-        out[name] = np.concatenate([out[name], out[name][-1:]], axis=0)
+    out = {"joint_pos": trace.qpos, "joint_vel": trace.qvel, "wrist_wrench": trace.sensed_wrench}
+    for name, commanded in (("action_pos", trace.cmd_pos), ("action_quat", trace.cmd_quat)):
+        out[name] = np.concatenate([commanded[1:], commanded[-1:]], axis=0)
     out["action_quat"] = make_continuous(out["action_quat"])
-    out["action_stiffness"] = (np.array(stiffness) if stiffness is not None
-                               else np.broadcast_to(default_k_n_m * np.eye(3), (rows, 3, 3)).copy())
-    out["action_rot_stiffness"] = np.full(rows, float(k_rot))
+    out["action_stiffness"] = np.array(stiffness) if stiffness is not None else trace.stiffness
+    out["action_rot_stiffness"] = trace.rot_stiffness
     return out
 
 
@@ -300,7 +282,7 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
                   controller_config: ImpedanceConfig = ImpedanceConfig(),
                   env: PegInHoleEnv | None = None,
                   on_attempt: Callable[[int, DemoAttempt], None] | None = None,
-                  on_step: Callable[[StepResult], None] | None = None,
+                  on_step: Callable[[PegInHoleEnv], None] | None = None,
                   before_attempt: Callable[[PegInHoleEnv, Pose, FloatArray], None] | None = None,
                   task: Task | None = None) -> Collection:
     """Record ``num`` successful scripted demonstrations from starts sampled with ``seed``.
@@ -311,7 +293,7 @@ def collect_demos(num: int, seed: int | None = 0, scene_config: SceneConfig = Sc
         scene_config, expert, controller_config: the setup (ignored scene/controller when ``env`` given).
         env: reuse an environment (its episode config must come from :func:`demo_episode_config`).
         on_attempt: called with (attempt index, DemoAttempt) after each attempt.
-        on_step: called with every StepResult (e.g. to render).
+        on_step: called with the env after each attempt's reset and after every control step (e.g. to render).
         before_attempt: called with (env, start, planned positions (K, 3)) before each attempt.
         task: the task the demos are recorded for (envs.task.task), kept in the file's config as "task" with the scene's
             shape and fields (`Task.with_scene`); `pih train` copies it into the checkpoint.

@@ -1,13 +1,12 @@
 """Where a closed-loop control period goes: wall time per period of each part of the episode step, for `pih bench`.
 
 The parts are timed by wrapping, for the duration of the profile only, the instance methods that do them (the
-environment's and the policy's own objects): the controlled physics steps with the per-step sensing
+environment's, its controller's and the policy's own objects): the controlled physics steps with the per-step sensing
 (``env.run_period``), the observation and success check (``env._observe``), the policy with its flow queries
-(``policy.act``), the nullspace IK (``nullspace.update``) and the instability check (``env._instability``); and the
-feed-forward lead, a function of the episode loop (``envs.rollout.episode.led_pose``, wrapped in that module and
-put back after the profile, so profile one episode loop at a time). "other" is the rest of the loop (validation, the action's stiffness,
-the policy's observation, bookkeeping). The episode's reset (start pose, grasp settling) is timed apart and left out
-of the periods. A wrapper adds ~0.3 us per call, a few us per period.
+(``policy.act``), the controller's command of the action, its stiffness and feed-forward lead
+(``controller.command``), the nullspace IK (``nullspace.update``) and the instability check (``env._instability``).
+"other" is the rest of the loop (validation, the policy's observation, bookkeeping). The episode's reset (start pose,
+grasp settling) is timed apart and left out of the periods. A wrapper adds ~0.3 us per call, a few us per period.
 
 Apart from the parts, the compiled kernels are timed on their own (COMPILED, wrapped where their callers look them
 up): the work a period cannot shed by moving Python into compiled code, its floor.
@@ -23,7 +22,6 @@ import mujoco
 import numpy as np
 
 from controllers.law_floor import LAW_HELD_FACTORS, LAW_OF_RECORD, LAW_SPRING_DAMPER, reference_period
-from envs.rollout import episode
 from envs.rollout.episode import run_episode
 from envs.sim.period_kernel import controlled_period
 
@@ -31,18 +29,17 @@ PARTS: tuple[tuple[str, str, str], ...] = (
     ("control_and_sensing", "env", "run_period"),
     ("observation_and_success", "env", "_observe"),
     ("policy", "policy", "act"),
-    ("feedforward_lead", "episode", "led_pose"),
+    ("feedforward_lead", "controller", "command"),
     ("nullspace_ik", "nullspace", "update"),
     ("instability_check", "env", "_instability"),
 )
-"""(part, owner, method): the owner is the environment, the policy, the environment's nullspace, or the episode
-loop's module (envs.rollout.episode)."""
+"""(part, owner, method): the owner is the environment, the policy, the environment's controller or its nullspace."""
 
 COMPILED: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("physics_law_and_sensing", "envs.sim.env", ("controlled_period",)),
     ("flow", "rflow.flow_kernel", ("chart_flow_steps", "flow_step")),
     ("nullspace_ik", "controllers.ik_kernel", ("ik_iterations",)),
-    ("feedforward_lead", "envs.policies.feedforward_kernel", ("led_pose_into",)),
+    ("feedforward_lead", "controllers.feedforward_kernel", ("led_pose_into",)),
     ("contact_adaptation", "envs.policies.closed_loop_kernel",
      ("query_into", "action_into", "sense_into", "offset_into", "near_goal", "update_translation", "update_rotation")),
     ("observation", "envs.sim.observation_kernel", ("read_sites_into",)),
@@ -89,7 +86,7 @@ def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_ga
         {part: us per period} for every part, "other" and "total" (per period, resets excluded), "compiled" ({part
         of COMPILED: us per period}, inside the parts), "reset_ms" (per episode) and "periods" (the number timed).
     """
-    owners = {"env": env, "policy": policy, "nullspace": env.nullspace, "episode": episode}
+    owners = {"env": env, "policy": policy, "controller": env.controller, "nullspace": env.nullspace}
     timers = _Timers()
     originals = {(owner, name): getattr(owners[owner], name) for _, owner, name in PARTS}
     for part, owner, name in PARTS:
@@ -112,10 +109,7 @@ def profile_periods(env: Any, policy: Any, starts: Sequence[Any], feedforward_ga
         for (module, name), kernel in kernels.items():
             setattr(importlib.import_module(module), name, kernel)
         for _, owner, name in PARTS:
-            if owner == "episode":
-                setattr(episode, name, originals[(owner, name)])  # the module's function again
-            else:
-                delattr(owners[owner], name)  # the class's method again
+            delattr(owners[owner], name)  # the class's method again
         del env.reset
     scale = 1e-3 / max(periods, 1)
     out = {part: timers.totals[part] * scale for part, _, _ in PARTS}

@@ -2,13 +2,13 @@
 returns (`interface`); the RiemannianFlow skill (`flow_skill`, its settings `skill_settings`, the contact adaptation
 `adaptation`, compiled in `closed_loop_kernel`); the scripted expert (`expert`, its plan `expert_plan`, its stiffness
 `stiffness_schedule`); the replay of a recorded trajectory (`replay`); any policy in the frame of the observed hole
-(`goal_frame`); and what the controller side makes of an action (`feedforward`, compiled in `feedforward_kernel`).
+(`goal_frame`). The `Action` is controllers.action's (what a controller takes), re-exported here.
 """
 
 from pihutil.lazy import lazy_exports
 
 EXPORTS: dict[str, str] = {
-    "Action": "envs.policies.interface",
+    "Action": "controllers.action",
     "Observation": "envs.policies.interface",
     "Policy": "envs.policies.interface",
     "PolicyTask": "envs.policies.interface",

@@ -3,7 +3,7 @@ and turn the skill's frame, and turn the wrist compliant in rotation.
 
 Why. The learned flow knows only the demonstrated hole. With a hole-pose error the walls hold the peg up to
 ~1 mm beside the demos' final path, where the flow asks to move back sideways and barely down (it stalls on
-the chamfer or inside the hole with ~0.1 N of contact force; traced on the contact task). And a hole turned
+the chamfer or inside the hole with ~0.1 N of contact force on the contact task). And a hole turned
 or tilted by up to 1 deg jams a 30 mm square peg held at 80 N m/rad (0.38 deg of yaw fit a 0.2 mm clearance).
 
 What. With the flow's twist xi_d at the measured pose and the measured velocity v, the leaky integral of the
@@ -24,12 +24,12 @@ is split about the skill's insertion axis a (the goal's peg axis, z of R_goal):
     rotated by R(rho)). Why: a hole tilted or turned by up to 1 deg holds the peg off the demos' goal orientation,
     the flow asks to turn back, and the velocity feed-forward turns that request into a lead K^-1 D omega_d, a
     torque D omega_d away from the hole's axis that does not vanish while the walls hold the peg, so the peg wedges
-    against a tilted hole (a traced failure is in the README). Letting the skill's frame turn with the walls
+    against a tilted hole. Letting the skill's frame turn with the walls
     removes the request, so the peg follows the hole's axis;
   - seat push: within ``seat_radius_m`` of the goal the axial push also integrates a seating speed v_s,
         e <- e + a v_s T   while the wrist reads less than ``seat_force_n`` against the axis,
     so a peg that sits farther in the hand than in the demos (a grasp offset: the tcp reaches the demos' goal with
-    the tip still above the floor, where the flow is at rest and nothing pushes on; traced) is driven down until
+    the tip still above the floor, where the flow is at rest and nothing pushes on) is driven down until
     the floor holds it, as a force-terminated insertion does. A seated peg reads the floor's force and the push then
     only leaks;
   - rotational compliance: within ``radius_m`` of the goal the commanded rotational stiffness is
@@ -41,12 +41,12 @@ is split about the skill's insertion axis a (the goal's peg axis, z of R_goal):
     ``search_push_scale`` meanwhile, and the frame shift holds still. Why: a
     peg that lands off the axis towards a corner of a triangular hole rests on two 45 deg chamfer faces whose
     valley rises at atan(tan 45 deg cos 60 deg) = 26.6 deg, the friction angle of mu = 0.5, so no axial push
-    slides it in (traced: all contact on those two faces, 0.4-0.8 mm off towards the corner, 0.8-0.95 mm down the
-    1 mm chamfer, until the time limit). A sideways force overcomes the friction; its direction is not known
+    slides it in (in simulation: all contact on those two faces, 0.4-0.8 mm off towards the corner, 0.8-0.95 mm down
+    the 1 mm chamfer, until the time limit). A sideways force overcomes the friction; its direction is not known
     (the hole-pose error), so it turns: when it points towards the axis the chamfer leads the peg in, and the
     search ends as the tip passes below the band.
 
-What each part contributes is measured in the README (the protocol figure and the ablation).
+What each part contributes is measured in docs/results/learned-compliance.md (the ablation, on the protocol).
 `ContactAdaptation.off()` restores the bare flow (the ablation, `pih evaluate --no-contact-adaptation`).
 """
 
@@ -111,7 +111,7 @@ class ContactAdaptation:
             1 mm chamfer plus margin).
         search_push_scale: the axial push is scaled by this while the search runs, in [0, 1]: less axial force
             means less normal force on the chamfer and less friction for the sideways force to overcome (with the
-            full push the peg ratchets up the fingers instead of sliding; traced on a development seed).
+            full push the peg ratchets up the fingers instead of sliding).
         seat_speed_m_s: the seating speed v_s, m/s (0: no seat push); 2 mm/s raises the force by K v_s = 3 N/s at
             1500 N/m.
         seat_radius_m: distance of the measured tcp from the goal within which the seat push runs, m (5 mm: the

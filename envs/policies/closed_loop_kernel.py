@@ -1,13 +1,13 @@
 """The closed loop's per-period arithmetic compiled: the contact adaptation's state update and the action's pose,
 twist and acceleration from the flow's two lookahead poses (envs.policies.adaptation, envs.policies.flow_skill).
 
-Each control period the closed loop ran ~40 small numpy and Python-float operations around its flow query (the
-twists, the hemisphere flips, the adaptation's integrals, saturations and the stall search), about 45 us per
-period, as much as the compiled flow itself. Here they are two compiled calls on preallocated arrays; the
-equations are those of the two modules' docstrings, operation for operation as the Python version computed them
-(the same sums in the same order, numpy's own sin, cos and arctan2 on scalars, `numerics.quaternion`'s scalar
-formulas compiled from their source), so the records are the same to the last bit
-(tests/envs/policies/test_closed_loop_kernel.py runs the former Python as the reference).
+Around its flow query the closed loop has ~40 small numpy and Python-float operations per control period (the
+twists, the hemisphere flips, the adaptation's integrals, saturations and the stall search), about 45 us in numpy,
+as much as the compiled flow itself. Here they are two compiled calls on preallocated arrays; the equations are
+those of the two modules' docstrings, operation for operation as their Python reference computes them
+(tests/envs/policies/test_closed_loop_kernel.py: the same sums in the same order, numpy's own sin, cos and arctan2
+on scalars, `numerics.quaternion`'s scalar formulas compiled from their source), so the records equal the
+reference's to the last bit.
 
 The adaptation's state is one float64 vector (the STATE_* slots; None is NaN or a 0 flag), its settings another
 (the CONFIG_* slots, `ContactAdapter.settings`), its geometry a (4, 3) array: the goal position, the

@@ -18,15 +18,15 @@ convergence) and tracked in time.
 
 Velocity feed-forward. Each action carries the flow's twist xi_d (finite differences over the step:
 v = dp/dt, omega = rotvec(q1 conj(q0))/dt) and acceleration, and an anchor (closed loop: the measured pose); the
-episode loop leads the anchor by K^-1 (D xi_d + Lambda a_d) so that the compliant arm moves at the flow's velocity
-(envs.policies.feedforward).
+impedance controller leads the anchor by K^-1 (D xi_d + Lambda a_d) so that the compliant arm moves at the flow's
+velocity (controllers.feedforward).
 
 Both policies implement the `Policy` protocol (envs.policies.interface): ``reset(observation, period_s)``
 and ``act(observation)`` read the measured tcp pose only (`reset_at` and `command` take that pose directly).
 
 Measured quaternions are put on the goal's hemisphere first (q and -q are the same orientation).
 
-Stiffness (issues #10, #22). A skill trained with `pih train --stiffness` also generates the translational
+Stiffness. A skill trained with `pih train --stiffness` also generates the translational
 stiffness K (3x3, N/m, world frame): with a model on R^3 x SPD(3) beside the two pose models (layout
 "separate_stiffness", the default) or inside one joint model on R^3 x S^3 x SPD(3) (``--joint``). Closed loop, the
 pose is queried at the measured pose as above, while K is the model's own state (it is not measured): it starts at
@@ -38,8 +38,8 @@ way the commanded K is the generated one with its eigenvalues clipped to the ski
 (`PoseSkill.bound_stiffness`, counted in ``stiffness_clipped_steps``). `StiffnessSetting` chooses between
 that learned stiffness, a constant isotropic K, the scripted expert's schedule K(h) at the measured pose's
 height above the nominal mouth (closed loop; the teacher itself, as a learned stiffness could at best
-reproduce it), or none (the controller's default);
-`envs.policies.feedforward.command_stiffness` makes the 6x6 matrix for env.step.
+reproduce it), or none (the controller's default); the controller makes the 6x6 matrix it holds
+(`controllers.impedance.CartesianImpedanceController.action_stiffness`).
 """
 
 from __future__ import annotations

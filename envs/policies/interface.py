@@ -7,10 +7,11 @@ A policy is any object with two methods (the `Policy` protocol; no base class to
 
 The episode loop (envs.rollout.episode.run_episode) resets the simulator at a start pose with the episode's
 perturbation (hole-pose error, grasp offset), calls ``reset`` with the first `Observation`, then every control
-period calls ``act`` with the latest observation, sends the `Action` to the Cartesian impedance controller for
-one period, and in the end scores the MEASURED peg (envs.task.success), never what the policy commanded. The
-RiemannianFlow skill (envs.policies.flow_skill), the scripted expert (envs.policies.expert), a replay of
-recorded poses (envs.policies.replay) and a user's policy (`pih evaluate --policy`) all run through it.
+period calls ``act`` with the latest observation and hands the `Action` to the environment, whose controller turns
+it into the pose and stiffness it holds for one period, and in the end scores the MEASURED peg (envs.task.success),
+never what the policy commanded. The RiemannianFlow skill (envs.policies.flow_skill), the scripted expert
+(envs.policies.expert; `pih demos` records it), a replay of recorded poses (envs.policies.replay; `pih render
+--demos` shows one) and a user's policy (`pih evaluate --policy`) all run through it.
 
 What a policy sees is what a real cell measures: joint positions and velocities, the tcp pose from the arm's
 kinematics (the nominal peg_tip, the frame a policy commands), the wrist F/T reading, the gripper opening, the
@@ -20,10 +21,10 @@ truth. A privileged teacher (the scripted expert) may get the true hole through 
 ``run_episode(..., privileged=True)`` (`pih evaluate --privileged`) fills ``Observation.privileged``; it is None
 otherwise.
 
-An `Action` is the commanded tcp pose, optionally a stiffness (6x6, or a translational 3x3 with an optional
-rotational scalar) and optionally the feed-forward the controller adds: with a ``twist`` xi (and ``accel``) the
-commanded pose becomes ``anchor`` led by K^-1 (D(q) xi + Lambda(q) xi') + ``push`` (controllers.impedance.pose_lead;
-envs.policies.feedforward), so a compliant arm moves at the intended velocity instead of lagging behind it.
+An `Action` (controllers.action, re-exported here) is the commanded tcp pose, optionally a stiffness (6x6, or a
+translational 3x3 with an optional rotational scalar) and optionally the feed-forward the controller adds: with a
+``twist`` xi (and ``accel``) the controller commands ``anchor`` led by K^-1 (D(q) xi + Lambda(q) xi') + ``push``
+(controllers.feedforward), so a compliant arm moves at the intended velocity instead of lagging behind it.
 """
 
 from __future__ import annotations
@@ -34,7 +35,11 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
+from controllers.action import Action
 from envs.poses import Pose
+
+__all__ = ["Action", "Observation", "Policy", "PolicyTask", "PrivilegedState", "is_policy", "observe",
+           "policy_task"]  # Action: controllers.action's, re-exported for the policies
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -81,31 +86,6 @@ class Observation:
     nominal_hole: Pose
     nominal_goal: Pose
     privileged: PrivilegedState | None = None
-
-
-@dataclass(frozen=True)
-class Action:
-    """One control period's command (module docstring). Only ``pose`` is required.
-
-    Attributes:
-        pose: the commanded tcp pose (world frame); with a ``twist`` the lead is added to ``anchor`` instead.
-        stiffness: None (the controller's default), a (3, 3) translational stiffness (N/m, world frame, SPD) or the
-            full (6, 6) Cartesian stiffness [[K_t, 0], [0, K_r]] (N/m, N m/rad).
-        rotational_stiffness: with a (3, 3) or no ``stiffness``: the rotational stiffness k_r (N m/rad, K_r = k_r I);
-            None: the controller's default. Must be None with a (6, 6) stiffness.
-        twist: (6,) [v m/s; omega rad/s] world frame, the velocity to move with (velocity feed-forward); None: none.
-        accel: (6,) [m/s^2; rad/s^2] the acceleration there (inertia feed-forward); None: zero.
-        anchor: the pose the feed-forward lead is added to (e.g. the measured pose); None: ``pose``.
-        push: (6,) [m; rad] world-frame offset added to the led anchor (e.g. an integral push into the hole); None: zero.
-    """
-
-    pose: Pose
-    stiffness: FloatArray | None = None
-    rotational_stiffness: float | None = None
-    twist: FloatArray | None = None
-    accel: FloatArray | None = None
-    anchor: Pose | None = None
-    push: FloatArray | None = None
 
 
 @runtime_checkable

@@ -2,8 +2,8 @@
 
 At ``reset`` the recording (times t_i, poses x_i, optional translational stiffness K_i) is resampled to the control
 period, one command per period: the command of period k is the recording at time (k + 1) T (positions linearly,
-orientations by slerp, stiffness along Log-Euclidean geodesics), as envs.sim.trajectory.replay_trajectory does. After
-the recording's end it holds its last pose at rest.
+orientations by slerp, stiffness along Log-Euclidean geodesics). After the recording's end it holds its last pose at
+rest. `pih render --demos` shows a demo replayed this way (without feed-forward).
 
 A recording starts where it was recorded, not where the episode starts. With ``blend_s`` > 0 the difference at the
 start, delta_p = p_start - p_0 and delta_r = rotvec(q_start conj(q_0)) (the MEASURED start), is added to the
@@ -12,8 +12,8 @@ recording and faded out with the minimum-jerk weight w(t) = 1 - s(t / blend_s):
 so the replay begins at the measured pose and joins the recorded path after ``blend_s``.
 
 With ``feedforward`` the action carries the replayed path's twist and acceleration (central differences,
-envs.policies.expert_plan.plan_twists), which the episode loop turns into the impedance controller's lead, so the
-compliant arm follows the path instead of lagging behind it (the demos were recorded with the same lead).
+envs.policies.expert_plan.plan_twists), which the impedance controller turns into its lead, so the compliant arm
+follows the path instead of lagging behind it (the demos are recorded with the same lead).
 """
 
 from __future__ import annotations

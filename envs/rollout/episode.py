@@ -3,9 +3,11 @@ for an action every control period, record what the simulated peg did (the succe
 MEASURED peg, never the command).
 
 The policy sees `envs.policies.interface.Observation` (what a real cell measures, the nominal hole) and nothing else;
-the true hole only with ``privileged=True`` (a teacher such as the scripted expert). Each `Action` becomes the impedance
-controller's target and stiffness for one period (envs.policies.feedforward: the 6x6 stiffness, the velocity
-feed-forward lead).
+the true hole only with ``privileged=True`` (a teacher such as the scripted expert). Each `Action` goes to the
+environment, whose controller turns it into the pose and stiffness it holds for one period
+(controllers.interface.Controller.command; the impedance controller adds its velocity feed-forward lead). Every
+caller runs episodes here: evaluation, the recording of demos (the scripted expert, envs.demos.record), rendering
+(a replay of recorded poses, scripts/render.py) and the Gymnasium environment.
 
 An unreachable or colliding start is recorded as a failure with its reason, and any exception inside an
 episode is recorded as "error: ..."; an episode never raises.
@@ -18,18 +20,20 @@ import time
 import traceback
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 import numpy.typing as npt
 
 from envs.errors import EnvError
-from envs.policies.feedforward import command_stiffness, led_pose, translational_stiffness
 from envs.policies.interface import Action, Policy, observe
 from envs.poses import Pose, quat_angle_rad
 from envs.rollout.failure import ProgressWindow
 from envs.task.perturbation import Perturbation
 from numerics.small_linalg import eigh_sym, norm
+
+if TYPE_CHECKING:  # for the annotations only: record_from_dict and the records load without the simulator
+    from envs.sim.env import PegInHoleEnv, PeriodCommand
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -183,25 +187,27 @@ class EpisodeTrace:
 # --------------------------------------------------------------------------------------------- episode
 
 
-def run_episode(env: Any, policy: Policy, start: StartPose, record_trace: bool = False,
-                on_step: Callable[[Any], None] | None = None, feedforward_gain: float = 1.0,
-                privileged: bool = False) -> tuple[EpisodeRecord, EpisodeTrace | None]:
+def run_episode(env: PegInHoleEnv, policy: Policy, start: StartPose, record_trace: bool = False,
+                on_step: Callable[[PegInHoleEnv], None] | None = None, feedforward_gain: float = 1.0,
+                privileged: bool = False, max_steps: int | None = None) -> tuple[EpisodeRecord, EpisodeTrace | None]:
     """Run one episode from ``start`` with ``policy`` and score it (never raises for a failed episode: an action
     that is not an `Action`, or one the controller rejects, ends it as "error: ...").
 
     Args:
-        env: a PegInHoleEnv (stop_on_success=True).
+        env: a PegInHoleEnv (stop_on_success=True for an evaluation; a demo's runs on to its plan's end).
         policy: any `Policy` (``reset(observation, period_s)``, ``act(observation) -> Action``).
         start: the start pose.
         record_trace: also return the executed trajectory.
         on_step: called with the env after reset and after every step (e.g. video capture).
-        feedforward_gain: scale of the velocity feed-forward (envs.policies.feedforward); 0 disables it.
+        feedforward_gain: scale of the controller's velocity feed-forward (controllers.feedforward); 0 disables it.
         privileged: hand the policy the true hole and goal (``Observation.privileged``), for a teacher only.
+        max_steps: end the episode after this many control periods even if the env would go on (a caller's
+            horizon, e.g. a demo's plan); None: the env's end (success, time or force limit, instability).
 
     Returns:
         (EpisodeRecord, EpisodeTrace or None).
     """
-    run = EpisodeRun(env, policy, start, record_trace, on_step, feedforward_gain, privileged)
+    run = EpisodeRun(env, policy, start, record_trace, on_step, feedforward_gain, privileged, max_steps)
     run.begin()
     while run.running:
         period = run.command(run.act())
@@ -218,9 +224,9 @@ class EpisodeRun:
     period, ``physics``, ``complete``; then ``finish``. Any exception inside ends the episode as "error: ..." (never
     raised)."""
 
-    def __init__(self, env: Any, policy: Policy, start: StartPose, record_trace: bool = False,
-                 on_step: Callable[[Any], None] | None = None, feedforward_gain: float = 1.0,
-                 privileged: bool = False):
+    def __init__(self, env: PegInHoleEnv, policy: Policy, start: StartPose, record_trace: bool = False,
+                 on_step: Callable[[PegInHoleEnv], None] | None = None, feedforward_gain: float = 1.0,
+                 privileged: bool = False, max_steps: int | None = None):
         self.env = env
         self.policy = policy
         self.start = start
@@ -228,6 +234,7 @@ class EpisodeRun:
         self.on_step = on_step
         self.gain = feedforward_gain
         self.privileged = privileged
+        self.max_steps = max_steps
         self.record = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
                                     perturbation=start.perturbation.to_dict())
         self.running = False
@@ -236,9 +243,7 @@ class EpisodeRun:
         self._commanded: list[FloatArray] = []  # translational stiffness of every step
         self._rotational: list[float] = []  # rotational stiffness of every step (for the trace)
         self._progress: ProgressWindow | None = None
-        self._default_k: FloatArray | None = None
         self._action: Action | None = None
-        self._target: Pose | None = None
         self._steps = 0
         self._finished = False
 
@@ -260,9 +265,7 @@ class EpisodeRun:
             _add_progress(self._progress, obs)
             if self.on_step is not None:
                 self.on_step(env)
-            self._default_k = env.controller.config.translational_stiffness * np.eye(3)
-            self._default_kr = float(env.controller.config.rotational_stiffness)
-            self.running = not env.done
+            self.running = not env.done and self.max_steps != 0
         except Exception as err:  # an episode must never abort the batch
             self.fail(err)
         return self.running
@@ -279,12 +282,12 @@ class EpisodeRun:
             self.fail(err)
             return None
 
-    def command(self, action: Any) -> Any:
-        """The env's prepared period (envs.sim.env.PeriodCommand) of ``action``, its stiffness and feed-forward lead
-        (envs.policies.feedforward); None when the episode has ended (an error, a bad action)."""
+    def command(self, action: Any) -> PeriodCommand | None:
+        """The env's prepared period (envs.sim.env.PeriodCommand) of ``action``: the pose and stiffness its controller
+        holds for it (with a twist, the pose led by the feed-forward); None when the episode has ended (an error, a bad
+        action)."""
         if not self.running:
             return None
-        env = self.env
         try:
             if not isinstance(action, Action):
                 raise EnvError(f"{type(self.policy).__name__}.act returned a {type(action).__name__}, not an Action")
@@ -293,16 +296,14 @@ class EpisodeRun:
                 if not (isinstance(value, Pose) or (name == "anchor" and value is None)):
                     raise EnvError(f"{type(self.policy).__name__}.act returned an Action whose {name} is a "
                                    f"{type(value).__name__}, not an envs.poses.Pose")
-            stiffness = command_stiffness(env, action)
-            target = led_pose(env, action, self.gain, stiffness)  # = feedforward_pose, stiffness made once
-            period = env.prepare_period(target, stiffness)
+            period = self.env.prepare_period(action, feedforward_gain=self.gain)
         except Exception as err:
             self.fail(err)
             return None
-        self._action, self._target = action, target
+        self._action = action
         return period
 
-    def physics(self, period: Any) -> None:
+    def physics(self, period: PeriodCommand) -> None:
         """The env's physics of the prepared period (``env.run_period``; safe on a thread of its own: it touches this
         episode's env only)."""
         try:
@@ -310,23 +311,24 @@ class EpisodeRun:
         except Exception as err:
             self.fail(err)
 
-    def complete(self, period: Any) -> None:
+    def complete(self, period: PeriodCommand) -> None:
         """Score the period the env ran (``env.finish_period``) and book it (nothing after an error in ``physics``)."""
         if not self.running:
             return
         env = self.env
         try:
             result = env.finish_period(period)
-            self._commanded.append(translational_stiffness(self._action, self._default_k))
-            if self.record_trace:
-                self._rotational.append(_rotational_stiffness(self._action, self._default_kr))
+            if period.stiffness is not None:  # None: a controller without a Cartesian stiffness
+                self._commanded.append(period.stiffness[:3, :3].copy())
+                if self.record_trace:
+                    self._rotational.append(_rotational_stiffness(self._action, period.stiffness))
             _add_progress(self._progress, result.obs)
             self._steps += 1
             if self.record_trace:
-                self._rows.append((result.obs, self._target))
+                self._rows.append((result.obs, period.commanded))
             if self.on_step is not None:
                 self.on_step(env)
-            self.running = not env.done
+            self.running = not env.done and (self.max_steps is None or self._steps < self.max_steps)
         except Exception as err:
             self.fail(err)
 
@@ -400,14 +402,15 @@ def _add_progress(progress: ProgressWindow, obs: Any) -> None:
     progress.add(obs.insertion.depth_m, obs.contact_force_n, norm(obs.peg_tip.pos - obs.tcp.pos))
 
 
-def _rotational_stiffness(action: Action, default: float) -> float:
-    """The rotational stiffness ``action`` commands, N m/rad: its own, the mean of K_r's diagonal of a (6, 6)
-    stiffness, or ``default`` (the controller's)."""
+def _rotational_stiffness(action: Action, stiffness: FloatArray) -> float:
+    """The rotational stiffness ``action`` commands, N m/rad: its own, the mean of K_r's diagonal of its (6, 6)
+    stiffness, or else the k_r of K_r = k_r I in the 6x6 ``stiffness`` the controller holds (its default's)."""
     if action.rotational_stiffness is not None:
         return float(action.rotational_stiffness)
     if action.stiffness is not None and np.shape(action.stiffness) == (6, 6):
         return float(np.trace(np.asarray(action.stiffness, dtype=float)[3:, 3:]) / 3.0)
-    return default
+    k_r = stiffness.diagonal()[3:]
+    return float(k_r[0]) if k_r[0] == k_r[1] == k_r[2] else float(np.trace(stiffness[3:, 3:]) / 3.0)
 
 
 def _trace_of(rows: list[tuple[Any, Pose]], stiffness: FloatArray, rot_stiffness: FloatArray) -> EpisodeTrace:

@@ -2,8 +2,8 @@
 one control period of ten physics steps), how an episode runs and ends (`episode_config`), what it exposes
 (`observation`: `SimulatorState`, `StepResult`), the wrist F/T and contact sensing (`sensing`, compiled per physics
 step in `sensing_kernel`, the period in `period_kernel`), the sensor's reading model (`sensor_reading`), instability
-checks (`instability`), the cell's friction and model errors (`friction`, `model_error`) and trajectory tracking
-(`trajectory`).
+checks (`instability`) and the cell's friction and model errors (`friction`, `model_error`). A policy's episode on
+it is envs.rollout's.
 """
 
 from pihutil.lazy import lazy_exports
@@ -13,8 +13,6 @@ EXPORTS: dict[str, str] = {
     "EpisodeConfig": "envs.sim.episode_config",
     "SimulatorState": "envs.sim.observation",
     "StepResult": "envs.sim.observation",
-    "replay_trajectory": "envs.sim.trajectory",
-    "track_trajectory": "envs.sim.trajectory",
 }
 """The public names (name -> the module that defines it), imported on first use."""
 

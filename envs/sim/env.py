@@ -1,8 +1,9 @@
 """The peg-in-hole episode: the one place that owns the simulator state (MjData) of an episode.
 
-Each ``step`` holds one commanded pose of the ``tcp`` (the nominal peg_tip on the hand, see envs.cell.scene) for one
-control period (default 10 ms = 10 physics steps at 1 kHz, i.e. commands at 100 Hz) while the controller runs
-at the physics rate (any controllers.interface.Controller; by default the Cartesian impedance controller):
+Each ``step`` takes a policy's `Action` (controllers.action) or a pose of the ``tcp`` (the nominal peg_tip on the hand,
+see envs.cell.scene) for one control period (default 10 ms = 10 physics steps at 1 kHz, i.e. commands at 100 Hz); the
+controller turns it into the pose and stiffness it holds (with a twist, the pose led by its velocity feed-forward) and
+runs at the physics rate (any controllers.interface.Controller; by default the Cartesian impedance controller):
 
     tau = J^T (K e - D v) + nullspace(q_ref) + c(q, qdot)      (controllers.impedance)
 
@@ -18,7 +19,8 @@ wrist force above ``force_limit_n`` sustained for ``force_limit_window_s`` ends 
 each period the state is checked (envs.sim.instability) and observed (envs.sim.observation), the insertion scored from
 the peg's MEASURED pose and speed (envs.task.success). An episode ends on success, at the time limit, at the force limit
 or on an instability; physics failures are recorded as the end reason, never raised. The configuration is
-envs.sim.episode_config.EpisodeConfig; commanding whole trajectories, envs.sim.trajectory.
+envs.sim.episode_config.EpisodeConfig. A policy's episode, its actions one period at a time, is run by
+envs.rollout.episode (demos, rendering and evaluation alike).
 
 ``reset`` applies a per-episode perturbation (envs.task.perturbation): the sorter is moved by a hole-pose error
 (mocap), the hole the cell believes in is moved by its observation error, the episode's frictions, payload and joint
@@ -37,6 +39,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from controllers.action import Action
 from controllers.errors import ControllerError
 from controllers.ik import NullspaceReference, solve_ik
 from controllers.impedance import CartesianImpedanceController, ImpedanceConfig
@@ -86,8 +89,9 @@ class PeriodCommand:
     """One control period between `PegInHoleEnv.prepare_period` and `PegInHoleEnv.finish_period`.
 
     Attributes:
-        pose: the commanded tcp pose.
-        stiffness: the checked 6x6 stiffness, or None (the controller's default).
+        pose: the tcp pose the controller holds (an action's pose, or with a twist its lead), checked (its quaternion
+            normalised).
+        stiffness: the checked 6x6 stiffness it holds with, or None (a controller without one).
         q_ref: the nullspace reference of the period.
         arguments: the compiled period's arguments (envs.sim.period_kernel), None for a controller other than the
             impedance controller.
@@ -103,6 +107,8 @@ class PeriodCommand:
     status: int = STATUS_OK
     limit_hit: bool = False
     problem: str | None = None
+    commanded: Pose | None = None
+    """The pose as the controller's ``command`` gave it, before the check (what an episode's trace records)."""
 
 
 def _frozen_pose(pos: npt.ArrayLike, quat: npt.ArrayLike) -> Pose:
@@ -115,13 +121,14 @@ def _frozen_pose(pos: npt.ArrayLike, quat: npt.ArrayLike) -> Pose:
 
 
 class PegInHoleEnv:
-    """A Panda holding a peg above the shape sorter; commands are tcp poses (see the module docstring).
+    """A Panda holding a peg above the shape sorter; commands are actions or tcp poses (see the module docstring).
 
     Usage::
 
         env = PegInHoleEnv()
         obs = env.reset(seed=0)                 # or reset(start_pose=Pose(pos, quat), perturbation=...)
         result = env.step(env.goal)             # hold the goal pose for one control period
+        result = env.step(Action(env.goal, twist=np.zeros(6)))   # a policy's action
     """
 
     def __init__(self, scene_config: SceneConfig = SceneConfig(),
@@ -142,8 +149,8 @@ class PegInHoleEnv:
                 that is not a Controller or comes without the scene it was built on.
         """
         if controller is not None and not isinstance(controller, Controller):
-            raise EnvError(f"controller must implement controllers.interface.Controller (start, set_tool_load, "
-                           f"checked_stiffness, step), got {type(controller).__name__}")
+            raise EnvError(f"controller must implement controllers.interface.Controller (start, settled, "
+                           f"set_tool_load, command, checked_stiffness, step), got {type(controller).__name__}")
         if controller is not None and scene is None:
             raise EnvError("a controller is built on a model: pass the scene whose model it drives (scene=)")
         self.scene = scene if scene is not None else build_scene(scene_config)
@@ -406,33 +413,50 @@ class PegInHoleEnv:
         if steps > 0:
             self.controller.step(self.data, start.pos, start.quat, None, q_ref, steps)
 
-    def step(self, target: Pose | Sequence[npt.ArrayLike], stiffness: npt.ArrayLike | None = None) -> StepResult:
-        """Hold the commanded tcp pose for one control period under the controller (default impedance control).
+    def step(self, command: Action | Pose | Sequence[npt.ArrayLike], stiffness: npt.ArrayLike | None = None,
+             feedforward_gain: float = 1.0) -> StepResult:
+        """Hold a command for one control period under the controller (default impedance control).
 
         Args:
-            target: commanded tcp pose, a Pose or (pos (3,), quat (4,) w, x, y, z).
-            stiffness: optional 6x6 SPD Cartesian stiffness (world frame); the controller's default if None.
+            command: a policy's `Action` (controllers.action), or a tcp pose to hold, a Pose or (pos (3,), quat (4,)
+                w, x, y, z), which is the Action of that pose and ``stiffness``.
+            stiffness: with a pose: an optional 6x6 SPD Cartesian stiffness (world frame; or a 3x3 translational one);
+                the controller's default if None. An Action carries its own.
+            feedforward_gain: scale of the controller's velocity feed-forward for an Action with a twist (0: none).
 
         Returns:
             StepResult; ``done`` with ``reason`` "success", "time_limit", "force_limit" or "instability: ...".
 
         Raises:
-            EnvError: a malformed target or stiffness, or stepping an episode that has ended.
+            EnvError: a malformed command or stiffness, or stepping an episode that has ended.
         """
-        period = self.prepare_period(target, stiffness)
+        period = self.prepare_period(command, stiffness, feedforward_gain)
         self.run_period(period)
         return self.finish_period(period)
 
-    def prepare_period(self, target: Pose | Sequence[npt.ArrayLike],
-                       stiffness: npt.ArrayLike | None = None) -> PeriodCommand:
-        """The first part of `step`: check the command, advance the nullspace reference and start the period's
-        sensing and torque noise; the physics follows in `run_period`, the scoring in `finish_period`.
+    def prepare_period(self, command: Action | Pose | Sequence[npt.ArrayLike], stiffness: npt.ArrayLike | None = None,
+                       feedforward_gain: float = 1.0) -> PeriodCommand:
+        """The first part of `step`: the controller turns the command into the period's target pose and stiffness
+        (`Controller.command`: with a twist, the pose led by its feed-forward), checked; then the nullspace reference
+        advances and the period's sensing and torque noise start. The physics follows in `run_period`, the scoring in
+        `finish_period`.
 
         Raises:
-            EnvError: a malformed target or stiffness, or stepping an episode that has ended.
+            EnvError: a malformed command or stiffness, or stepping an episode that has ended.
         """
         if self._done:
             raise EnvError(f"the episode has ended ({self._reason}); call reset() first")
+        if isinstance(command, Action):
+            if stiffness is not None:
+                raise EnvError("an Action carries its own stiffness: pass stiffness= with a pose only")
+            action = command
+        else:  # checked below, once, as the controller returns it
+            action = Action(command if isinstance(command, Pose) else Pose(*self._pose_pair(command, "target pose")),
+                            stiffness)
+        try:
+            target, stiffness = self.controller.command(self.data, action, feedforward_gain)
+        except ControllerError as err:
+            raise EnvError(f"the controller cannot command this action: {err}") from None
         pose = self._as_pose(target, "target pose")
         if stiffness is not None:
             try:
@@ -448,7 +472,7 @@ class PegInHoleEnv:
         self.sensing.start_period(self._steps * self.control_period_s)
         self._hand_joint_torque_sensors()
         self.actuator_noise.start_period()
-        period = PeriodCommand(pose, stiffness, q_ref)
+        period = PeriodCommand(pose, stiffness, q_ref, commanded=target)
         controller = self.controller
         if isinstance(controller, CartesianImpedanceController):
             try:
@@ -517,13 +541,19 @@ class PegInHoleEnv:
 
     @staticmethod
     def _as_pose(value: Pose | Sequence[npt.ArrayLike], what: str) -> Pose:
+        """``value`` checked, its quaternion normalised (envs.poses.validate_pose)."""
         if isinstance(value, Pose):
             return validate_pose(value.pos, value.quat, what)
+        return validate_pose(*PegInHoleEnv._pose_pair(value, what), what)
+
+    @staticmethod
+    def _pose_pair(value: Sequence[npt.ArrayLike], what: str) -> tuple[npt.ArrayLike, npt.ArrayLike]:
+        """The (pos, quat) of a pair, unchecked."""
         try:
             pos, quat = value
         except (TypeError, ValueError):
             raise EnvError(f"{what} must be a Pose or a pair (pos, quat), got {type(value).__name__}") from None
-        return validate_pose(pos, quat, what)
+        return pos, quat
 
     def _instability(self) -> str | None:
         """Describe a physics failure after a control period (envs.sim.instability), or None."""

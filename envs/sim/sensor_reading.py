@@ -9,7 +9,7 @@ A real sensor adds, per reading (1 kHz, every physics step k) and per axis j,
 
 with y_0 = 0 (the episode starts from a sensor zeroed at rest). With ``sensor_mode = "wrist"`` the policy's observation
 and the force limit use y; every figure of the record (peaks, medians, the trace) keeps the true w. ``sensor_mode =
-"ideal"`` (the default) is the exact wrench, as before. The noise comes from a generator seeded by the episode's
+"ideal"`` (the default) is the exact wrench. The noise comes from a generator seeded by the episode's
 perturbation (`episode_generator`), so an episode's readings are the same wherever it runs and paired runs share them.
 
 ``sensor_mode = "joint_torque"``: the external wrench estimated from the arm's link-side joint torque sensors through

@@ -10,7 +10,7 @@ keeps the demonstrated goal, so the peg meets the hole off by up to R and A.
 Grasp offset. The peg sits in the fingers shifted along its own axis by g uniform in [-G, G] (positive: the
 peg_tip sticks out farther from the hand); the skill still commands the nominal grasp.
 
-The cell's imperfections (issue #25), each off at 0:
+The cell's imperfections, each off at 0:
 
 - friction (envs.sim.friction): the sliding friction of the peg against the sorter, mu_hole, and against the finger
   pads, mu_pad, each uniform in its [min, max] (0: the scene's, 0.5 and 1.0);
@@ -67,9 +67,9 @@ MAX_OBSERVATION_ERROR_M: float = 0.01
 MAX_OBSERVATION_ERROR_DEG: float = 10.0
 IMPERFECTION_DRAWS: int = 15
 """Uniform draws of the imperfections' generator per episode (their order: mu_hole, mu_pad, l, t, y, e, f, then the
-observation's radius, polar angle and yaw, then the centre of mass's radius and polar angle and one draw no longer
-used, then the observation's tilt and its direction; new imperfections are appended, so earlier ones keep their
-draws; f is the joint friction's scale s)."""
+observation's radius, polar angle and yaw, then the centre of mass's radius and polar angle and one unused draw, then
+the observation's tilt and its direction; a new imperfection takes draws after these, so the ones before keep theirs
+and episodes pair across task versions; f is the joint friction's scale s)."""
 JOINT_FRICTION_MODELS: tuple[str, ...] = ("stick_slip", "smooth")
 """How the joints' friction depends on their speed (envs.sim.joint_friction): stick-slip (Coulomb with stiction plus
 viscous) or the identified smooth law."""

@@ -2,10 +2,9 @@
 `insertion_state`, `wall_penetration_m`) as one compiled call, so a control period's success check costs ~3 us
 instead of ~30 us of small numpy calls.
 
-It replaced numpy code with the same arithmetic step for step -- the same products summed in the same order
-(numerics.small_linalg), libm's acos, atan2 and hypot as a pinned numpy calls them, Python's float modulo -- so the
-states and records stayed the same to the last bit (tests/envs/task/test_success_kernel.py keeps that numpy code as its
-reference). With the peg_tip's position p and rotation R in the world, per hole h (p_h, R_h, its axis z_h out of
+It computes what its numpy reference (tests/envs/task/test_success_kernel.py) computes, step for step -- the same
+products summed in the same order (numerics.small_linalg), libm's acos, atan2 and hypot as a pinned numpy calls them,
+Python's float modulo -- so the states and records equal the reference's to the last bit. With the peg_tip's position p and rotation R in the world, per hole h (p_h, R_h, its axis z_h out of
 the hole):
 
     depth_h = -(p - p_h) . z_h                          only holes with depth_h > MIN_ENTRY_DEPTH_M can hold the tip

@@ -110,8 +110,8 @@ class SuccessConfig:
     The penetration tolerance is set from the contact model (tests/envs/task/test_success_tolerances.py): a peg pressed
     sideways into a wall with the force limit's 40 N penetrates it ~20 um (13 um at 27 N), so the tolerance is 1.5x
     that, 30 um: a peg the walls hold at any force an episode may hold counts as inside, and one off by more than
-    the clearance (100 um a side at 0.2 mm) does not. (It was 20 um, reached at ~42 N: near the limit the verdict
-    hung on the solver's softness.)
+    the clearance (100 um a side at 0.2 mm) does not. (A 20 um tolerance is reached at ~42 N: near the limit the
+    verdict would hang on the solver's softness.)
     """
 
     seat_tolerance_m: float = 0.001

@@ -9,11 +9,14 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from controllers.action import Action
 from controllers.impedance import CartesianImpedanceController
 from controllers.interface import Controller
 from envs.cell.scene import build_scene
 from envs.cell.scene_config import SceneConfig
 from envs.errors import EnvError
+from envs.poses import Pose
+from envs.rollout.episode import StartPose, run_episode
 from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
 
@@ -38,6 +41,9 @@ class JointHold:
 
     def set_tool_load(self, mass_kg: float, depth_m: float) -> None:
         self.tool_load = (mass_kg, depth_m)
+
+    def command(self, data: mujoco.MjData, action: Action, feedforward_gain: float = 1.0) -> tuple[Pose, None]:
+        return action.pose, None  # it holds its posture: no Cartesian stiffness, and no lead for a pose it ignores
 
     def checked_stiffness(self, stiffness: npt.ArrayLike | None) -> None:
         return None  # no Cartesian stiffness to set
@@ -87,6 +93,25 @@ def test_the_env_steps_a_controller_of_the_test_through_the_protocol(scene, monk
     obs = results[-1].obs
     assert obs.time_s == pytest.approx(20 * env.control_period_s)
     assert np.linalg.norm(obs.tcp.pos - start.pos) < 2e-3  # held the start, not the commanded pose 3 cm above
+
+
+class _Hold:
+    """A policy that commands its start pose with a twist (which a joint hold does not lead)."""
+
+    def reset(self, observation, period_s):
+        self.start = observation.tcp
+
+    def act(self, observation):
+        return Action(self.start, twist=np.full(6, 0.01))
+
+
+def test_the_episode_loop_runs_a_controller_of_the_test(scene) -> None:
+    """A policy's episode under the joint hold: its actions through ``command``, no Cartesian stiffness to record."""
+    env = PegInHoleEnv(episode_config=EpisodeConfig(time_limit_s=0.2), scene=scene, controller=JointHold(scene.model))
+    record, trace = run_episode(env, _Hold(), StartPose(0, -1, env.nominal_start()), record_trace=True)
+    assert record.steps == 20 and record.reason.startswith("time_limit")
+    assert np.isnan(record.min_stiffness_n_m) and np.isnan(trace.stiffness).all()
+    assert np.array_equal(trace.cmd_pos[1:], np.tile(trace.tcp_pos[0], (20, 1)))
 
 
 def test_the_env_refuses_what_is_no_controller_or_has_no_scene(scene) -> None:

@@ -1,9 +1,8 @@
 """The documentation as tests: the MkDocs site builds with --strict, every `pih` command line shown in README.md and
 in the code blocks of docs/ parses with the CLI's own argparse parser, and the README stays a front door (at most
 MAX_README_LINES lines, its links resolve, no history: issue numbers, commit hashes and session-relative dates belong
-in CHANGELOG.md).
-
-`history_markers` takes any list of files, so the same check can later cover docstrings."""
+in CHANGELOG.md); and the Python sources' docstrings and comments keep the what and why, not the history (the same
+`history_markers`, over every module of the packages)."""
 
 from __future__ import annotations
 
@@ -242,6 +241,20 @@ HISTORY_PATTERNS: dict[str, re.Pattern[str]] = {
                                 re.IGNORECASE),
 }
 """What marks history in a text, each with what it is called in a failure."""
+
+SOURCE_PACKAGES = ("assets", "batch", "controllers", "envs", "numerics", "pihutil", "rflow", "scripts")
+"""The packages whose Python sources the history check reads (not tests/: a test may name what it guards against)."""
+SOURCE_HISTORY_PATTERNS: dict[str, re.Pattern[str]] = {
+    **HISTORY_PATTERNS,
+    "a session-relative date": re.compile(HISTORY_PATTERNS["a session-relative date"].pattern.replace("|earlier|", "|"),
+                                          re.IGNORECASE),
+    "how the code came to be": re.compile(
+        r"\b(?:(?:before|after) this change|development seeds?|traced on|the former (?:python|code|version|one)"
+        r"|it replaced|(?:the|a) previous version)\b", re.IGNORECASE),
+}
+"""`HISTORY_PATTERNS` for the sources, with what narrates how a line of code came to be; "earlier" is left out there:
+in code it is the program's own time (an earlier run that --overwrite replaces, a journal's earlier segments, a force
+limit hit earlier in the period), not the project's."""
 HEX_TOKEN = re.compile(r"(?<![\w.-])(?=[0-9a-f]*\d)[0-9a-f]{7,40}(?![\w-])")
 """A word that may be an abbreviated commit hash (7-40 hex digits, at least one a digit); git decides."""
 
@@ -260,14 +273,15 @@ def known_commits(tokens: Iterable[str], repo: Path = ROOT) -> set[str]:
     return {token for token, answer in zip(tokens, answers) if answer.split()[1:2] == ["commit"]}
 
 
-def history_markers(paths: Iterable[Path], repo: Path = ROOT) -> list[str]:
-    """Every line of ``paths`` that holds history (`HISTORY_PATTERNS`, and hex words that git knows as commits of
-    ``repo``), as "FILE:LINE: what: the text"."""
+def history_markers(paths: Iterable[Path], repo: Path = ROOT,
+                    patterns: dict[str, re.Pattern[str]] = HISTORY_PATTERNS) -> list[str]:
+    """Every line of ``paths`` that holds history (``patterns``, and hex words that git knows as commits of ``repo``),
+    as "FILE:LINE: what: the text"."""
     found, candidates = [], []
     for path in paths:
         for number, line in enumerate(Path(path).read_text().splitlines(), 1):
             where = f"{path}:{number}"
-            for what, pattern in HISTORY_PATTERNS.items():
+            for what, pattern in patterns.items():
                 match = pattern.search(line)
                 if match:
                     found.append(f"{where}: {what} ({match.group(0)!r}): {line.strip()}")
@@ -301,4 +315,32 @@ def test_the_history_check_finds_history(tmp_path):
 
 def test_no_history_in_the_readme_or_the_docs():
     markers = history_markers(doc_files())
+    assert not markers, "history belongs in CHANGELOG.md:\n" + "\n".join(markers)
+
+
+def source_files() -> list[Path]:
+    """Every Python module of `SOURCE_PACKAGES`."""
+    return sorted(path for package in SOURCE_PACKAGES for path in (ROOT / package).rglob("*.py"))
+
+
+def test_the_sources_check_finds_history_but_not_a_program_s_own_time(tmp_path):
+    module = tmp_path / "module.py"
+    module.write_text("\n".join([
+        '"""Stiffness (issue #10), on by default."""',             # 1
+        "# Replace an earlier run's outputs; hit earlier: stop.",  # 2: the program's own time
+        "# Measured the night before.",                            # 3
+        "# (traced on a development seed) the push is halved.",    # 4
+        "# It replaced numpy code step for step.",                 # 5
+        "color = '#1f77b4'  # noqa: E501",                         # 6
+    ]))
+    lines = {int(m.split(":")[1]) for m in history_markers([module], patterns=SOURCE_HISTORY_PATTERNS)}
+    assert lines == {1, 3, 4, 5}
+
+
+def test_no_history_in_the_docstrings_and_comments_of_the_sources():
+    """Issue numbers, commit hashes, session-relative dates and the story of a change belong in CHANGELOG.md and the
+    commit messages; a docstring keeps what the code does and why (the physical reasons, the measured facts)."""
+    files = source_files()
+    assert len(files) > 150 and ROOT / "envs" / "rollout" / "episode.py" in files
+    markers = history_markers(files, patterns=SOURCE_HISTORY_PATTERNS)
     assert not markers, "history belongs in CHANGELOG.md:\n" + "\n".join(markers)

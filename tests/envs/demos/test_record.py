@@ -167,14 +167,15 @@ def test_expert_commands_the_schedule_at_the_measured_pose_and_records_it(monkey
     expert = ExpertConfig(num_samples=50)
     env = PegInHoleEnv(episode_config=demo_episode_config(expert))
     commanded, measured = [], []
-    real_step = env.step
+    real_command = env.controller.command
 
-    def spy(target, stiffness=None):
+    def spy(data, action, feedforward_gain=1.0):
         measured.append(env.observation.tcp.pos.copy())
+        pose, stiffness = real_command(data, action, feedforward_gain)
         commanded.append(stiffness)
-        return real_step(target, stiffness)
+        return pose, stiffness
 
-    monkeypatch.setattr(env, "step", spy)
+    monkeypatch.setattr(env.controller, "command", spy)
     attempt = execute_demo(env, env.sample_start(np.random.default_rng(0)), expert)
     assert attempt.ok, attempt.reason
     schedule = np.stack([expert_stiffness(p, env.hole.pos, env.hole_axis, expert.stiffness) for p in measured])

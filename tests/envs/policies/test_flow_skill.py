@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from envs.errors import EnvError
-from envs.policies.feedforward import feedforward_pose
 from envs.policies.flow_skill import (
     ClosedLoopPolicy,
     OpenLoopPolicy,
@@ -97,7 +96,7 @@ def test_unknown_mode_is_an_error(skill):
 def test_feedforward_gain_zero_sends_the_pose(env):
     env.reset(seed=0)
     command = Action(START, twist=np.ones(6), anchor=Pose(GOAL_POS, GOAL_QUAT))
-    assert feedforward_pose(env, command, 0.0) is START
+    assert env.controller.command(env.data, command, 0.0)[0] is START
 
 
 def test_damping_lead_points_along_the_twist(env):
@@ -113,7 +112,7 @@ def test_feedforward_moves_the_arm_straight(env):
     v = np.array([0.0, 0.0, -0.05, 0.0, 0.0, 0.0])
     for _ in range(100):
         here = env.observation.peg_tip
-        env.step(feedforward_pose(env, Action(here, twist=v, anchor=Pose(here.pos, start.quat))))
+        env.step(Action(here, twist=v, anchor=Pose(here.pos, start.quat)))
     moved = env.observation.peg_tip.pos - start.pos
     assert moved[2] < -0.03 and np.linalg.norm(moved[:2]) < 1e-3
 

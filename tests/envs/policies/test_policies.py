@@ -11,7 +11,7 @@ import pytest
 from envs.demos.record import collect_demos
 from envs.errors import EnvError
 from envs.policies.expert import ScriptedExpertPolicy
-from envs.policies.expert_plan import ExpertConfig
+from envs.policies.expert_plan import ExpertConfig, plan_expert_path
 from envs.policies.interface import Action, Observation, is_policy, observe, policy_task
 from envs.policies.replay import ReplayPolicy
 from envs.poses import Pose, quat_angle_rad
@@ -85,6 +85,21 @@ def test_the_privileged_expert_seats_the_peg_in_the_displaced_hole(env) -> None:
         assert np.allclose(expert.plan_pos[-1], env.goal.pos) and not np.allclose(env.goal.pos, env.nominal_goal.pos)
 
 
+def test_the_expert_follows_a_plan_it_is_given(env) -> None:
+    """`pih demos` plans from the requested start and hands the plan over: the expert commands it as it is."""
+    start = env.nominal_start()
+    env.reset(start_pose=start, perturbation=Perturbation())
+    times = env.control_period_s * np.arange(1, 201)
+    plan = plan_expert_path(start, env.hole.pos, env.hole_axis, env.goal, ExpertConfig(), times)
+    expert = ScriptedExpertPolicy(plan=plan)
+    expert.reset(observe(env, privileged=True), env.control_period_s)
+    actions = [expert.act(observe(env, privileged=True)) for _ in range(3)]
+    assert all(np.array_equal(a.pose.pos, plan[0][k]) for k, a in enumerate(actions))
+    assert actions[1].twist is not None and actions[1].stiffness.shape == (3, 3)
+    with pytest.raises(EnvError, match="expert plan"):
+        ScriptedExpertPolicy(plan=(plan[0], plan[1][:-1]))
+
+
 def test_a_replay_starts_at_the_measured_pose_and_joins_the_recording_after_the_blend(env) -> None:
     times = np.linspace(0.0, 2.0, 21)
     rec_pos = env.nominal_goal.pos + np.array([0.0, 0.0, 0.1]) * (1.0 - times / 2.0)[:, None]
@@ -100,6 +115,18 @@ def test_a_replay_starts_at_the_measured_pose_and_joins_the_recording_after_the_
     for _ in range(400):
         last = policy.act(obs)
     assert np.allclose(last.pose.pos, rec_pos[-1]) and not np.any(last.twist)
+
+
+def test_a_replay_without_feedforward_reaches_its_final_pose(env) -> None:
+    start = Pose(env.nominal_goal.pos + np.array([0.0, 0.0, 0.05]), env.nominal_goal.quat)
+    s = np.linspace(0.0, 1.0, 30)[:, None]
+    end = start.pos + [0.0, 0.03, 0.0]
+    policy = ReplayPolicy(0.02 * np.arange(30), start.pos + s * (end - start.pos), np.tile(start.quat, (30, 1)),
+                          feedforward=False)
+    record, trace = run_episode(env, policy, StartPose(0, -1, start), record_trace=True, max_steps=108)
+    assert record.steps == 108 and not record.success  # 0.58 s of replay, then its last pose held for 0.5 s
+    assert np.linalg.norm(trace.tcp_pos[-1] - end) < 1e-3
+    assert np.array_equal(trace.cmd_pos[-1], trace.cmd_pos[-50])
 
 
 def observe_at(env: PegInHoleEnv, pose: Pose) -> Observation:

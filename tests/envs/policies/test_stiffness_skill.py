@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import json
 
+import mujoco
 import numpy as np
 import pytest
 
-from controllers.impedance import full_stiffness, validate_stiffness
+from controllers.action import Action
+from controllers.impedance import CartesianImpedanceController, full_stiffness, validate_stiffness
 from envs.errors import EnvError
 from envs.policies.flow_skill import ClosedLoopPolicy, OpenLoopPolicy, StiffnessSetting, generate_plan
 from envs.poses import Pose
@@ -17,6 +19,7 @@ from rflow.generate import rollout
 from rflow.skill_io import POSE_STIFFNESS, fit_pose_skill, load_skill, save_skill, stiffness_reproduction
 from rflow.stiffness import StiffnessBounds, log_euclidean_mean, profile_distance
 from scripts.cli import main
+from tests.helpers.panda_fixtures import arm_model
 from tests.helpers.skill_fixtures import TINY, tiny_skill
 from tests.helpers.stiffness_fixtures import (SCHEDULE, HOLE_AXIS, small_stiffness_skill, stiffness_demos,
                                               write_stiffness_demo_file)
@@ -172,44 +175,31 @@ def test_pih_train_stiffness_bad_input_exits_2(tmp_path, capsys, args, words):
 
 
 class _Recorded(Exception):
-    """Raised by the stand-in controller once it has recorded the stiffness (no arm to compute a lead on)."""
+    """Raised by the recording controller once it has recorded the stiffness of the lead."""
 
 
-class _RecordingController:
-    """Stands in for the impedance controller: records the stiffness the pose lead is computed with."""
-
-    class config:  # noqa: N801 - mimics ImpedanceConfig's attribute
-        rotational_stiffness = 80.0
-
-    def __init__(self):
-        self.stiffness = "not called"
+class _RecordingController(CartesianImpedanceController):
+    """The impedance controller, recording the stiffness its pose lead is computed with (and stopping there)."""
 
     def lead_arguments(self, data, stiffness=None):
         self.stiffness = stiffness
         raise _Recorded
 
 
-class _FakeEnv:
-    def __init__(self):
-        self.controller = _RecordingController()
-        self.data = None
-
-
 def test_feedforward_lead_uses_the_commanded_stiffness():
-    from envs.policies.feedforward import command_stiffness, feedforward_pose
-    from envs.policies.interface import Action
-
+    model = arm_model()
+    controller = _RecordingController(model, "flange")
+    data = mujoco.MjData(model)
     pose = Pose(pos=np.zeros(3), quat=np.array([1.0, 0.0, 0.0, 0.0]))
-    env = _FakeEnv()
     k = np.diag([300.0, 300.0, 1000.0])
     command = Action(pose, stiffness=k, twist=np.full(6, 0.01), anchor=pose)
     with pytest.raises(_Recorded):
-        feedforward_pose(env, command)
-    assert np.allclose(env.controller.stiffness, np.diag([300.0, 300.0, 1000.0, 80.0, 80.0, 80.0]))
-    assert np.allclose(command_stiffness(env, command), env.controller.stiffness)
+        controller.command(data, command)
+    assert np.allclose(controller.stiffness, np.diag([300.0, 300.0, 1000.0, 80.0, 80.0, 80.0]))
+    assert np.allclose(controller.action_stiffness(command), controller.stiffness)
     with pytest.raises(_Recorded):
-        feedforward_pose(env, Action(pose, twist=np.full(6, 0.01), anchor=pose))
-    assert env.controller.stiffness is None  # no stiffness: the controller's default
+        controller.command(data, Action(pose, twist=np.full(6, 0.01), anchor=pose))
+    assert controller.stiffness is controller.default_stiffness  # no stiffness: the controller's default
 
 
 @pytest.mark.parametrize("spec,words", [("constant:-5", "K must be in"), ("constant:0", "K must be in"), ("soft", "learned"),

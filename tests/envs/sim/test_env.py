@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from controllers.action import Action
 from envs.cell.scene import build_scene
 from envs.cell.scene_config import SceneConfig
 from envs.errors import EnvError
@@ -12,7 +13,6 @@ from envs.poses import Pose, quat_from_rotvec, quat_mul
 from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
 from envs.sim.observation import REASON_INSTABILITY, REASON_TIME_LIMIT
-from envs.sim.trajectory import replay_trajectory
 
 
 @pytest.fixture(scope="module")
@@ -127,12 +127,28 @@ def test_free_space_wrist_wrench_is_near_zero(env: PegInHoleEnv) -> None:
     assert np.linalg.norm(obs.wrist_wrench[:3]) < 0.2 and obs.contact_force_n == 0.0
 
 
-def test_replay_reaches_the_final_pose(env: PegInHoleEnv) -> None:
+def test_a_pose_is_the_action_of_that_pose_and_its_stiffness(env: PegInHoleEnv) -> None:
+    start = above_hole(env)
+    stiffness = np.diag([800.0, 800.0, 2000.0, 60.0, 60.0, 60.0])
+    targets = [Pose(start.pos + [0.0, 0.001 * k, -0.002 * k], start.quat) for k in range(5)]
+    runs = []
+    for as_action in (False, True):
+        env.reset(start_pose=start)
+        for target in targets:
+            env.step(Action(target, stiffness) if as_action else target, None if as_action else stiffness)
+        runs.append(env.data.qpos.copy())
+    assert np.array_equal(runs[0], runs[1])
+
+
+def test_the_controller_leads_an_action_with_a_twist(env: PegInHoleEnv) -> None:
     start = above_hole(env)
     env.reset(start_pose=start)
-    s = np.linspace(0.0, 1.0, 30)[:, None]
-    end = start.pos + [0.0, 0.03, 0.0]
-    pos = start.pos + s * (end - start.pos)
-    quat = np.tile(start.quat, (30, 1))
-    result = replay_trajectory(env, pos, quat, dt=0.02, hold_s=0.5)
-    assert np.linalg.norm(result.obs.tcp.pos - end) < 1e-3
+    action = Action(start, twist=np.array([0.0, 0.0, -0.05, 0.0, 0.0, 0.0]))
+    led, _ = env.controller.command(env.data, action, 1.0)
+    result = env.step(action)
+    assert np.array_equal(result.info["target"].pos, led.pos) and led.pos[2] < start.pos[2] - 1e-4
+    assert np.array_equal(env.step(action, feedforward_gain=0.0).info["target"].pos, start.pos)
+    with pytest.raises(EnvError, match="carries its own stiffness"):
+        env.step(action, np.eye(6) * 1000.0)
+    with pytest.raises(EnvError, match="cannot command this action: twist"):
+        env.step(Action(start, twist=np.zeros(5)))

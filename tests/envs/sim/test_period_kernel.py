@@ -39,6 +39,9 @@ class PerStep:
     def set_tool_load(self, mass_kg: float, depth_m: float) -> None:
         self.inner.set_tool_load(mass_kg, depth_m)
 
+    def command(self, data: mujoco.MjData, action: Any, feedforward_gain: float = 1.0) -> Any:
+        return self.inner.command(data, action, feedforward_gain)
+
     def checked_stiffness(self, stiffness: Any) -> Any:
         return self.inner.checked_stiffness(stiffness)
 

@@ -1,17 +1,14 @@
-"""The feed-forward lead of an action in one compiled call (envs.policies.feedforward.led_pose).
-
-Every control period the episode loop turned an action with a twist into the pose it commands in ~15 small numpy
-and Python-float steps around the compiled pose lead (the twist and acceleration limits, the lead, the push, the
-rotation vector onto the anchor), about 20 us a period. Here they are one call:
+"""The feed-forward lead of an action in one compiled call (controllers.feedforward.led_pose): the twist and
+acceleration limits, the lead, the push and the rotation vector onto the anchor,
 
     f(xi)   = min(1, v_max / |v|, w_max / |omega|)            (1 where |v| or |omega| is 0)
     xi'     = f(xi) xi,     a' = f(s a) s a,   s = |xi'| / |xi|  (1 for xi = 0), the acceleration limits in f
     delta   = gain K^-1 (D(q) xi' + Lambda(q) a') + push         (controllers.impedance_kernel.pose_lead_into)
     x_cmd   = (p_anchor + delta_p,  normalised Exp(delta_r) q_anchor)
 
-operation for operation as the Python did it (the same sums in the same order, `numerics.quaternion`'s scalar formulas
-compiled from their source), so the commanded poses and the records are the same to the last bit
-(tests/envs/policies/test_feedforward_kernel.py holds the former Python as the reference).
+with the sums in the order of the Python reference in tests/controllers/test_feedforward.py (limits, `pose_lead`,
+push, `numerics.quaternion`'s scalar formulas compiled from their source), so the commanded poses equal it to the last
+bit: a control period pays one call instead of ~15 small numpy steps.
 """
 
 from __future__ import annotations

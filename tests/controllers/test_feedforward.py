@@ -1,7 +1,7 @@
-"""The compiled feed-forward lead (envs.policies.feedforward_kernel, behind `feedforward.led_pose`) equals, bit for
-bit, the Python it replaced (`_reference_led_pose` below, the former `led_pose`: limits, `pose_lead`, push, the
-rotation vector onto the anchor), over random arm states, twists (under and over the limits, zero), accelerations,
-pushes, anchors, stiffnesses and gains."""
+"""The controller's feed-forward lead (controllers.feedforward.led_pose, compiled in feedforward_kernel) equals, bit for
+bit, its Python reference (`_reference_led_pose` below: limits, `pose_lead`, push, the rotation vector onto the
+anchor), over random arm states, twists (under and over the limits, zero), accelerations, pushes, anchors, stiffnesses
+and gains; and `CartesianImpedanceController.command` is that lead with the action's stiffness."""
 
 from __future__ import annotations
 
@@ -9,11 +9,10 @@ import numpy as np
 import pytest
 
 from controllers.errors import ControllerError
-from envs.errors import EnvError
-from envs.policies import feedforward_kernel
-from envs.policies.feedforward import (MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_SPEED_RAD_S, MAX_SPEED_M_S,
-                                       command_stiffness, led_pose)
-from envs.policies.interface import Action
+from controllers import feedforward_kernel
+from controllers.action import Action
+from controllers.feedforward import (MAX_ACCEL_M_S2, MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_SPEED_RAD_S, MAX_SPEED_M_S,
+                                     led_pose)
 from envs.poses import Pose, quat_from_rotvec, quat_from_rotvec_one, quat_mul_one
 from envs.sim.env import PegInHoleEnv
 from numerics.small_linalg import norm
@@ -29,7 +28,7 @@ def _reference_limit(twist, max_speed, max_spin):
 
 
 def _reference_led_pose(env, action, gain, stiffness):
-    """The former `led_pose`, in numpy and Python floats around the controller's `pose_lead`."""
+    """`led_pose` in numpy and Python floats around the controller's `pose_lead`."""
     raw = np.asarray(action.twist, dtype=np.float64)
     twist = _reference_limit(raw, MAX_SPEED_M_S, MAX_ANGULAR_SPEED_RAD_S)
     scale = norm(twist) / norm(raw) if raw.any() else 1.0
@@ -70,11 +69,15 @@ def test_the_compiled_lead_equals_the_python_one_bit_for_bit(env) -> None:
     checked = 0
     for episode, period in wandering_states(env, rng, episodes=6, periods=40, step_m=0.003):
         action = _random_action(rng, env)
-        stiffness = command_stiffness(env, action)
+        stiffness = env.controller.action_stiffness(action)
         gain = [1.0, 0.7, 1.3][period % 3]
         ref = _reference_led_pose(env, action, gain, stiffness)
-        got = led_pose(env, action, gain, stiffness)
+        got = led_pose(env.controller, env.data, action, gain, stiffness)
         assert np.array_equal(ref.pos, got.pos) and np.array_equal(ref.quat, got.quat), (episode, period)
+        commanded, commanded_k = env.controller.command(env.data, action, gain)
+        assert np.array_equal(commanded_k, stiffness)
+        if action.twist is not None:
+            assert np.array_equal(commanded.pos, got.pos) and np.array_equal(commanded.quat, got.quat)
         checked += 1
     assert checked >= 200
 
@@ -96,7 +99,7 @@ def test_the_limit_scales_both_parts_by_one_factor() -> None:
     ("twist", np.array([0.0, 0.0, np.nan, 0.0, 0.0, 0.0]), ControllerError),
     ("twist", np.zeros(5), ControllerError),
     ("accel", np.full(6, np.inf), ControllerError),
-    ("push", np.zeros(4), EnvError),
+    ("push", np.zeros(4), ControllerError),
 ])
 def test_a_malformed_action_is_refused_naming_the_field(env, field, value, error) -> None:
     env.reset(seed=0)
@@ -104,12 +107,22 @@ def test_a_malformed_action_is_refused_naming_the_field(env, field, value, error
     values = {"twist": np.full(6, 0.01), "accel": None, "push": None, field: value}
     action = Action(Pose(tcp.pos, tcp.quat), twist=values["twist"], accel=values["accel"], push=values["push"])
     with pytest.raises(error, match=field):
-        led_pose(env, action, 1.0, None)
+        env.controller.command(env.data, action, 1.0)
 
 
 def test_a_zero_gain_or_no_twist_commands_the_action_s_pose(env) -> None:
     env.reset(seed=0)
     tcp = env.observation.tcp
     pose = Pose(tcp.pos, tcp.quat)
-    assert led_pose(env, Action(pose, twist=np.full(6, 0.01)), 0.0, None) is pose
-    assert led_pose(env, Action(pose), 1.0, None) is pose
+    assert env.controller.command(env.data, Action(pose, twist=np.full(6, 0.01)), 0.0)[0] is pose
+    assert env.controller.command(env.data, Action(pose), 1.0)[0] is pose
+
+
+@pytest.mark.parametrize("stiffness, rotational, words", [
+    (np.eye(6) * 500.0, 40.0, "leave rotational_stiffness None"),
+    (np.eye(4), None, r"\(3, 3\) or \(6, 6\)"),
+])
+def test_a_malformed_stiffness_is_refused(env, stiffness, rotational, words) -> None:
+    env.reset(seed=0)
+    with pytest.raises(ControllerError, match=words):
+        env.controller.command(env.data, Action(env.observation.tcp, stiffness, rotational))
