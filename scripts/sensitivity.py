@@ -7,7 +7,10 @@ Runs the skill on the task (default the contact preset: the ideal cell), then on
 envs/evaluation/sensitivity.py alone and with all of them (the "realistic" preset's magnitudes), every variant on the
 same --seed and --episodes, so each pairs with the ideal cell episode for episode. Writes into --out:
 sensitivity.md (the table), sensitivity.json (every row with its paired comparison) and sensitivity.png (the
-figure), and prints the table and the imperfection that costs most.
+figure), and prints the table and the imperfection that costs most. With --curves, each named imperfection is also
+swept over its magnitude (envs.evaluation.sensitivity.CURVES: the joint friction, the in-hand tilt, the joint torque
+sensors' noise and bias, and one curve per assumption of the realistic preset), every point a variant paired with the
+ideal cell, one figure per curve (curve_CURVE.png) and its rows in the table.
 
 Long runs: every finished episode of a variant goes into its journal, --out/journals/VARIANT.jsonl, so after Ctrl-C
 or SIGTERM (exit 130) the same command with --resume runs only what is missing, to the same table. Exit status: 0;
@@ -30,6 +33,12 @@ from envs.io.owned_output import MiB, check_output, check_output_folder
 from scripts.options import DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS, count, seed, work_begins
 from scripts.task_options import add_task_file_arguments, task_from_args
 
+CURVE_NAMES = ("joint_friction", "in_hand_tilt", "sensor_noise", "sensor_bias", "in_hand_lateral", "in_hand_yaw",
+               "torque_noise", "payload", "part_friction")
+"""The names of envs.evaluation.sensitivity.CURVES (spelled here so --help does not load numpy; a test keeps them
+equal)."""
+DEFAULT_CURVES = ("joint_friction", "in_hand_tilt", "sensor_noise", "sensor_bias")
+"""`--curves` without names: the joint friction, the in-hand tilt and the joint torque sensors' noise and bias."""
 IMPERFECTION_NAMES = ("friction", "compliant_pads", "in_hand_pose", "grasp_offset", "payload", "joint_friction",
                       "torque_noise", "hole_observation", "joint_torque_sensing", "wrist_sensor")
 """The names of envs.evaluation.sensitivity.IMPERFECTIONS, then ALTERNATIVES (spelled here so --help does not load the
@@ -42,7 +51,8 @@ RECORD_BYTES = 8 * 1024
 EXIT_FAULT, EXIT_INCOMPLETE, EXIT_INTERRUPTED = 1, 3, 130
 
 
-EXAMPLES: tuple[str, ...] = ('pih sensitivity --model model/ --out sens/ --episodes 100 --seed 1000',)
+EXAMPLES: tuple[str, ...] = ('pih sensitivity --model model/ --out sens/ --episodes 100 --seed 1000',
+                             'pih sensitivity --model model/ --out curves/ --curves --episodes 100 --seed 1000')
 """Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,15 +66,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episodes", type=count(MAX_EPISODES), default=100, help="episodes per variant")
     parser.add_argument("--seed", type=seed, default=1000, help="seed of the starts (keep it apart from demo seeds)")
     parser.add_argument("--workers", type=count(MAX_WORKERS), default=DEFAULT_WORKERS, help="evaluation processes")
-    parser.add_argument("--only", nargs="+", choices=IMPERFECTION_NAMES, default=list(IMPERFECTION_NAMES),
-                        metavar="NAME", help=f"imperfections to run, of {', '.join(IMPERFECTION_NAMES)} (default all)")
+    parser.add_argument("--only", nargs="+", choices=IMPERFECTION_NAMES, default=None, metavar="NAME",
+                        help=f"imperfections to run, of {', '.join(IMPERFECTION_NAMES)} (default all; with --curves "
+                             "none)")
+    parser.add_argument("--curves", nargs="*", choices=CURVE_NAMES, default=None, metavar="CURVE",
+                        help="also sweep these imperfections over their magnitude, each point paired with the ideal "
+                             f"cell, one figure each (curve_CURVE.png), of {', '.join(CURVE_NAMES)} (no name: "
+                             f"{', '.join(DEFAULT_CURVES)})")
     add_task_file_arguments(parser.add_argument_group("task (the ideal cell; default the contact preset)"))
 
 
 def main(args: argparse.Namespace) -> int:
     """Run (or continue) the variants and write the outputs; returns the exit status (module docstring)."""
     from envs.evaluation.config import EvaluationConfig
-    from envs.evaluation.sensitivity import Stopped, costliest, plot_sensitivity, run_sensitivity, sensitivity_table
+    from envs.evaluation.sensitivity import (CURVE_SEPARATOR, Stopped, costliest, plot_curves, plot_sensitivity,
+                                             run_sensitivity, sensitivity_table)
     from envs.evaluation.sensitivity import variants as variants_of
     from envs.io.owned_output import write_json, write_text
 
@@ -76,12 +92,15 @@ def main(args: argparse.Namespace) -> int:
 
     load_skill(args.model)  # a corrupt checkpoint is one line before any output or episode
     config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task_from_args(args))
-    names = [n for n in IMPERFECTION_NAMES if n in args.only]
-    planned = [name for name, _, _ in variants_of(config, names)]
+    curves = [] if args.curves is None else (list(args.curves) or list(DEFAULT_CURVES))
+    only = args.only if args.only is not None else ([] if curves else list(IMPERFECTION_NAMES))
+    names = [n for n in IMPERFECTION_NAMES if n in only]
+    planned = [name for name, _, _ in variants_of(config, names, curves)]
     journals = args.out / JOURNALS
     check_output_folder("--out", args.out, inputs=[args.model],
                         estimate_bytes=4 * MiB + RECORD_BYTES * args.episodes * len(planned))
     paths = {key: args.out / name for key, name in OUTPUTS.items()}
+    paths.update({f"curve_{curve}": args.out / f"curve_{curve}.png" for curve in curves})
     # Before any episode runs: the outputs already there are ours, and so is the registry the figure joins.
     for path in paths.values() if args.out.is_dir() else ():
         check_output("--out", path, args.overwrite or args.resume, inputs=[args.model], estimate_bytes=2 * MiB)
@@ -89,7 +108,7 @@ def main(args: argparse.Namespace) -> int:
     work_begins()
     journals.mkdir(parents=True, exist_ok=True)
     try:
-        rows = run_sensitivity(args.model, config, names, journal=variant_journal(journals, args),
+        rows = run_sensitivity(args.model, config, names, journal=variant_journal(journals, args), curves=curves,
                                on_variant=lambda name: print(f"evaluating: {name}", file=sys.stderr, flush=True))
     except Stopped as stop:
         return stopped(args, stop.name, stop.result, planned)
@@ -103,7 +122,8 @@ def main(args: argparse.Namespace) -> int:
     write_json(paths["json"], {"episodes": args.episodes, "seed": args.seed, "model": str(args.model),
                                "task": dataclasses.replace(config.task).to_dict(), "costliest": None if worst is None
                                else worst.name, "rows": [row.to_dict() for row in rows]})
-    plot_sensitivity(rows, paths["figure"])
+    plot_sensitivity([row for row in rows if CURVE_SEPARATOR not in row.name], paths["figure"])
+    plot_curves(rows, args.out)
     print(table)
     print(verdict)
     return 0

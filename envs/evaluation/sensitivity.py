@@ -47,6 +47,69 @@ ALTERNATIVES: dict[str, dict[str, Any]] = {
 joint torque sensing (one cell has one or the other)."""
 
 
+@dataclass(frozen=True)
+class Curve:
+    """An imperfection swept over its magnitude: the x axis's label, the magnitudes, and the task fields that set one
+    magnitude (each point a variant paired with the ideal cell, as the single imperfections are)."""
+
+    label: str
+    points: tuple[float, ...]
+    fields: Callable[[float], dict[str, Any]]
+
+
+_LARGEST_COULOMB_NM = 0.3591
+"""The identified Coulomb friction of the Panda's joint 4, the largest of the seven (envs.sim.joint_friction)."""
+
+CURVES: dict[str, Curve] = {
+    "joint_friction": Curve(
+        "largest joint Coulomb friction, stick-slip (N m; identified: 0.36)", (0.1, 0.2, 0.3, 0.4),
+        lambda x: {"joint_friction_scale_min": x / _LARGEST_COULOMB_NM,
+                   "joint_friction_scale_max": x / _LARGEST_COULOMB_NM, "joint_friction_model": "stick_slip"}),
+    "in_hand_tilt": Curve("in-hand tilt about the closing axis, up to (deg)", (0.5, 1.0, 1.5, 2.0),
+                          lambda x: {"grasp_tilt_deg": x}),
+    "sensor_noise": Curve("joint torque sensors' noise per reading (N m, sd; datasheet: 0.005)",
+                          (0.005, 0.02, 0.05, 0.1),
+                          lambda x: {"sensor_mode": "joint_torque", "sensor_cutoff_hz": 100.0,
+                                     "joint_torque_noise_nm": x}),
+    "sensor_bias": Curve("joint torque sensors' bias per episode (N m, sd; datasheet: 0.15)", (0.15, 0.3, 0.6, 1.0),
+                         lambda x: {"sensor_mode": "joint_torque", "sensor_cutoff_hz": 100.0,
+                                    "joint_torque_bias_nm": x}),
+    "in_hand_lateral": Curve("in-hand shift in the pads' plane, up to (mm)", (0.5, 1.0, 1.5, 2.0),
+                             lambda x: {"grasp_lateral_m": x / 1e3}),
+    "in_hand_yaw": Curve("in-hand turn about the peg's axis, up to (deg)", (0.5, 1.0, 1.5, 2.0),
+                         lambda x: {"grasp_yaw_deg": x}),
+    "torque_noise": Curve("joints' torque noise (N m, sd)", (0.05, 0.1, 0.2, 0.4),
+                          lambda x: {"actuator_noise_nm": x}),
+    "payload": Curve("payload mass error, up to (fraction; centre of mass 10 mm per 1)", (0.1, 0.2, 0.4, 0.5),
+                     lambda x: {"payload_mass_error": x, "payload_com_error_m": 0.01 * x}),
+    "part_friction": Curve("peg-sorter friction, up to (pads 0.2 above)", (0.4, 0.8, 1.2, 1.6),
+                           lambda x: {"hole_friction_min": 0.5 * x, "hole_friction_max": x,
+                                      "pad_friction_min": 0.5 * x + 0.2, "pad_friction_max": x + 0.2}),
+}
+"""The sensitivity curves (`pih sensitivity --curves`): the issue's four (joint friction, in-hand tilt, the joint torque
+sensors' noise and bias) and one per assumption of the realistic preset (docs/tasks.md), each alone on the ideal
+cell, its largest point at or above twice the realistic preset's magnitude."""
+CURVE_SEPARATOR = "@"
+"""A curve point's variant is named CURVE@X (its magnitude)."""
+
+
+def curve_variants(config: EvaluationConfig, names: Sequence[str]) -> list[tuple[str, dict[str, Any], Task]]:
+    """(name, task fields, task) of every point of the curves ``names`` (CURVES), each on ``config.task``.
+
+    Raises:
+        EnvError: an unknown curve.
+    """
+    found = []
+    for name in names:
+        curve = CURVES.get(name)
+        if curve is None:
+            raise EnvError(f"unknown sensitivity curve {name!r}; choose from {', '.join(CURVES)}")
+        for x in curve.points:
+            fields = curve.fields(x)
+            found.append((f"{name}{CURVE_SEPARATOR}{x:g}", fields, config.task.override(**fields)))
+    return found
+
+
 TREATMENT: frozenset[str] = frozenset({"grasp_offset_mm"})
 """Perturbation keys an imperfection changes that the ideal cell records too (the grasp offset, 0 there): a variant's
 pairs may differ in them (the other imperfections' keys are recorded only where set, envs.statistics.pairing)."""
@@ -136,12 +199,13 @@ class Stopped(Exception):
         self.name, self.result = name, result
 
 
-def variants(config: EvaluationConfig, names: Sequence[str]) -> list[tuple[str, dict[str, Any], Task]]:
+def variants(config: EvaluationConfig, names: Sequence[str],
+             curves: Sequence[str] = ()) -> list[tuple[str, dict[str, Any], Task]]:
     """(name, task fields it sets, task) of every variant `run_sensitivity` runs, in its order: "ideal", each of
-    ``names``, then "all" when more than one of IMPERFECTIONS is among them.
+    ``names``, then "all" when more than one of IMPERFECTIONS is among them, then the points of ``curves``.
 
     Raises:
-        EnvError: an unknown imperfection.
+        EnvError: an unknown imperfection or curve.
     """
     found: list[tuple[str, dict[str, Any], Task]] = [("ideal", {}, config.task)]
     for name in names:
@@ -150,13 +214,14 @@ def variants(config: EvaluationConfig, names: Sequence[str]) -> list[tuple[str, 
     if len(cell) > 1:
         combined = {k: v for name in cell for k, v in IMPERFECTIONS[name].items()}
         found.append(("all", combined, config.task.override(**combined)))
-    return found
+    return found + curve_variants(config, curves)
 
 
 def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig, names: Sequence[str],
                     evaluate: Callable[..., Any] | None = None,
                     on_variant: Callable[[str], None] | None = None,
-                    journal: Callable[[str, EvaluationConfig], Any] | None = None) -> list[SensitivityRow]:
+                    journal: Callable[[str, EvaluationConfig], Any] | None = None,
+                    curves: Sequence[str] = ()) -> list[SensitivityRow]:
     """Evaluate the skill on ``config.task`` (the ideal row), on it with each imperfection of ``names`` alone and,
     with more than one of IMPERFECTIONS, with those at once ("all"; ALTERNATIVES only alone); every variant on the
     same seed and episodes, paired with the ideal row.
@@ -169,6 +234,7 @@ def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig,
         on_variant: called with each variant's name before it runs (progress).
         journal: called with a variant's name and evaluation, returns the `batch.Journal` its episodes go into (and
             are taken from, when it holds some already), used as a context manager around the variant; None: none.
+        curves: sensitivity curves of CURVES, each point a variant after the imperfections (`curve_variants`).
 
     Raises:
         Stopped: a variant's evaluation did not finish (the rows before it did).
@@ -179,7 +245,7 @@ def run_sensitivity(model_dir: str | os.PathLike[str], config: EvaluationConfig,
         from envs.evaluation.evaluate import evaluate
     rows: list[SensitivityRow] = []
     base_sample = None
-    for name, settings, task in variants(config, names):
+    for name, settings, task in variants(config, names, curves):
         if on_variant is not None:
             on_variant(name)
         variant = replace(config, task=task)
@@ -222,11 +288,49 @@ def sensitivity_table(rows: Sequence[SensitivityRow]) -> str:
     return "\n".join(lines)
 
 
+def plot_curves(rows: Sequence[SensitivityRow], folder: str | os.PathLike[str]) -> list[Path]:
+    """One figure per curve among ``rows`` (CURVE@X rows), ``folder``/curve_CURVE.png: the success rate against the
+    magnitude with Wilson 95 % intervals, the ideal cell's rate as a line, and the points whose paired difference to
+    the ideal cell excludes 0 (Newcombe 95 %) marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from envs.io.owned_output import save_figure
+    from envs.statistics.fixed_sample import wilson_interval
+
+    ideal = rows[0]
+    written = []
+    for name, curve in CURVES.items():
+        points = [r for r in rows if r.name.split(CURVE_SEPARATOR)[0] == name and CURVE_SEPARATOR in r.name]
+        if not points:
+            continue
+        x = np.array([float(r.name.split(CURVE_SEPARATOR)[1]) for r in points])
+        rates = np.array([r.successes / max(r.episodes, 1) for r in points]) * 100.0
+        intervals = np.array([wilson_interval(r.successes, r.episodes) for r in points]) * 100.0
+        worse = np.array([r.comparison is not None and r.comparison.success.difference_ci[1] < 0.0 for r in points])
+        fig, ax = plt.subplots(figsize=(5.5, 3.8), constrained_layout=True)
+        ax.errorbar(x, rates, yerr=[rates - intervals[:, 0], intervals[:, 1] - rates], fmt="-o", color="C0",
+                    capsize=3, label=f"with the imperfection ({points[0].episodes} episodes a point)")
+        if worse.any():
+            ax.plot(x[worse], rates[worse], "o", color="C3", label="paired: worse than the ideal cell (95 %)")
+        ax.axhline(100.0 * ideal.successes / max(ideal.episodes, 1), color="grey", ls="--", lw=0.8,
+                   label="the ideal cell, same episodes")
+        ax.set_xlabel(curve.label)
+        ax.set_ylabel("seated (%), Wilson 95 % interval")
+        ax.set_ylim(min(50.0, float(intervals[:, 0].min()) - 5.0), 101.0)
+        ax.legend(fontsize=8, loc="lower left")
+        written.append(save_figure(fig, Path(folder) / f"curve_{name}.png"))
+    return written
+
+
 def costliest(rows: Sequence[SensitivityRow]) -> SensitivityRow | None:
     """The single imperfection whose paired success difference to the ideal cell is the most negative (ties: the
     larger held force); None when none lowered the success rate."""
     single = [(r.comparison.success.counts.difference, -(r.median_held_force_n or 0.0), k, r)
-              for k, r in enumerate(rows) if r.comparison is not None and r.name != "all"]
+              for k, r in enumerate(rows)
+              if r.comparison is not None and r.name != "all" and CURVE_SEPARATOR not in r.name]
     if not single:
         return None
     worst = min(single)

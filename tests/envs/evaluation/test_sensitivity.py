@@ -85,3 +85,39 @@ def test_bad_input_leaves_no_output_folder(model, tmp_path, capsys, bad) -> None
     assert main(args) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_the_cli_names_are_the_curves() -> None:
+    from envs.evaluation.sensitivity import CURVES
+    from scripts.sensitivity import CURVE_NAMES, DEFAULT_CURVES
+
+    assert CURVE_NAMES == tuple(CURVES) and set(DEFAULT_CURVES) <= set(CURVES)
+
+
+def test_a_curve_sweeps_one_imperfection_over_its_magnitude() -> None:
+    """Each point of a curve is the ideal cell with that imperfection at that magnitude, and nothing else: the joint
+    friction's points are the identified friction scaled so that its largest joint's Coulomb friction is x."""
+    from envs.evaluation.sensitivity import CURVES, curve_variants
+    from envs.sim.joint_friction import PANDA_COULOMB_NM
+
+    config = EvaluationConfig(task=Task())
+    points = curve_variants(config, ["joint_friction", "in_hand_tilt"])
+    assert [name for name, _, _ in points] == [f"joint_friction@{x:g}" for x in CURVES["joint_friction"].points] + [
+        f"in_hand_tilt@{x:g}" for x in CURVES["in_hand_tilt"].points]
+    for (name, _, task), x in zip(points[:4], CURVES["joint_friction"].points):
+        scale = task.perturbations.joint_friction_scale_max
+        assert scale * max(PANDA_COULOMB_NM) == pytest.approx(x) and task.perturbations.joint_friction_scale_min == scale
+        assert task.override(joint_friction_scale_min=0.0, joint_friction_scale_max=0.0) == Task()
+    assert points[-1][2] == Task().override(grasp_tilt_deg=2.0)
+    with pytest.raises(Exception, match="unknown sensitivity curve"):
+        curve_variants(config, ["gravity"])
+
+
+def test_the_command_writes_a_figure_per_curve(model, tmp_path) -> None:
+    out = tmp_path / "curves"
+    assert main(["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "2", "--workers", "1",
+                 "--curves", "in_hand_tilt"]) == 0
+    data = json.loads((out / "sensitivity.json").read_text())
+    assert [row["name"] for row in data["rows"]] == ["ideal"] + [f"in_hand_tilt@{x:g}" for x in (0.5, 1.0, 1.5, 2.0)]
+    assert all(row["paired_with_ideal"]["success"]["pairs"] == 2 for row in data["rows"][1:])
+    assert (out / "curve_in_hand_tilt.png").stat().st_size > 10_000
