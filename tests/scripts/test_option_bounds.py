@@ -45,6 +45,7 @@ BASES: dict[str, str] = {
     "benchmark": "benchmark --out {tmp}/b",
     "run": "run --root {tmp} --name r",
     "task": "task show",
+    "export": "export --demos {tmp}/demos.npz --format lerobot --out {tmp}/ex",
 }
 """A valid command line per command (and per mode whose options the plain one refuses)."""
 MODE_OPTIONS: dict[str, tuple[str, ...]] = {

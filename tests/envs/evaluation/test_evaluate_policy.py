@@ -175,7 +175,8 @@ def test_a_resume_refuses_a_policy_whose_source_changed(demos, tmp_path, monkeyp
     (tmp_path / "pih_resumed_policy.py").write_text(POLICY_SOURCE.replace("VERSION", "first"))
     monkeypatch.chdir(tmp_path)  # the policy's module is found in the current folder first
     argv = ["evaluate", "--policy", "pih_resumed_policy:make", "--demos", str(demos), "--episodes", "2",
-            "--time-limit-s", "0.05", "--quiet", "--json", str(tmp_path / "e.json")]
+            "--time-limit-s", "0.05", "--quiet", "--json", str(tmp_path / "e.json"),
+            "--journal", str(tmp_path / "e.jsonl")]  # named: kept once the run is complete
     assert main(argv) == 0 and main([*argv, "--resume"]) == 0  # the same source: the run continues (all done)
     (tmp_path / "pih_resumed_policy.py").write_text(POLICY_SOURCE.replace("VERSION", "second"))
     capsys.readouterr()
