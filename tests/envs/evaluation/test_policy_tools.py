@@ -1,0 +1,83 @@
+"""Every tool for every policy: a `--policy` evaluation's video and figures, its episodes recorded as they run and
+exported as a dataset a trainer loads (Hugging Face `datasets`, a torch DataLoader), `pih sensitivity --policy`,
+`pih compare --sequential` with policies and `pih benchmark --policy` (the factory given each replicate's demo seed
+and demos). Tiny episodes: synthetic demos, starts within 10 mm, sub-second time limits."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scripts.cli import main
+from tests.helpers.skill_fixtures import write_demo_file
+
+POLICIES = "tests.helpers.policies_for_tests"
+SHORT = ["--pos-range-mm", "10", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory) -> Path:
+    return write_demo_file(tmp_path_factory.mktemp("demos"))
+
+
+@pytest.fixture(scope="module")
+def expert_run(demos, tmp_path_factory) -> Path:
+    """The privileged expert as a --policy: two 0.6 s episodes, recorded as they run, with a video and figures."""
+    folder = tmp_path_factory.mktemp("expert")
+    argv = ["evaluate", "--policy", "envs.policies.expert:make", "--privileged", "--demos", str(demos),
+            "--episodes", "2", *SHORT, "--time-limit-s", "0.6", "--video", str(folder / "v.mp4"),
+            "--video-episodes", "0,1", "--figure", str(folder / "f.png"), "--force-figure", str(folder / "force.png"),
+            "--stiffness-figure", str(folder / "k.png"), "--json", str(folder / "e.json"),
+            "--record-episodes", str(folder / "episodes")]
+    assert main(argv) == 0
+    return folder
+
+
+def test_a_policy_evaluation_has_a_video_and_figures_of_its_recorded_episodes(expert_run) -> None:
+    from envs.media.video import check_mp4
+
+    assert check_mp4(expert_run / "v.mp4") is None
+    import imageio.v2 as imageio
+
+    frames = imageio.get_reader(expert_run / "v.mp4").count_frames()
+    assert frames == 2 * (int(0.6 * 30) + 1)  # both episodes, 30 frames a second of their time
+    for name in ("f.png", "force.png", "k.png"):
+        assert (expert_run / name).stat().st_size > 10_000
+    data = json.loads((expert_run / "e.json").read_text())
+    assert data["recorded_episodes"]["folder"] == str((expert_run / "episodes").resolve())
+    assert sorted(p.name for p in (expert_run / "episodes").iterdir()) == [
+        "episode-000000.npz", "episode-000001.npz", "pih_recording.json"]
+
+
+def test_a_policy_evaluation_exports_to_a_dataset_a_trainer_loads(expert_run, tmp_path) -> None:
+    import datasets
+    import torch
+
+    out = tmp_path / "ds"
+    assert main(["export", "--episodes", str(expert_run / "e.json"), "--format", "lerobot", "--fps", "50",
+                 "--out", str(out)]) == 0
+    info = json.loads((out / "meta" / "info.json").read_text())
+    assert info["fps"] == 50 and isinstance(info["fps"], int) and info["total_episodes"] == 2
+    assert info["total_frames"] == 2 * (int(0.6 * 50) + 1)
+    meta = json.loads((out / "pih_export.json").read_text())
+    assert meta["config"]["policy"]["spec"] == "envs.policies.expert:make" and meta["absent"] == {}
+    data = datasets.load_dataset("parquet", data_files=str(out / "data" / "*" / "*.parquet"), split="train",
+                                 cache_dir=str(tmp_path / "cache"))
+    batch = next(iter(torch.utils.data.DataLoader(data.with_format("torch"), batch_size=8)))
+    assert batch["action"].shape == (8, 17) and batch["observation.joint_pos"].shape == (8, 7)
+    assert batch["observation.wrist_wrench"].shape == (8, 6) and batch["action.stiffness"].shape == (8, 9)
+    k = batch["action"][:, 7:16].numpy().reshape(8, 3, 3)
+    assert np.all(np.linalg.eigvalsh(k) > 0.0)  # the commanded stiffness, as the expert commanded it
+
+
+def test_a_recorded_episode_that_does_not_match_its_record_is_refused(expert_run, tmp_path, capsys) -> None:
+    data = json.loads((expert_run / "e.json").read_text())
+    data["per_episode"][1]["steps"] += 1
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(data))
+    assert main(["export", "--episodes", str(edited), "--format", "lerobot", "--out", str(tmp_path / "ds")]) == 2
+    err = capsys.readouterr().err
+    assert "recorded episode 1 differs from its record (steps" in err and err.count("\n") == 1
