@@ -145,3 +145,13 @@ class TypoEveryOther(HoldStart):
 def typo_every_other(task: PolicyTask) -> TypoEveryOther:
     """A policy that fails in every second episode."""
     return TypoEveryOther()
+
+
+def seeded(task: PolicyTask, demo_seed: str, demo_file: str, **options: str) -> HoldStart:
+    """A learner's factory as `pih benchmark --policy` calls it: it reads the replicate's demos (where a learner would
+    train on them, seeded with ``demo_seed``) and holds its start."""
+    from envs.demos.file import load_demos
+
+    load_demos(demo_file)
+    int(demo_seed)
+    return HoldStart()

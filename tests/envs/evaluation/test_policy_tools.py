@@ -81,3 +81,61 @@ def test_a_recorded_episode_that_does_not_match_its_record_is_refused(expert_run
     assert main(["export", "--episodes", str(edited), "--format", "lerobot", "--out", str(tmp_path / "ds")]) == 2
     err = capsys.readouterr().err
     assert "recorded episode 1 differs from its record (steps" in err and err.count("\n") == 1
+
+
+@pytest.fixture(scope="module")
+def short_task(tmp_path_factory) -> Path:
+    """The contact preset (the ideal cell of `pih sensitivity`) with a 0.3 s time limit."""
+    from envs.task.task import preset
+
+    path = tmp_path_factory.mktemp("task") / "short.toml"
+    path.write_text(preset("contact").override(time_limit_s=0.3).to_toml())
+    return path
+
+
+def test_sensitivity_runs_a_policy_on_every_variant_paired_with_the_ideal_cell(demos, short_task, tmp_path) -> None:
+    out = tmp_path / "sens"
+    assert main(["sensitivity", "--policy", f"{POLICIES}:hold", "--demos", str(demos), "--only", "payload",
+                 "--episodes", "2", "--workers", "1", "--task", str(short_task), "--out", str(out)]) == 0
+    data = json.loads((out / "sensitivity.json").read_text())
+    assert data["policy"]["spec"] == f"{POLICIES}:hold" and data["demos"] == str(demos)
+    assert [r["name"] for r in data["rows"]] == ["ideal", "payload"]
+    assert all(r["episodes"] == 2 and r["successes"] == 0 for r in data["rows"])
+    assert data["rows"][1]["paired_with_ideal"] is not None
+
+
+def test_sensitivity_stops_at_a_policy_error(demos, short_task, tmp_path, capsys) -> None:
+    assert main(["sensitivity", "--policy", f"{POLICIES}:typo", "--demos", str(demos), "--only", "payload",
+                 "--episodes", "2", "--workers", "1", "--task", str(short_task), "--out", str(tmp_path / "s")]) == 4
+    err = capsys.readouterr().err
+    assert "AttributeError: 'Typo' object has no attribute 'gaol'" in err
+    assert not (tmp_path / "s" / "sensitivity.json").exists()
+
+
+def test_sequential_compare_runs_policies_on_the_same_starts(demos, tmp_path, capsys) -> None:
+    """The nominal-goal policy against the one that holds its start: the candidate never seats."""
+    out = tmp_path / "cmp.json"
+    status = main(["compare", "--sequential", "--base-policy", f"{POLICIES}:goal", "--base-policy-option",
+                   "duration_s=0.5", "--cand-policy", f"{POLICIES}:hold", "--demos", str(demos), "--max-episodes", "4",
+                   "--chunk", "2", "--time-limit-s", "1.5", "--pos-range-mm", "10", "--quiet", "--json", str(out)])
+    data = json.loads(out.read_text())
+    base, cand = data["base_evaluation"], data["candidate_evaluation"]
+    assert base["policy"]["spec"] == f"{POLICIES}:goal" and cand["policy"]["spec"] == f"{POLICIES}:hold"
+    assert data["episodes_run"] == 4 and cand["successes"] == 0
+    assert [r["start_pos"] for r in base["per_episode"]] == [r["start_pos"] for r in cand["per_episode"]]
+    assert status in (0, 1)
+
+
+def test_benchmark_gives_a_policys_factory_each_replicates_demo_seed_and_demos(tmp_path) -> None:
+    out = tmp_path / "bench"
+    assert main(["benchmark", "--policy", f"{POLICIES}:seeded", "--demo-seeds", "3,4", "--demos", "1",
+                 "--episodes", "2", "--time-limit-s", "0.3", "--workers", "1", "--quiet", "--out", str(out)]) == 0
+    protocol = json.loads((out / "protocol.json").read_text())
+    assert protocol["policy"]["spec"] == f"{POLICIES}:seeded"
+    for seed in (3, 4):
+        folder = out / f"seed-{seed}"
+        assert not (folder / "model").exists()  # no skill trained: the factory learns
+        options = json.loads((folder / "eval.json").read_text())["policy"]["options"]
+        assert options == {"demo_seed": str(seed), "demo_file": str((folder / "demos.npz").resolve())}
+    summary = json.loads((out / "benchmark.json").read_text())
+    assert summary["complete"] and summary["pooled"]["episodes"] == 4
