@@ -34,6 +34,7 @@ recording when no DIR is given).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import shlex
 import sys
@@ -98,7 +99,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--stiffness-figure", type=Path, metavar="PNG", help="commanded stiffness against time")
     out.add_argument("--force-figure", type=Path, metavar="PNG", help="wrist force against time, with the limit")
     out.add_argument("--record-episodes", type=Path, metavar="DIR",
-                     help="keep each episode's per-step trace, for `pih export --episodes`")
+                     help="each episode's per-step trace, for `pih export`")
     out.add_argument("--overwrite", action="store_true", help="replace outputs an earlier pih run wrote")
     add_evaluation_options(parser, skill, run)
 
@@ -318,9 +319,9 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
     return config
 
 
-def media_recording(args: argparse.Namespace) -> tuple[Path | None, list[int] | None]:
+def media_recording(args: argparse.Namespace, temporary: contextlib.ExitStack) -> tuple[Path | None, list[int] | None]:
     """Where a run records its episodes and which (None: all): --record-episodes, else for a policy's video or
-    figures a temporary folder (removed by `main` once they are drawn) with the chosen episodes only when they are
+    figures a temporary folder (removed when ``temporary`` closes) with the chosen episodes only when they are
     named; (None, None) when nothing is recorded."""
     if args.record_episodes is not None:
         return args.record_episodes, None
@@ -331,7 +332,7 @@ def media_recording(args: argparse.Namespace) -> tuple[Path | None, list[int] | 
     import tempfile
 
     only = None if args.video_episodes == "auto" else [int(x) for x in args.video_episodes.split(",") if x.strip()]
-    return Path(tempfile.mkdtemp(prefix="pih-recording-")), only
+    return Path(temporary.enter_context(tempfile.TemporaryDirectory(prefix="pih-recording-"))), only
 
 
 def run_evaluation(args: argparse.Namespace, config: EvaluationConfig,
@@ -548,20 +549,14 @@ def main(args: argparse.Namespace) -> int:
     wall = time.perf_counter()
     config = check_args(args)
     work_begins()
-    recording = media_recording(args)
-    temporary = recording[0] if args.record_episodes is None else None
-    try:
-        return _evaluate_and_report(args, config, recording, wall)
-    except PolicyFailure as failure:
-        path = journal_path(args)
-        kept = (f"; the episodes that finished are in {path} (`--resume --keep-going` records the rest)"
-                if path is not None and path.is_file() else "")
-        return report_policy_failure("evaluate", failure, f" (no success rate written{kept})")
-    finally:
-        if temporary is not None:
-            from envs.evaluation.recording import remove_recording
-
-            remove_recording(temporary)
+    with contextlib.ExitStack() as temporary:
+        try:
+            return _evaluate_and_report(args, config, media_recording(args, temporary), wall)
+        except PolicyFailure as failure:
+            path = journal_path(args)
+            kept = (f"; the episodes that finished are in {path}: `--resume --keep-going` records the rest"
+                    if path is not None and path.is_file() else "")
+            return report_policy_failure("evaluate", failure, f"; no success rate written{kept}")
 
 
 def _evaluate_and_report(args: argparse.Namespace, config: EvaluationConfig,

@@ -48,7 +48,7 @@ def add_policy_arguments(parser: argparse.ArgumentParser) -> None:
                        help="a string for the factory; repeatable")
     group.add_argument("--privileged", action="store_true", help="observations carry the true hole (a teacher)")
     group.add_argument("--keep-going", action="store_true",
-                       help="record episodes where the policy raises as policy_error (not scored) and run on")
+                       help="record policy errors (not scored), run on")
 
 
 def policy_spec(args: argparse.Namespace) -> PolicySpec:
@@ -111,10 +111,9 @@ def policy_media(args: argparse.Namespace, config: EvaluationConfig, result: Any
     from envs.evaluation.evaluate import build_env
     from envs.evaluation.recording import check_episode, episode_file, load_episode, play
     from envs.evaluation.starts import evaluation_starts, metadata_starts
-    from envs.media.figures import PoseCurve, StiffnessCurve, plot_skill, plot_stiffness
+    from envs.media.figures import PoseCurve, StiffnessCurve, plot_force_traces, plot_skill, plot_stiffness
     from envs.poses import Pose
     from rflow.skill_io import POSE
-    from scripts.evaluate import plot_episode_forces
 
     out: dict[str, Any] = {"video": None, "figure": None, "stiffness_figure": None, "force_figure": None}
     metadata = result.metadata
@@ -149,8 +148,11 @@ def policy_media(args: argparse.Namespace, config: EvaluationConfig, result: Any
             raise
         out["video"] = str(video.close())
     if args.force_figure is not None and shown:
-        pairs = [episodes[i] for i in shown]
-        out["force_figure"] = str(plot_episode_forces(pairs, [starts[i] for i in shown], args.force_figure, config))
+        traces = [(f"episode {i}: {episodes[i][0].reason.split(' (')[0]}", episodes[i][0].success,
+                   episodes[i][1].times_s, np.sqrt((episodes[i][1].wrist_wrench[:, :3] ** 2).sum(axis=1)))
+                  for i in shown]
+        out["force_figure"] = str(plot_force_traces(traces, config.task.force_limit_n, args.force_figure,
+                                                    "wrist force of the chosen episodes"))
     chosen = [i for i in figure_episodes if i in episodes]
     if not chosen:
         return out

@@ -20,10 +20,9 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -211,12 +210,3 @@ def play(env: Any, start: StartPose, trace: EpisodeTrace, on_step: Callable[[Any
         mujoco.mj_forward(env.model, data)
         view.observation = _Row(float(trace.times_s[k]), np.asarray(trace.wrist_wrench[k]), float(trace.force_n[k]))
         on_step(view)
-
-
-def remove_recording(folder: Path, indices: Iterable[int] | None = None) -> None:
-    """Remove a temporary recording (its whole folder) or, with ``indices``, only those episodes' files."""
-    if indices is None:
-        shutil.rmtree(folder, ignore_errors=True)
-        return
-    for index in indices:
-        episode_file(folder, index).unlink(missing_ok=True)
