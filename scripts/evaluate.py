@@ -361,7 +361,19 @@ def run_evaluation(args: argparse.Namespace, config: EvaluationConfig,
     if args.record_episodes is not None:
         from envs.evaluation.recording import prepare_recording
 
+        new = not args.record_episodes.exists()
         prepare_recording(args.record_episodes, args.overwrite, args.resume, run)
+        plain = evaluate_it
+
+        def evaluate_it(journal: Journal | None = None) -> EvaluationResult:
+            try:
+                return plain(journal)
+            except BaseException:  # a new recording with no episode in it must not block a plain rerun either
+                if new and not any(args.record_episodes.glob("episode-*.npz")):
+                    import shutil
+
+                    shutil.rmtree(args.record_episodes, ignore_errors=True)
+                raise
     path = journal_path(args)
     if path is None:
         return evaluate_it()
