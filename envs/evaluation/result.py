@@ -2,7 +2,9 @@
 
 Statistics. The success rate p = k/n over the scored episodes with its 95 % Wilson score interval
 (envs.statistics.fixed_sample); medians and maxima of the per-episode figures over the finite values; failures counted
-by kind. Infrastructure errors (episodes whose every try lost its worker) are listed apart, not scored.
+by kind. Infrastructure errors (episodes whose every try lost its worker) and a user's policy's errors ("policy_error":
+the policy raised, or returned an action that cannot be commanded; not failed insertions) are listed apart, not
+scored.
 """
 
 from __future__ import annotations
@@ -214,7 +216,9 @@ class EvaluationResult:
             ("success rate", f"{100 * self.success_rate:.1f} % ({self.num_success}/{len(self.records)}), "
                              f"95 % CI [{100 * low:.1f}, {100 * high:.1f}] %" if self.records else
                              "none: no episode completed" + (f" ({len(self.infrastructure_errors)} lost to "
-                                                              "infrastructure)" if self.infrastructure_errors else "")),
+                                                              "infrastructure)" if self.infrastructure_errors else "")
+                             + (f" ({len(self.policy_errors)} policy errors, not scored)" if self.policy_errors
+                                else "")),
             ("time to insert (median/max)", f"{fmt(s['median_time_to_insert_s'], 's')} / {fmt(s['max_time_to_insert_s'], 's')}"),
             ("final position error (median)", fmt(s["median_final_pos_error_mm"], "mm")),
             ("final angle error (median)", fmt(s["median_final_angle_error_deg"], "deg")),
