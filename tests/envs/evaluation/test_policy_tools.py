@@ -139,3 +139,26 @@ def test_benchmark_gives_a_policys_factory_each_replicates_demo_seed_and_demos(t
         assert options == {"demo_seed": str(seed), "demo_file": str((folder / "demos.npz").resolve())}
     summary = json.loads((out / "benchmark.json").read_text())
     assert summary["complete"] and summary["pooled"]["episodes"] == 4
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["sensitivity", "--model", "MODEL", "--policy", f"{POLICIES}:hold", "--demos", "DEMOS", "--out", "OUT"],
+     "--model and --policy: give one"),
+    (["sensitivity", "--policy", f"{POLICIES}:hold", "--out", "OUT"], "--policy needs --demos"),
+    (["compare", "--sequential", "--base-policy", f"{POLICIES}:hold", "--cand-policy", f"{POLICIES}:goal"],
+     "needs --demos"),
+    (["compare", "--sequential", "--base-model", "MODEL", "--cand-model", "MODEL", "--cand-policy-option", "a=b"],
+     "--cand-policy-option: only with --cand-policy"),
+    (["benchmark", "--policy", f"{POLICIES}:seeded", "--policy-option", "demo_seed=3", "--out", "OUT"],
+     "--policy-option demo_seed: the protocol gives the factory this option itself"),
+    (["benchmark", "--policy", f"{POLICIES}:seeded", "--epochs", "3", "--out", "OUT"], "--epochs: not with --policy"),
+    (["evaluate", "--policy", f"{POLICIES}:hold", "--demos", "DEMOS", "--record-episodes", "DEMOS"],
+     "is a file, not a folder"),
+])
+def test_the_policy_options_of_every_tool_are_checked_before_any_work(demos, tmp_path, capsys, argv, words) -> None:
+    (tmp_path / "model").mkdir()
+    names = {"MODEL": str(tmp_path / "model"), "DEMOS": str(demos), "OUT": str(tmp_path / "out")}
+    assert main([names.get(a, a) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]  # nothing written
