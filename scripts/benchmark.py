@@ -4,8 +4,13 @@ distribution over demo seeds (envs/evaluation/benchmark.py says what is randomis
     pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/ [--shape square] [--task NAME|FILE.toml]
         [task options] [--workers 2] [--no-contact-adaptation | --adaptation-off PARTS] [--follow-observed-hole]
 
+    pih benchmark --policy mypkg.mymodule:make --demo-seeds 0-4 --episodes 200 --out bench_mine/ [--policy-option ..]
+
 Writes bench/protocol.json (what runs, the task among it), bench/seed-<s>/ (demos.npz, model/, eval.json and its
 journal), bench/benchmark.json (per-seed and pooled rates, between-seed interval, beta-binomial fit) and bench/benchmark.png.
+With --policy no skill is trained: each replicate's evaluation calls the policy's factory with the options
+demo_seed=<s> and demo_file=<seed-s/demos.npz> besides --policy-option's (docs/policy.md), so a learner trains per seed
+in its factory; the policy's first error stops the protocol with its traceback (exit 4).
 Run it again with the same options to continue after Ctrl-C or a crash: finished stages are kept, an interrupted
 evaluation resumes from its journal. Exit 0 when every replicate ran, 3 when one could not (its error is listed).
 """
@@ -38,7 +43,8 @@ REPLICATE_BYTES = 200 * 2**20
 """Generous size of one replicate's folder (demos, a checkpoint, the record and its journal)."""
 
 
-EXAMPLES: tuple[str, ...] = ('pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/',)
+EXAMPLES: tuple[str, ...] = ('pih benchmark --demo-seeds 0-4 --episodes 200 --out bench/',
+                             'pih benchmark --policy mymodule:make --demo-seeds 0-4 --episodes 200 --out bench_mine/')
 """Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,6 +65,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "the hole is then placed at the demos' mean goal")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     add_adaptation_options(parser.add_argument_group("skill (as `pih evaluate`'s)"))
+    policy = parser.add_argument_group("policy (instead of training the skill; docs/policy.md)")
+    policy.add_argument("--policy", metavar="MODULE:FACTORY",
+                        help="factory(task, demo_seed=, demo_file=, **options) -> Policy, per replicate")
+    policy.add_argument("--policy-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="a string for the factory; repeatable")
+    policy.add_argument("--privileged", action="store_true", help="observations carry the true hole (a teacher)")
     out = parser.add_argument_group("output")
     out.add_argument("--out", type=Path, required=True, help="protocol folder (new, or one to continue)")
     add_start_arguments(run)
@@ -78,13 +90,26 @@ def protocol_from_args(args: argparse.Namespace) -> ProtocolConfig:
         seeds = parse_seeds(args.demo_seeds)
     except EnvError as err:
         raise EnvError(f"--demo-seeds: {err}") from None
+    policy = None
+    if args.policy is not None:
+        from envs.evaluation.evaluate_policy import policy_files
+        from scripts.evaluate_policy import policy_spec
+
+        skill_only = [o for o, v in (("--no-contact-adaptation", args.no_contact_adaptation),
+                                     ("--adaptation-off", args.adaptation_off), ("--epochs", args.epochs)) if v]
+        if skill_only:
+            raise EnvError(f"{', '.join(skill_only)}: not with --policy (they act on the trained skill)")
+        policy = policy_spec(args)
+        policy_files(policy)  # found (imported only in the supervised workers)
+    elif args.policy_option or args.privileged:
+        raise EnvError(f"{'--policy-option' if args.policy_option else '--privileged'}: only with --policy")
     evaluation = EvaluationConfig(episodes=args.episodes, task=task.override(shape=task.shape or "square"),
                                   hole_at_goal=args.demo_noise is not None,
                                   contact_adaptation=not args.no_contact_adaptation,
                                   adaptation_off=adaptation_parts(args.adaptation_off),
                                   follow_observed_hole=args.follow_observed_hole)
     return ProtocolConfig(demo_seeds=seeds, start_seed_offset=args.start_seed_offset, num_demos=args.demos,
-                          epochs=args.epochs, evaluation=evaluation, demo_noise=args.demo_noise)
+                          epochs=args.epochs, evaluation=evaluation, demo_noise=args.demo_noise, policy=policy)
 
 
 def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
@@ -96,6 +121,7 @@ def protocol_record(config: ProtocolConfig) -> dict[str, Any]:
                   if k not in ("seed", "workers", "unit_timeout_s", "start_timeout_s", "backend", "ray_address",
                                "lockstep")}
     noise = {} if config.demo_noise is None else {"demo_noise": config.demo_noise}
+    noise.update({} if config.policy is None else {"policy": config.policy.to_dict()})
     return to_jsonable({"command": "pih benchmark", **noise, "demo_seeds": list(config.demo_seeds),
                         "start_seeds": config.start_seeds(), "num_demos": config.num_demos, "epochs": config.epochs,
                         "task": config.task.to_dict(), "evaluation": evaluation})
@@ -161,6 +187,8 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
                    f"{demos.config['noise']['end_scatter_rms_mm']:.2f} mm / "
                    f"{demos.config['noise']['end_scatter_rms_deg']:.2f} deg root-mean-square from their mean")
         save_demos(demos_path, demos)
+    if config.policy is not None:
+        return evaluate_replicate_policy(config, folder, demo_seed, start_seed, workers, progress, report)
     if not (model_dir / "skill.json").exists():
         report(f"seed {demo_seed}: training (seed {demo_seed})")
         overrides: dict[str, Any] = {"seed": demo_seed}
@@ -177,6 +205,43 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
     journal = Journal.open(journal_path, journal_run(model_dir, evaluation), resume=journal_path.exists())
     try:
         result = evaluate(model_dir, evaluation, progress=progress, journal=journal)
+    finally:
+        journal.close()
+    if result.interrupted:
+        raise KeyboardInterrupt
+    if not result.complete:
+        raise EnvError(f"evaluation incomplete: {len(result.records)} of {evaluation.episodes} episodes")
+    result.save_json(eval_path)
+    return outcome_from_records(demo_seed, start_seed, result.records)
+
+
+def evaluate_replicate_policy(config: ProtocolConfig, folder: Path, demo_seed: int, start_seed: int, workers: int,
+                              progress: bool, report: Callable[[str], None]) -> ReplicateOutcome:
+    """The evaluation of one replicate of a --policy protocol: the factory called with the replicate's demo seed and
+    demo file (envs.evaluation.benchmark.replicate_policy) in the demos' scene, resumed from its journal.
+
+    Raises:
+        PolicyFailure: the policy failed in an episode (the journal keeps what finished).
+        KeyboardInterrupt: Ctrl-C during the evaluation.
+    """
+    from batch import Journal
+    from envs.evaluation.benchmark import replicate_policy
+    from envs.evaluation.evaluate_policy import demo_metadata, evaluate_policy, policy_journal_run
+    from envs.rollout.episode import record_from_dict
+
+    demos_path, eval_path = folder / "demos.npz", folder / "eval.json"
+    if eval_path.exists():
+        return outcome_from_records(demo_seed, start_seed, [record_from_dict(r) for r in
+                                                            json.loads(eval_path.read_text())["per_episode"]])
+    spec = replicate_policy(config.policy, demo_seed, str(demos_path.resolve()))
+    metadata = demo_metadata(demos_path)
+    evaluation = dataclasses.replace(config.evaluation, seed=start_seed, workers=workers)
+    report(f"seed {demo_seed}: evaluating --policy {spec.spec} on {evaluation.episodes} episodes (start seed "
+           f"{start_seed}; its factory given demo_seed={demo_seed})")
+    journal_path = folder / "eval.json.journal.jsonl"
+    journal = Journal.open(journal_path, policy_journal_run(spec, metadata, evaluation), resume=journal_path.exists())
+    try:
+        result = evaluate_policy(spec, metadata, evaluation, progress=progress, journal=journal)
     finally:
         journal.close()
     if result.interrupted:

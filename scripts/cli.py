@@ -3,7 +3,8 @@
 Each subcommand module exposes ``add_arguments(parser)``, ``main(args) -> int`` and ``EXAMPLES`` (command lines
 shown at the end of its --help). Exit statuses: 2 for bad input (a bad option value, a bad file, an output that may
 not be written: the project's own exception types), 1 for an operating-system error while working (a read-only folder,
-a full disk), each as one line on stderr ``pih COMMAND: error: ...``; 130 when interrupted (Ctrl-C, or SIGTERM, which
+a full disk), each as one line on stderr ``pih COMMAND: error: ...``; 4 when a user's --policy failed (it raised, or
+returned an action that cannot be commanded: its traceback, then that line); 130 when interrupted (Ctrl-C, or SIGTERM, which
 stops a command the same way). Every option's help shows its default; a command's usage line names what it requires
 and "[options]" for the rest (the options follow).
 """
@@ -28,7 +29,7 @@ pin_cpu_dispatch()  # first: the CPU dispatch of torch, MKL and numpy, before th
 
 from batch.errors import BatchError  # noqa: E402
 from controllers.errors import ControllerError  # noqa: E402
-from envs.errors import EnvError  # noqa: E402
+from envs.errors import EnvError, PolicyFailure  # noqa: E402
 from envs.media.rendering import use_headless_rendering  # noqa: E402
 from numerics.errors import NumericsError  # noqa: E402
 
@@ -191,6 +192,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with _sigterm_interrupts():
             return int(args._main(args) or 0)
+    except PolicyFailure as failure:  # a command that runs a --policy stops at its first error
+        from scripts.evaluate_policy import report_policy_failure
+
+        return report_policy_failure(args.command, failure)
     except USER_ERRORS as err:
         print(f"pih {args.command}: error: {err}", file=sys.stderr)
         return EXIT_USAGE

@@ -3,6 +3,8 @@
     pih compare BASE.json CAND.json [--margin 0.0] [--alpha 0.05] [--json out.json]
     pih compare --sequential --base-model A --cand-model B --seed S [--max-episodes 400] [--chunk 10]
         [--workers N] [the start and task options of `pih evaluate`: --task NAME|FILE.toml, ...]
+    pih compare --sequential --base-model A --cand-policy mypkg.mymodule:make --demos demos.npz --seed S
+        [--cand-policy-option KEY=VALUE ...] [--cand-privileged] ...      (either side, or both, a policy)
 
 Paired mode reads two `pih evaluate --json` files that ran the same episodes (same --seed, --episodes and
 start / task options; refused, one line naming the first differing episode, otherwise) and prints the success
@@ -11,8 +13,10 @@ p, Barnard's unpaired p for reference, the finer paired metrics (progress, time 
 decision: "regression" when the one-sided (1 - alpha) upper bound of p_cand - p_base lies below -margin
 (envs/statistics/fixed_sample.py, sequential.py, pairing.py, comparison.py).
 
-Sequential mode runs the episodes itself: it draws the starts once from the base model's demo starts, runs both
-models on the same starts, --chunk episodes at a time, feeds the pairs in episode order to anytime-valid
+Sequential mode runs the episodes itself: it draws the starts once from the demo starts of --demos (else of the
+base model), runs both sides -- each a skill (--base-model, --cand-model) or a user's policy (--base-policy,
+--cand-policy, in the scene of --demos, supervised as `pih evaluate --policy` runs one; its first error stops the run
+with its traceback, exit 4) -- on the same starts, --chunk episodes at a time, feeds the pairs in episode order to anytime-valid
 e-processes on success and progress, and stops at the first decision (or after --max-episodes pairs), so the
 answer does not depend on --workers or --chunk. It reports how many pairs the decision needed.
 
@@ -26,6 +30,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -52,7 +57,8 @@ PAIRED_OPTIONS = ("margin", "alpha", "json", "overwrite", "sequential")
 
 
 EXAMPLES: tuple[str, ...] = ('pih compare base.json cand.json --margin 0.02',
-                             'pih compare --sequential --base-model base/ --cand-model cand/ --seed 3000')
+                             'pih compare --sequential --base-model base/ --cand-model cand/ --seed 3000',
+                             'pih compare --sequential --base-model base/ --cand-policy mymodule:make --demos demos.npz')
 """Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,6 +76,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="run both models on the same starts, chunk by chunk, until the e-processes decide")
     group.add_argument("--base-model", type=Path, help="checkpoint of the base skill (its demo starts give the starts)")
     group.add_argument("--cand-model", type=Path, help="checkpoint of the candidate skill")
+    for side, name in (("base", "base"), ("cand", "candidate")):
+        group.add_argument(f"--{side}-policy", metavar="MODULE:FACTORY",
+                           help=f"the {name} as a policy factory instead (docs/policy.md; needs --demos)")
+        group.add_argument(f"--{side}-policy-option", action="append", default=[], metavar="KEY=VALUE",
+                           help=f"a string for the {name} policy's factory; repeatable")
+        group.add_argument(f"--{side}-privileged", action="store_true",
+                           help=f"the {name} policy observes the true hole (a teacher)")
+    group.add_argument("--demos", type=Path, metavar="FILE.npz",
+                       help="the demos whose scene a policy runs in and whose start poses the starts are drawn around")
     group.add_argument("--max-episodes", dest="episodes", type=count(MAX_EPISODES), default=DEFAULT_MAX_EPISODES,
                        help=f"stop undecided after this many pairs (default {DEFAULT_MAX_EPISODES})")
     group.add_argument("--chunk", type=count(MAX_EPISODES), default=DEFAULT_CHUNK,
@@ -108,7 +123,7 @@ def check_args(args: argparse.Namespace) -> None:
         raise EnvError(f"--alpha {args.alpha}: must lie strictly between 0 and 0.5")
     if args.progress_margin is not None and not (math.isfinite(args.progress_margin) and 0.0 <= args.progress_margin < 1.0):
         raise EnvError(f"--progress-margin {args.progress_margin}: must lie in [0, 1)")
-    check_json_output(args.json, args.overwrite, [*args.evaluations, args.base_model, args.cand_model])
+    check_json_output(args.json, args.overwrite, [*args.evaluations, args.base_model, args.cand_model, args.demos])
     if not args.sequential:
         refuse_unused(args, add_arguments, None, "applies to --sequential only", keep=PAIRED_OPTIONS)
         if len(args.evaluations) != 2:
@@ -117,11 +132,21 @@ def check_args(args: argparse.Namespace) -> None:
         return
     if args.evaluations:
         raise EnvError("--sequential runs the episodes itself: give --base-model and --cand-model, not evaluation files")
-    for option, model in (("--base-model", args.base_model), ("--cand-model", args.cand_model)):
-        if model is None:
-            raise EnvError(f"--sequential needs {option}")
-        if not model.is_dir():
-            raise EnvError(f"{option} {model}: checkpoint folder not found")
+    for side in ("base", "cand"):
+        model, policy = getattr(args, f"{side}_model"), getattr(args, f"{side}_policy")
+        if policy is None:
+            given = [o for o, v in ((f"--{side}-policy-option", getattr(args, f"{side}_policy_option")),
+                                    (f"--{side}-privileged", getattr(args, f"{side}_privileged"))) if v]
+            if given:
+                raise EnvError(f"{', '.join(given)}: only with --{side}-policy")
+            if model is None:
+                raise EnvError(f"--sequential needs --{side}-model DIR or --{side}-policy MODULE:FACTORY")
+            if not model.is_dir():
+                raise EnvError(f"--{side}-model {model}: checkpoint folder not found")
+        elif model is not None:
+            raise EnvError(f"--{side}-model and --{side}-policy: give one")
+    if args.demos is None and (args.base_policy is not None or args.cand_policy is not None):
+        raise EnvError("a --base-policy or --cand-policy needs --demos FILE: the demos whose scene it runs in")
 
 
 def write_output(path: Path | None, record: dict[str, Any]) -> None:
@@ -160,18 +185,49 @@ def merge_results(results: Sequence[Any], pairs: int, config: Any) -> Any:
     return EvaluationResult(dataclasses.replace(config, episodes=max(pairs, 1)), records,
                             sum(r.wall_s for r in results), first.model_dir, first.metadata, first.scene,
                             first.goal_mismatch_mm, all(r.complete for r in results),
-                            any(r.interrupted for r in results), task=first.task)
+                            any(r.interrupted for r in results), task=first.task, policy=first.policy)
+
+
+def side_evaluation(args: argparse.Namespace, side: str, config: Any) -> Any:
+    """How one side of the sequential mode evaluates a chunk of starts: ``run(starts) -> EvaluationResult`` for its
+    skill (``--SIDE-model``) or its policy (``--SIDE-policy`` in the scene of --demos), checked before any work.
+
+    Raises:
+        EnvError: a bad policy spec or option, a policy module that is not found, an unreadable demo file.
+    """
+    from envs.evaluation.evaluate import evaluate
+
+    model, policy = getattr(args, f"{side}_model"), getattr(args, f"{side}_policy")
+    if policy is None:
+        return lambda starts: evaluate(model, config, progress=not args.quiet, starts=starts)
+    from envs.evaluation.evaluate_policy import (PolicySpec, demo_metadata, evaluate_policy, parse_policy_options,
+                                                 policy_files)
+
+    try:
+        spec = PolicySpec(policy, parse_policy_options(getattr(args, f"{side}_policy_option")),
+                          bool(getattr(args, f"{side}_privileged")), os.getcwd())
+    except EnvError as err:
+        raise EnvError(f"--{side}-policy: {err}") from None
+    policy_files(spec)  # found (imported only in the supervised workers)
+    metadata = demo_metadata(args.demos)
+    return lambda starts: evaluate_policy(spec, metadata, config, progress=not args.quiet, starts=starts)
 
 
 def run_sequential(args: argparse.Namespace) -> int:
     """Sequential mode (module docstring)."""
-    from envs.evaluation.evaluate import evaluate, skill_file
+    from envs.evaluation.evaluate import skill_file
     from envs.evaluation.starts import evaluation_starts, metadata_starts
     from rflow.skill_io import load_skill
 
     config = evaluate_cli.checked_config(args)
-    demo_starts = metadata_starts(load_skill(args.base_model).metadata, f"--base-model {skill_file(args.base_model)}")
+    if args.demos is not None:
+        from envs.evaluation.evaluate_policy import demo_metadata
+
+        demo_starts = metadata_starts(demo_metadata(args.demos), f"--demos {args.demos}")
+    else:
+        demo_starts = metadata_starts(load_skill(args.base_model).metadata, f"--base-model {skill_file(args.base_model)}")
     starts = evaluation_starts(demo_starts, config)
+    sides = {"base": side_evaluation(args, "base", config), "candidate": side_evaluation(args, "cand", config)}
     work_begins()
     margin = args.margin if args.progress_margin is None else args.progress_margin
     test = SequentialComparison({"success": args.margin, "progress": margin}, args.alpha)
@@ -179,8 +235,7 @@ def run_sequential(args: argparse.Namespace) -> int:
     status = 0
     for lo in range(0, len(starts), args.chunk):
         chunk = starts[lo:lo + args.chunk]
-        results = {side: evaluate(model, config, progress=not args.quiet, starts=chunk)
-                   for side, model in (("base", args.base_model), ("candidate", args.cand_model))}
+        results = {side: run(chunk) for side, run in sides.items()}
         if any(r.interrupted or not r.complete for r in results.values()):
             status = EXIT_INTERRUPTED if any(r.interrupted for r in results.values()) else EXIT_INCOMPLETE
             break

@@ -22,12 +22,19 @@ again on another one; only when all its tries are lost is it an infrastructure e
 apart, and run again by --resume. Infrastructure events go to stderr and the JSON. Exit status: 0 when every
 episode has a record (failed episodes are results), 3 when the batch is incomplete (infrastructure errors),
 1 when a fault stopped it (the Ray head lost), 130 when interrupted, 2 on bad input (all options and
-outputs are checked before any episode, envs/io/owned_output.py), 1 also on an operating-system error while writing.
+outputs are checked before any episode, envs/io/owned_output.py), 1 also on an operating-system error while writing,
+4 when a --policy failed (it raised, or returned an action that cannot be commanded): its traceback on stderr, and
+without --keep-going nothing but the journal written.
+
+--record-episodes DIR keeps every episode's per-step trace as it runs (envs/evaluation/recording.py): `pih export
+--episodes` exports such an evaluation from it, and a policy's --video and figures are drawn from it (from a temporary
+recording when no DIR is given).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import shlex
 import sys
@@ -41,7 +48,9 @@ from envs.evaluation.config import MAX_LOCKSTEP, EvaluationConfig  # noqa: E402
 from envs.io.owned_output import MiB, check_distinct, check_output  # noqa: E402
 from envs.policies.skill_settings import DEFAULT_LOOKAHEAD_S, MODES  # noqa: E402
 from pihutil.bounds import FEEDFORWARD_GAIN, LOOKAHEAD_S, SPEED, TIMEOUT_S  # noqa: E402
-from scripts.evaluate_policy import add_policy_arguments, check_policy_args, policy_spec  # noqa: E402
+from envs.errors import PolicyFailure  # noqa: E402
+from scripts.evaluate_policy import (add_policy_arguments, check_policy_args, policy_media, policy_spec,  # noqa: E402
+                                     report_policy_failure)
 from scripts.options import (CAMERA_NAMES, DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS,  # noqa: E402
                              check_camera, count, number, refuse_unused, seed, work_begins)
 from scripts.task_options import add_start_arguments, add_task_arguments, scene_from_task, task_from_args  # noqa: E402
@@ -89,6 +98,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--figure", type=Path, metavar="PNG", help="demos, generated and executed poses")
     out.add_argument("--stiffness-figure", type=Path, metavar="PNG", help="commanded stiffness against time")
     out.add_argument("--force-figure", type=Path, metavar="PNG", help="wrist force against time, with the limit")
+    out.add_argument("--record-episodes", type=Path, metavar="DIR",
+                     help="each episode's per-step trace, for `pih export`")
     out.add_argument("--overwrite", action="store_true", help="replace outputs an earlier pih run wrote")
     add_evaluation_options(parser, skill, run)
 
@@ -249,7 +260,7 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
         if args.model is None:
             raise EnvError("give --model DIR (a `pih train` checkpoint) or --policy MODULE:FACTORY with --demos FILE")
         given = [o for o, v in (("--demos", args.demos), ("--privileged", args.privileged),
-                                ("--policy-option", args.policy_option)) if v]
+                                ("--policy-option", args.policy_option), ("--keep-going", args.keep_going)) if v]
         if given:
             raise EnvError(f"{', '.join(given)}: only with --policy (not with --model)")
         inputs = [args.model]
@@ -293,19 +304,46 @@ def check_args(args: argparse.Namespace) -> EvaluationConfig:
                       "applies to --video, --figure, --stiffness-figure and --force-figure only")
     if args.video is None:
         refuse_unused(args, add_arguments, ["camera"], "applies to --video only")
-    if args.figure is not None or args.stiffness_figure is not None:
+    if (args.figure is not None or args.stiffness_figure is not None) and args.model is not None:
         load_preview(args.model)
+    if args.record_episodes is not None:
+        from envs.evaluation.recording import EPISODE_BYTES, check_recording
+        from envs.io.owned_output import check_output_folder
+
+        check_output_folder("--record-episodes", args.record_episodes, inputs=inputs,
+                            estimate_bytes=EPISODE_BYTES * config.episodes)
+        check_distinct({**outputs, "--record-episodes": args.record_episodes})
+        check_recording(args.record_episodes, args.overwrite, args.resume)
     if args.video is not None:
         check_camera(args.camera)
     return config
 
 
-def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> EvaluationResult:
+def media_recording(args: argparse.Namespace, temporary: contextlib.ExitStack) -> tuple[Path | None, list[int] | None]:
+    """Where a run records its episodes and which (None: all): --record-episodes, else for a policy's video or
+    figures a temporary folder (removed when ``temporary`` closes) with the chosen episodes only when they are
+    named; (None, None) when nothing is recorded."""
+    if args.record_episodes is not None:
+        return args.record_episodes, None
+    wanted = args.policy is not None and any(p is not None for p in (args.video, args.figure, args.stiffness_figure,
+                                                                        args.force_figure))
+    if not wanted:
+        return None, None
+    import tempfile
+
+    only = None if args.video_episodes == "auto" else [int(x) for x in args.video_episodes.split(",") if x.strip()]
+    return Path(temporary.enter_context(tempfile.TemporaryDirectory(prefix="pih-recording-"))), only
+
+
+def run_evaluation(args: argparse.Namespace, config: EvaluationConfig,
+                   recording: tuple[Path | None, list[int] | None] = (None, None)) -> EvaluationResult:
     """`evaluate` with the run's journal (opened here; a new journal with no episode in it is removed again
-    when the evaluation fails before its first episode, so a bad input leaves nothing behind)."""
+    when the evaluation fails before its first episode, so a bad input leaves nothing behind) and its recording
+    (``recording``: the folder and the episodes to record, `media_recording`)."""
     from batch import Journal
     from envs.evaluation.evaluate import evaluate, journal_run
 
+    folder, only = recording
     if args.policy is not None:
         from envs.evaluation.evaluate_policy import demo_metadata, evaluate_policy, policy_journal_run
 
@@ -313,12 +351,29 @@ def run_evaluation(args: argparse.Namespace, config: EvaluationConfig) -> Evalua
         run = policy_journal_run(spec, metadata, config)
 
         def evaluate_it(journal: Journal | None = None) -> EvaluationResult:
-            return evaluate_policy(spec, metadata, config, progress=not args.quiet, journal=journal)
+            return evaluate_policy(spec, metadata, config, progress=not args.quiet, journal=journal,
+                                   keep_going=args.keep_going, record_dir=folder, record_only=only)
     else:
         run = journal_run(args.model, config)
 
         def evaluate_it(journal: Journal | None = None) -> EvaluationResult:
-            return evaluate(args.model, config, progress=not args.quiet, journal=journal)
+            return evaluate(args.model, config, progress=not args.quiet, journal=journal, record_dir=folder)
+    if args.record_episodes is not None:
+        from envs.evaluation.recording import prepare_recording
+
+        new = not args.record_episodes.exists()
+        prepare_recording(args.record_episodes, args.overwrite, args.resume, run)
+        plain = evaluate_it
+
+        def evaluate_it(journal: Journal | None = None) -> EvaluationResult:
+            try:
+                return plain(journal)
+            except BaseException:  # a new recording with no episode in it must not block a plain rerun either
+                if new and not any(args.record_episodes.glob("episode-*.npz")):
+                    import shutil
+
+                    shutil.rmtree(args.record_episodes, ignore_errors=True)
+                raise
     path = journal_path(args)
     if path is None:
         return evaluate_it()
@@ -506,7 +561,20 @@ def main(args: argparse.Namespace) -> int:
     wall = time.perf_counter()
     config = check_args(args)
     work_begins()
-    result = run_evaluation(args, config)
+    with contextlib.ExitStack() as temporary:
+        try:
+            return _evaluate_and_report(args, config, media_recording(args, temporary), wall)
+        except PolicyFailure as failure:
+            path = journal_path(args)
+            kept = (f"; the episodes that finished are in {path}: `--resume --keep-going` records the rest"
+                    if path is not None and path.is_file() else "")
+            return report_policy_failure("evaluate", failure, f"; no success rate written{kept}")
+
+
+def _evaluate_and_report(args: argparse.Namespace, config: EvaluationConfig,
+                         recording: tuple[Path | None, list[int] | None], wall: float) -> int:
+    """The run of `main` after its checks: evaluate, report, draw; returns the exit status."""
+    result = run_evaluation(args, config, recording)
     if result.goal_mismatch_mm > GOAL_MISMATCH_WARN_MM:
         whose = "demos" if args.policy else "skill"
         print(f"pih evaluate: warning: the {whose}'s goal is {result.goal_mismatch_mm:.0f} mm from the scene's goal; "
@@ -533,16 +601,18 @@ def main(args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED if result.interrupted else EXIT_INCOMPLETE
     if args.journal is None and journal_path(args) is not None:  # the run's own journal, of a complete run: the JSON
         journal_path(args).unlink(missing_ok=True)                # holds every record, nothing is left to resume
-    if args.policy is not None:  # no video or figures for a policy (check_policy_args refuses them)
-        if not args.quiet:
-            print(f"total {time.perf_counter() - wall:.1f} s")
-        return 0
     figure_episodes = choose_episodes(result, args.video_episodes, failures=0)  # 'auto': successes only
     chosen = choose_episodes(result, args.video_episodes) if args.video else figure_episodes
     if args.force_figure is not None and not args.video:
         chosen = choose_episodes(result, args.video_episodes)  # 'auto': the successes and the first failure
-    extras = render_and_plot(args.model, config, result, chosen, args.video, args.figure, args.camera,
-                             args.stiffness_figure, figure_episodes=figure_episodes, force_figure=args.force_figure)
+    if args.policy is not None:  # drawn from the episodes as they were recorded: a policy is not run again
+        extras = {"video": None, "figure": None, "stiffness_figure": None, "force_figure": None}
+        if recording[0] is not None and any(getattr(args, k) is not None for k in extras):
+            extras = policy_media(args, config, result, recording[0], chosen, figure_episodes)
+    else:
+        extras = render_and_plot(args.model, config, result, chosen, args.video, args.figure, args.camera,
+                                 args.stiffness_figure, figure_episodes=figure_episodes,
+                                 force_figure=args.force_figure)
     for key, episodes in (("video", chosen), ("figure", figure_episodes), ("stiffness_figure", figure_episodes),
                           ("force_figure", chosen)):
         if extras[key]:
@@ -553,4 +623,10 @@ def main(args: argparse.Namespace) -> int:
                   file=sys.stderr)
     if not args.quiet:
         print(f"total {time.perf_counter() - wall:.1f} s")
+    if result.policy_errors:  # --keep-going: the run is recorded, and the policy's first error shown
+        from envs.evaluation.evaluate_policy import policy_failure
+
+        first = policy_failure(result.policy_errors[0].to_dict())
+        return report_policy_failure("evaluate", first, f" ({len(result.policy_errors)} episode(s) with policy "
+                                                        "errors, recorded as policy_error and not scored)")
     return 0

@@ -5,9 +5,11 @@
     pih export --episodes eval.json --select 0,3,7 --format lerobot --video --camera side --out ds/
 
 Every export has an integer frame rate (--fps, default the control rate 100): the demos' poses (4000 samples over
-7 s) and their control signals (joints, wrench, commands), or the replayed episodes' control steps, are resampled onto
-its frames. An evaluation JSON holds no per-step data, so its episodes are replayed from its checkpoint and config
-(physics is deterministic) and each replay is checked against its record. What each layout holds: envs/datasets/
+7 s) and their control signals (joints, wrench, commands), or the episodes' control steps, are resampled onto its
+frames. An evaluation JSON holds no per-step data: an evaluation run with `pih evaluate --record-episodes DIR` (any
+policy's, a user's `--policy` among them) is exported from the episodes recorded as they ran; otherwise the skill's
+episodes are replayed from its checkpoint and config (physics is deterministic). Either way each episode is checked
+against its record. What each layout holds: envs/datasets/
 (features.py, lerobot.py, robomimic.py).
 Read back with `pih demos --import DIR --format lerobot|robomimic --out demos.npz`.
 """
@@ -41,14 +43,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--demos", type=Path, metavar="FILE.npz", help="a demo file from `pih demos`")
     source.add_argument("--episodes", type=Path, metavar="EVAL.json",
-                        help="an evaluation from `pih evaluate --json`: its episodes are replayed with per-step traces")
+                        help="an evaluation from `pih evaluate --json`: its recorded episodes (--record-episodes), "
+                             "else the skill's replayed")
     parser.add_argument("--format", choices=LAYOUTS, required=True, help="dataset layout")
     parser.add_argument("--fps", type=count(MAX_FPS),
                         help=f"frames per second of the dataset, an integer: every signal is resampled onto its frames "
                              f"(default {DEFAULT_FPS}, the control rate: a frame per control step)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (new, empty, or an export to replace)")
     parser.add_argument("--overwrite", action="store_true", help="replace --out when it holds an earlier export")
-    parser.add_argument("--model", type=Path, help="with --episodes: the checkpoint (default: the one the JSON names)")
+    parser.add_argument("--model", type=Path,
+                        help="with --episodes of a skill without a recording: the checkpoint (default: the JSON's)")
     parser.add_argument("--select", metavar="I,J,...", help="with --episodes: only these episode indices")
     parser.add_argument("--video", action="store_true",
                         help="with --episodes: the camera frames too (LeRobot: an MP4 stream at the control rate; "

@@ -8,8 +8,9 @@ the arm starts at its first pose and the impedance controller tracks it (resampl
 the demo's feed-forward and stiffness); the commanded path and the goal frame are drawn. Other
 trajectory sources plug in through ``TrajectorySource``. --episodes: the evaluation's episode is replayed as `pih
 export` replays it (its start and perturbation drawn again from the JSON's seed, the skill run from the checkpoint it
-names, the replay checked against the record; envs.evaluation.replay); an evaluation of --policy cannot be replayed
-(its policy is not in the JSON). Every frame carries the episode (or demo), its outcome, the time and the wrist force.
+names, the replay checked against the record; envs.evaluation.replay), or played back from the evaluation's recorded
+episodes (`pih evaluate --record-episodes`: any policy's); an evaluation of --policy without them cannot be replayed
+(its policy is not run again). Every frame carries the episode (or demo), its outcome, the time and the wrist force.
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--demos", type=Path, metavar="FILE.npz", help="a demo file of `pih demos`")
     source.add_argument("--episodes", type=Path, metavar="EVAL.json",
-                        help="an evaluation of a trained skill (`pih evaluate --model ... --json`), replayed")
+                        help="an evaluation (`pih evaluate --json`): the skill's replayed, or its recorded episodes")
     parser.add_argument("--index", type=count(MAX_EPISODES - 1, minimum=0), default=0,
                         help="which demo, or which episode (its index in the evaluation)")
     parser.add_argument("--model", type=Path, metavar="DIR",

@@ -1,7 +1,12 @@
-"""`pih sensitivity`: what each imperfection of a real cell costs a trained skill, paired with the ideal cell.
+"""`pih sensitivity`: what each imperfection of a real cell costs a trained skill, or any policy, paired with the
+ideal cell.
 
     pih sensitivity --model runs/default/model --out runs/sensitivity [--episodes 100] [--seed 1000] \\
         [--workers 2] [--only friction payload ...] [--task contact]
+    pih sensitivity --policy mypkg.mymodule:make --demos demos.npz [--policy-option KEY=VALUE ...] --out sens/
+
+With --policy (and --demos, as `pih evaluate --policy` takes them) the user's policy runs every variant in the demos'
+scene, supervised as there; an error in the policy stops the run with its traceback (exit 4).
 
 Runs the skill on the task (default the contact preset: the ideal cell), then on it with each imperfection of
 envs/evaluation/sensitivity.py alone and with all of them (the "realistic" preset's magnitudes), every variant on the
@@ -30,6 +35,7 @@ from typing import Any, Iterator
 
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output, check_output_folder
+from scripts.evaluate_policy import policy_spec
 from scripts.options import DEFAULT_WORKERS, MAX_EPISODES, MAX_WORKERS, count, seed, work_begins
 from scripts.task_options import add_task_file_arguments, task_from_args
 
@@ -52,12 +58,20 @@ EXIT_FAULT, EXIT_INCOMPLETE, EXIT_INTERRUPTED = 1, 3, 130
 
 
 EXAMPLES: tuple[str, ...] = ('pih sensitivity --model model/ --out sens/ --episodes 100 --seed 1000',
-                             'pih sensitivity --model model/ --out curves/ --curves --episodes 100 --seed 1000')
+                             'pih sensitivity --model model/ --out curves/ --curves --episodes 100 --seed 1000',
+                             'pih sensitivity --policy mymodule:make --demos demos.npz --out sens_mine/')
 """Shown at the end of --help (scripts.cli)."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih sensitivity`."""
-    parser.add_argument("--model", type=Path, required=True, help="checkpoint directory from `pih train`")
+    source = parser.add_argument_group("what runs: a skill (--model) or a policy (--policy with --demos)")
+    source.add_argument("--model", type=Path, help="checkpoint directory from `pih train`")
+    source.add_argument("--policy", metavar="MODULE:FACTORY", help="factory(task, **options) -> Policy (docs/policy.md)")
+    source.add_argument("--demos", type=Path, metavar="FILE.npz", help="with --policy: the demos whose scene and starts "
+                                                                       "to run")
+    source.add_argument("--policy-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="with --policy: a string for the factory; repeatable")
+    source.add_argument("--privileged", action="store_true", help="with --policy: observations carry the true hole")
     parser.add_argument("--out", type=Path, default=Path("runs/sensitivity"), help="folder for the table, JSON, figure")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace outputs (and the journals of an unfinished run) an earlier pih run wrote there")
@@ -84,31 +98,28 @@ def main(args: argparse.Namespace) -> int:
     from envs.evaluation.sensitivity import variants as variants_of
     from envs.io.owned_output import write_json, write_text
 
-    if not args.model.is_dir():
-        raise EnvError(f"--model {args.model}: no such checkpoint folder")
     if args.resume and args.overwrite:
         raise EnvError("--resume continues an earlier run and --overwrite replaces it: choose one")
-    from rflow.skill_io import load_skill
-
-    load_skill(args.model)  # a corrupt checkpoint is one line before any output or episode
+    evaluate, run_of, source = evaluation_of(args)
     config = EvaluationConfig(episodes=args.episodes, seed=args.seed, workers=args.workers, task=task_from_args(args))
     curves = [] if args.curves is None else (list(args.curves) or list(DEFAULT_CURVES))
     only = args.only if args.only is not None else ([] if curves else list(IMPERFECTION_NAMES))
     names = [n for n in IMPERFECTION_NAMES if n in only]
     planned = [name for name, _, _ in variants_of(config, names, curves)]
     journals = args.out / JOURNALS
-    check_output_folder("--out", args.out, inputs=[args.model],
+    check_output_folder("--out", args.out, inputs=[source],
                         estimate_bytes=4 * MiB + RECORD_BYTES * args.episodes * len(planned))
     paths = {key: args.out / name for key, name in OUTPUTS.items()}
     paths.update({f"curve_{curve}": args.out / f"curve_{curve}.png" for curve in curves})
     # Before any episode runs: the outputs already there are ours, and so is the registry the figure joins.
     for path in paths.values() if args.out.is_dir() else ():
-        check_output("--out", path, args.overwrite or args.resume, inputs=[args.model], estimate_bytes=2 * MiB)
-    check_journals(journals, planned, args.resume, args.overwrite, args.model)
+        check_output("--out", path, args.overwrite or args.resume, inputs=[source], estimate_bytes=2 * MiB)
+    check_journals(journals, planned, args.resume, args.overwrite, source)
     work_begins()
     journals.mkdir(parents=True, exist_ok=True)
     try:
-        rows = run_sensitivity(args.model, config, names, journal=variant_journal(journals, args), curves=curves,
+        rows = run_sensitivity(args.model, config, names, evaluate=evaluate,
+                               journal=variant_journal(journals, args, run_of), curves=curves,
                                on_variant=lambda name: print(f"evaluating: {name}", file=sys.stderr, flush=True))
     except Stopped as stop:
         return stopped(args, stop.name, stop.result, planned)
@@ -119,7 +130,9 @@ def main(args: argparse.Namespace) -> int:
     verdict = ("no imperfection alone lowered the success rate on these episodes" if worst is None else
                f"costliest imperfection: {worst.name} ({worst.successes}/{worst.episodes} seated)")
     write_text(paths["table"], table + "\n\n" + verdict + "\n")
-    write_json(paths["json"], {"episodes": args.episodes, "seed": args.seed, "model": str(args.model),
+    what = ({"model": str(args.model)} if args.policy is None else
+            {"policy": policy_spec(args).to_dict(), "demos": str(args.demos)})
+    write_json(paths["json"], {"episodes": args.episodes, "seed": args.seed, **what,
                                "task": dataclasses.replace(config.task).to_dict(), "costliest": None if worst is None
                                else worst.name, "rows": [row.to_dict() for row in rows]})
     plot_sensitivity([row for row in rows if CURVE_SEPARATOR not in row.name], paths["figure"])
@@ -148,17 +161,53 @@ def check_journals(journals: Path, planned: list[str], resume: bool, overwrite: 
             check_output("--out", path, True, suffix=".jsonl", inputs=[model])
 
 
-def variant_journal(journals: Path, args: argparse.Namespace) -> Any:
+def evaluation_of(args: argparse.Namespace) -> tuple[Any, Any, Path]:
+    """What runs a variant, from --model or --policy and --demos, checked before any work: (the ``evaluate`` of
+    `run_sensitivity`, the journal's run of a variant's config, the input file or folder).
+
+    Raises:
+        EnvError: neither or both of --model and --policy, a missing checkpoint or demo file, a policy module that
+            is not found, a policy option without --policy.
+    """
+    if args.policy is None:
+        given = [o for o, v in (("--demos", args.demos), ("--policy-option", args.policy_option),
+                                ("--privileged", args.privileged)) if v]
+        if given:
+            raise EnvError(f"{', '.join(given)}: only with --policy")
+        if args.model is None:
+            raise EnvError("give --model DIR (a `pih train` checkpoint) or --policy MODULE:FACTORY with --demos FILE")
+        if not args.model.is_dir():
+            raise EnvError(f"--model {args.model}: no such checkpoint folder")
+        from envs.evaluation.evaluate import evaluate, journal_run
+        from rflow.skill_io import load_skill
+
+        load_skill(args.model)  # a corrupt checkpoint is one line before any output or episode
+        return evaluate, lambda config: journal_run(args.model, config), args.model
+    if args.model is not None:
+        raise EnvError("--model and --policy: give one (a skill, or a policy with --demos)")
+    if args.demos is None:
+        raise EnvError("--policy needs --demos FILE: the demo file whose scene and start poses the episodes use")
+    from envs.evaluation.evaluate_policy import demo_metadata, evaluate_policy, policy_files, policy_journal_run
+
+    spec, metadata = policy_spec(args), demo_metadata(args.demos)
+    policy_files(spec)  # found (imported only in the supervised workers)
+
+    def evaluate(_model: Any, config: Any, progress: bool = True, journal: Any = None) -> Any:
+        return evaluate_policy(spec, metadata, config, progress=progress, journal=journal)
+
+    return evaluate, lambda config: policy_journal_run(spec, metadata, config), args.demos
+
+
+def variant_journal(journals: Path, args: argparse.Namespace, run_of: Any) -> Any:
     """The ``journal`` of `run_sensitivity`: a variant's journal in ``journals``, continued when it is there (with
-    --resume), else new (replacing one with --overwrite)."""
+    --resume), else new (replacing one with --overwrite); ``run_of(config)`` is what identifies its run."""
     from batch import Journal
-    from envs.evaluation.evaluate import journal_run
 
     @contextlib.contextmanager
     def open_journal(name: str, config: Any) -> Iterator[Any]:
         path = journals / f"{name}.jsonl"
         resume = args.resume and path.is_file()
-        with Journal.open(path, journal_run(args.model, config), resume=resume, overwrite=args.overwrite) as journal:
+        with Journal.open(path, run_of(config), resume=resume, overwrite=args.overwrite) as journal:
             yield journal
 
     return open_journal

@@ -1,4 +1,5 @@
-"""Evaluation episodes exported while they are replayed (envs.evaluation.replay.replay_evaluation calls the
+"""Evaluation episodes exported while they are replayed or played back from their recording
+(envs.evaluation.replay.replay_evaluation calls the
 ``on_episode``, ``on_step`` and ``on_trace`` methods) at the export's frame rate: the data resampled onto the frames
 t_j = j / fps (envs.datasets.resample), and with a camera the frames rendered as the control steps reach them (frame j:
 the state of the first control step at or after t_j, the exact one when fps divides the control rate; LeRobot: one MP4
@@ -47,7 +48,9 @@ class EpisodeExport:
             scene = self.evaluation.scene
             evaluation = self.evaluation.config
             config = {"evaluation": to_jsonable(evaluation.settings()), "task": to_jsonable(evaluation.task.to_dict()),
-                      "scene": scene, "skill": self.evaluation.skill, "model": str(self.evaluation.model_dir)}
+                      "scene": scene, "skill": self.evaluation.skill,
+                      "model": None if self.evaluation.model_dir is None else str(self.evaluation.model_dir),
+                      **({} if self.evaluation.policy is None else {"policy": self.evaluation.policy})}
             self.meta = evaluation_meta(self.source, 1.0 / self.fps, str(scene.get("shape", env.shape)),
                                         float(scene.get("clearance_m", env.scene.config.clearance_m)), config,
                                         self.camera)

@@ -7,6 +7,11 @@ pipeline per demo seed s (a replicate) and reports what varies between replicate
     replicate s:  demos (starts drawn with seed s)  ->  training (seed s)  ->  evaluation of E episodes
                   (starts and hole-pose errors drawn with seed s + start_seed_offset, never equal to a demo seed)
 
+A user's policy (``ProtocolConfig.policy``, `pih benchmark --policy`) runs the same protocol with its own learner in
+place of the training: replicate s records the demos as above and calls the policy's factory (in each supervised
+worker of the evaluation) with two more options, ``demo_seed`` (s, as a string like every option) and ``demo_file``
+(the path of the replicate's demos.npz), so a learner trains per seed inside its factory (`replicate_policy`).
+
 Randomised per replicate: the demo starts, the training seed (initial weights, batches, prior samples), the
 evaluation starts and the per-episode perturbations (hole-pose error, grasp offset). Fixed: the task, the number of
 demos, the hyperparameters, the number of episodes. Everything is deterministic from the seeds.
@@ -65,6 +70,8 @@ class ProtocolConfig:
         demo_noise: record the demos as a real cell would (envs.demos.noise.DemoNoise.parse spec, seeded with the demo
             seed; None: the expert's clean demos). The demos then end apart, and the evaluation must place the hole
             at their mean goal (``evaluation.hole_at_goal``).
+        policy: a user's policy (envs.evaluation.evaluate_policy.PolicySpec) evaluated in place of the trained skill,
+            its factory given each replicate's demo seed and demo file (module docstring); None: the skill.
     """
 
     demo_seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
@@ -73,6 +80,7 @@ class ProtocolConfig:
     epochs: int | None = None
     evaluation: EvaluationConfig = field(default_factory=lambda: EvaluationConfig(episodes=200))
     demo_noise: str | None = None
+    policy: Any = None
 
     def __post_init__(self) -> None:
         seeds = self.demo_seeds
@@ -90,6 +98,13 @@ class ProtocolConfig:
             raise EnvError(f"num_demos={self.num_demos!r} must be an integer >= 1")
         if self.epochs is not None and (not isinstance(self.epochs, int) or self.epochs < 1):
             raise EnvError(f"epochs={self.epochs!r} must be an integer >= 1")
+        if self.policy is not None:
+            reserved = sorted(set(REPLICATE_OPTIONS) & {k for k, _ in self.policy.options})
+            if reserved:
+                raise EnvError(f"--policy-option {reserved[0]}: the protocol gives the factory this option itself "
+                               f"(one of {', '.join(REPLICATE_OPTIONS)})")
+            if self.epochs is not None:
+                raise EnvError("epochs: the protocol trains no skill for a --policy (its factory learns)")
         if self.demo_noise is not None:
             from envs.demos.noise import DemoNoise
 
@@ -107,6 +122,17 @@ class ProtocolConfig:
     def start_seeds(self) -> list[int]:
         """The evaluation start seed of each replicate."""
         return [s + self.start_seed_offset for s in self.demo_seeds]
+
+
+REPLICATE_OPTIONS: tuple[str, ...] = ("demo_seed", "demo_file")
+"""The options the protocol adds to a --policy's factory call in each replicate (module docstring)."""
+
+
+def replicate_policy(policy: Any, demo_seed: int, demo_file: str) -> Any:
+    """The replicate's policy spec: ``policy`` with the options ``demo_seed`` and ``demo_file`` (REPLICATE_OPTIONS)."""
+    from dataclasses import replace as replaced
+
+    return replaced(policy, options=(*policy.options, ("demo_seed", str(demo_seed)), ("demo_file", str(demo_file))))
 
 
 def parse_seeds(spec: str) -> tuple[int, ...]:

@@ -110,6 +110,8 @@ class _Setup:
 
     model_dir: str
     config: EvaluationConfig
+    record_dir: str | None = None
+    record_only: frozenset[int] | None = None
 
 
 def build_env(metadata: dict[str, Any], goal: Pose, config: EvaluationConfig) -> Any:
@@ -183,7 +185,8 @@ def _init_worker(setup: _Setup) -> dict[str, Any]:
     torch.set_num_threads(1)
     skill, env, policy = build_setup(setup.model_dir, setup.config)
     return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain,
-            "slots": SlotPool(env, policy, SlotMaker(skill, setup.config, env))}
+            "slots": SlotPool(env, policy, SlotMaker(skill, setup.config, env)), "record_dir": setup.record_dir,
+            "record_only": setup.record_only}
 
 
 class SlotPool:
@@ -235,20 +238,44 @@ class _Inherited:
 
 
 def _run_unit(context: dict[str, Any], start: StartPose) -> dict[str, Any]:
-    """The record (as a dict) of one episode (the policy privileged where the context says so)."""
-    return run_episode(context["env"], context["policy"], start, feedforward_gain=context["gain"],
-                       privileged=context.get("privileged", False))[0].to_dict()
+    """The record (as a dict) of one episode (the policy privileged where the context says so, a user's policy's
+    errors told apart, and the episode recorded into the context's "record_dir", `recorder`)."""
+    save = recorder(context)
+    record, trace = run_episode(context["env"], context["policy"], start, record_trace=save is not None,
+                                feedforward_gain=context["gain"], privileged=context.get("privileged", False),
+                                user_policy=context.get("user_policy", False))
+    if save is not None and trace is not None:
+        save(record, trace)
+    return record.to_dict()
 
 
 def _run_group(context: dict[str, Any], starts: list[StartPose]) -> list[dict[str, Any]]:
     """The records (as dicts) of episodes run in lockstep (envs.rollout.lockstep) on the context's slots
-    (`SlotPool`)."""
+    (`SlotPool`), as `_run_unit` runs one."""
     from envs.rollout.lockstep import run_lockstep
 
     envs, policies = zip(*context["slots"].take(len(starts)))
     records = run_lockstep(envs, policies, starts, feedforward_gain=context["gain"],
-                           privileged=context.get("privileged", False))
+                           privileged=context.get("privileged", False),
+                           user_policy=context.get("user_policy", False), on_trace=recorder(context))
     return [r.to_dict() for r in records]
+
+
+def recorder(context: dict[str, Any]) -> Callable[[EpisodeRecord, EpisodeTrace], None] | None:
+    """What writes an episode's trace into the recording (envs.evaluation.recording) when the context has one
+    ("record_dir"; "record_only": the indices to record, None for all), else None."""
+    folder = context.get("record_dir")
+    if folder is None:
+        return None
+    only = context.get("record_only")
+
+    def save(record: EpisodeRecord, trace: EpisodeTrace) -> None:
+        from envs.evaluation.recording import save_episode
+
+        if only is None or record.index in only:
+            save_episode(folder, record.to_dict(), trace)
+
+    return save
 
 
 def _failed_unit(key: str, start: StartPose, reason: str) -> dict[str, Any]:
@@ -290,7 +317,7 @@ def run_settings(config: EvaluationConfig) -> dict[str, Any]:
 
 def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = EvaluationConfig(),
              progress: bool = True, starts: Sequence[StartPose] | None = None,
-             journal: Journal | None = None) -> EvaluationResult:
+             journal: Journal | None = None, record_dir: str | os.PathLike[str] | None = None) -> EvaluationResult:
     """Run ``config.episodes`` episodes of the skill in ``model_dir`` and collect the records.
 
     Args:
@@ -300,6 +327,8 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
         starts: explicit start poses (default: `evaluation_starts` around the skill's demo starts).
         journal: episodes already in it are not run again; new records are appended as they finish
             (open it with `journal_run(model_dir, config)` as the run).
+        record_dir: record every episode's trace into this folder as it ends (envs.evaluation.recording; prepared
+            with `prepare_recording`); the result names it.
 
     Returns:
         EvaluationResult (records sorted by episode index; ``complete`` False and ``interrupted`` True
@@ -316,27 +345,31 @@ def evaluate(model_dir: str | os.PathLike[str], config: EvaluationConfig = Evalu
     env_scene = env.scene.config
     if starts is None:
         starts = evaluation_starts(metadata_starts(skill.metadata, skill_file(model_dir)), config)
+    folder = None if record_dir is None else str(Path(record_dir).resolve())
     here = {"env": env, "policy": policy, "gain": config.feedforward_gain,
-            "slots": SlotPool(env, policy, SlotMaker(skill, config, env))}
+            "slots": SlotPool(env, policy, SlotMaker(skill, config, env)), "record_dir": folder}
     del env, policy  # forked workers take their copy of ``here``, others build their own
-    outcome, records, earlier_s = run_episodes(starts, _Setup(str(model_dir), config), _init_worker, here, config,
-                                               progress, journal, f"evaluate ({config.mode})", inherit=True)
+    outcome, records, earlier_s = run_episodes(starts, _Setup(str(model_dir), config, folder), _init_worker, here,
+                                               config, progress, journal, f"evaluate ({config.mode})", inherit=True)
     from envs.evaluation.result import EvaluationResult
 
     return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, str(model_dir), skill.metadata,
                             to_jsonable(asdict(env_scene)), goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
                             outcome.workers, outcome.fault, task=config.task.with_scene(env_scene),
-                            events_before=outcome.events_before)
+                            events_before=outcome.events_before, recorded_episodes=folder)
 
 
 def run_episodes(starts: Sequence[StartPose], setup: Any, init_worker: Callable[[Any], dict[str, Any]],
                  here: dict[str, Any], config: EvaluationConfig, progress: bool, journal: Journal | None,
-                 desc: str, inherit: bool = False, isolate: bool = False) -> tuple[Any, list[EpisodeRecord], float]:
+                 desc: str, inherit: bool = False, isolate: bool = False,
+                 check: Callable[[dict[str, Any]], None] | None = None) -> tuple[Any, list[EpisodeRecord], float]:
     """The batch of an evaluation: each start an episode (`_run_unit`) in this process on ``here`` (the context of
     env, policy and gain built already) or in workers that build theirs with ``init_worker(setup)``; with
     ``inherit``, forked workers take their copy of ``here`` instead (`_Inherited`), and only spawned or Ray workers
     build their own. With ``isolate`` even one worker is a supervised process (`batch.BatchConfig.isolate`).
+    ``check`` sees every new record as it comes, after the journal got it: an exception it raises stops the batch
+    (its workers stopped, the journal keeping what finished) and leaves here.
 
     Returns:
         (the batch outcome, the records sorted by episode index, the wall time of the journal's earlier parts).
@@ -358,6 +391,8 @@ def run_episodes(starts: Sequence[StartPose], setup: Any, init_worker: Callable[
         successes[0] += bool(record.get("success"))
         bar.update(1)
         bar.set_postfix(success=f"{successes[0]}/{bar.n}")
+        if check is not None:
+            check(record)
 
     import torch
 

@@ -24,6 +24,18 @@ demo file's start poses with the same seed and ranges (envs.evaluation.starts.ev
 hole-pose error and grasp offset; success is the same physics check. So a policy evaluated on the demos a skill was
 trained on meets exactly the skill's starts and perturbations (`pih compare` pairs the two JSONs episode by episode).
 
+Errors in the policy. What the policy itself does wrong -- an exception out of its ``reset`` or ``act``, an action
+that is not an `Action` or one the controller cannot command -- ends that episode as failure "policy_error" with the
+policy's traceback (envs.rollout.episode). By default the first one stops the evaluation: its workers are stopped,
+the journal keeps the episodes that finished, and `envs.errors.PolicyFailure` carries the traceback out (`pih
+evaluate` prints it and exits 4, writing no success rate). With ``keep_going`` the evaluation runs on: such episodes
+are not failed insertions, so they are not scored -- listed apart in ``EvaluationResult.policy_errors``, out of the
+success rate's denominator -- and `pih evaluate --keep-going` still exits 4 after writing its JSON.
+
+Recorded episodes. With ``record_dir`` each worker writes every episode's trace into the recording as the episode
+ends (envs.evaluation.recording): what a video, a figure or a dataset of a policy's episodes is drawn from, since a
+user's policy is not replayed.
+
 Privileged. A teacher that needs the true hole (the scripted expert, envs.policies.expert) is evaluated with
 ``privileged=True`` (`--privileged`), which fills ``Observation.privileged``; the JSON records it.
 """
@@ -40,7 +52,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from batch import Journal, WorkerInitError
-from envs.errors import EnvError
+from envs.errors import EnvError, PolicyFailure
 from envs.evaluation.config import EvaluationConfig
 from envs.evaluation.evaluate import SlotPool, build_env, run_episodes, run_settings
 from envs.evaluation.result import EvaluationResult
@@ -278,6 +290,8 @@ class _PolicySetup:
     spec: PolicySpec
     metadata: dict[str, Any]
     config: EvaluationConfig
+    record_dir: str | None = None
+    record_only: frozenset[int] | None = None
 
 
 def _init_policy_worker(setup: _PolicySetup) -> dict[str, Any]:
@@ -287,7 +301,8 @@ def _init_policy_worker(setup: _PolicySetup) -> dict[str, Any]:
     torch.set_num_threads(1)
     env, policy = build_policy_setup(setup.spec, setup.metadata, setup.config)
     return {"env": env, "policy": policy, "gain": setup.config.feedforward_gain, "privileged": setup.spec.privileged,
-            "slots": SlotPool(env, policy, _PolicySlotMaker(setup))}
+            "slots": SlotPool(env, policy, _PolicySlotMaker(setup)), "user_policy": True,
+            "record_dir": setup.record_dir, "record_only": setup.record_only}
 
 
 class _PolicySlotMaker:
@@ -311,9 +326,29 @@ def policy_journal_run(spec: PolicySpec, metadata: dict[str, Any], config: Evalu
             "demo_sha256": metadata.get("demo_sha256"), **run_settings(config)}
 
 
+POLICY_ERROR = "policy_error"
+"""The failure kind of an episode in which the user's policy failed (module docstring)."""
+
+
+def policy_failure(record: dict[str, Any]) -> PolicyFailure | None:
+    """The `PolicyFailure` of a record whose policy failed (failure "policy_error"), else None."""
+    if record.get("failure") != POLICY_ERROR:
+        return None
+    reason = str(record.get("reason", POLICY_ERROR))
+    return PolicyFailure(int(record.get("index", -1)), reason, str(record.get("traceback") or reason))
+
+
+def _stop_at_policy_error(record: dict[str, Any]) -> None:
+    failure = policy_failure(record)
+    if failure is not None:
+        raise failure
+
+
 def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: EvaluationConfig = EvaluationConfig(),
                     progress: bool = True, starts: Sequence[StartPose] | None = None,
-                    journal: Journal | None = None) -> EvaluationResult:
+                    journal: Journal | None = None, keep_going: bool = False,
+                    record_dir: str | os.PathLike[str] | None = None,
+                    record_only: Sequence[int] | None = None) -> EvaluationResult:
     """Run ``config.episodes`` episodes of the user's policy (module docstring) and collect the records.
 
     Args:
@@ -324,11 +359,18 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
         progress: tqdm bar.
         starts: explicit starts (default: `evaluation_starts` around the demos' starts).
         journal: as for envs.evaluation.evaluate.evaluate (open it with `policy_journal_run`).
+        keep_going: run on after the policy fails in an episode (module docstring); False: stop at the first.
+        record_dir: record the episodes' traces into this folder as they end (envs.evaluation.recording, prepared
+            with `prepare_recording`); the result names it.
+        record_only: record only these episode indices (None: all).
 
     Returns:
-        EvaluationResult with ``policy`` set (``model_dir`` empty).
+        EvaluationResult with ``policy`` set (``model_dir`` empty), the episodes in which the policy failed in
+        ``policy_errors`` (only with ``keep_going``).
 
     Raises:
+        PolicyFailure: without ``keep_going``, the policy failed in an episode (one the journal holds, or the first
+            of this run), with its traceback; the journal keeps what finished.
         EnvError: a bad spec, a factory that fails or returns no Policy (in the worker that calls it), an invalid
             scene, no demo starts.
         BatchError: workers that cannot build the environment.
@@ -342,16 +384,27 @@ def evaluate_policy(spec: PolicySpec, metadata: dict[str, Any], config: Evaluati
     if starts is None:
         starts = evaluation_starts(metadata_starts(metadata, f"--demos {metadata.get('demo_file')}"), config)
     del env  # the workers build their own, with the policy
+    check = None if keep_going else _stop_at_policy_error
+    if check is not None and journal is not None:  # a resumed run stops where the earlier one did
+        wanted = {str(s.index) for s in starts}
+        for key, record in sorted(journal.done().items(), key=lambda kv: int(kv[0]) if kv[0].isdigit() else -1):
+            if key in wanted:
+                check(record)
+    folder = None if record_dir is None else str(Path(record_dir).resolve())
+    setup = _PolicySetup(spec, metadata, config, folder, None if record_only is None else frozenset(record_only))
     try:
-        outcome, records, earlier_s = run_episodes(starts, _PolicySetup(spec, metadata, config), _init_policy_worker,
-                                                   {}, config, progress, journal, f"evaluate ({spec.spec})",
-                                                   isolate=True)  # a user's code may take its process down
+        outcome, records, earlier_s = run_episodes(starts, setup, _init_policy_worker, {}, config, progress, journal,
+                                                   f"evaluate ({spec.spec})", isolate=True,  # a user's code may take
+                                                   check=check)                              # its process down
     except WorkerInitError as err:
         if err.kind == "EnvError":  # the factory (or its module) failed in the worker: the user's input
             raise EnvError(err.detail) from None
         raise
-    return EvaluationResult(config, records, earlier_s + time.perf_counter() - wall, "", metadata, scene,
+    scored = [r for r in records if r.failure != POLICY_ERROR]
+    return EvaluationResult(config, scored, earlier_s + time.perf_counter() - wall, "", metadata, scene,
                             goal_mismatch_mm, outcome.complete, outcome.interrupted,
                             [record_from_dict(r) for r in outcome.infrastructure_errors.values()], outcome.events,
                             outcome.workers, outcome.fault, policy=spec.to_dict(),
-                            task=config.task.with_scene(scene_config), events_before=outcome.events_before)
+                            task=config.task.with_scene(scene_config), events_before=outcome.events_before,
+                            policy_errors=[r for r in records if r.failure == POLICY_ERROR],
+                            recorded_episodes=folder)

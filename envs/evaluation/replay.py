@@ -1,5 +1,7 @@
 """A recorded evaluation replayed: its configuration and starts read back from the JSON of `pih evaluate`, and
-its episodes re-run with traces (envs.rollout.episode.EpisodeTrace).
+its episodes re-run with traces (envs.rollout.episode.EpisodeTrace) -- or, when the evaluation recorded its episodes
+as they ran (`pih evaluate --record-episodes`, envs.evaluation.recording: any policy's, a user's among them), played
+back from that recording, each checked against its record, without running any policy again.
 
 An evaluation JSON holds no per-step traces, but an episode is deterministic in its start and perturbation:
 the starts are drawn again from the checkpoint's demo starts with the recorded seed and ranges
@@ -44,19 +46,23 @@ class RecordedEvaluation:
 
     Attributes:
         path: the JSON file.
-        model_dir: the checkpoint it evaluated.
+        model_dir: the checkpoint it evaluated (None for a recorded evaluation, which needs none).
         config: its EvaluationConfig with the task the episodes ran (run in one process for the replay).
         scene: the scene it ran in (asdict of SceneConfig).
         skill: the checkpoint's metadata (demo starts, shape, clearance, ...).
         records: the per-episode records (dicts, as in the file).
+        recording: the folder of its recorded episodes (envs.evaluation.recording), or None.
+        policy: a user policy's spec, options and privilege (`pih evaluate --policy`), or None.
     """
 
     path: Path
-    model_dir: Path
+    model_dir: Path | None
     config: EvaluationConfig
     scene: dict[str, Any]
     skill: dict[str, Any]
     records: list[dict[str, Any]]
+    recording: Path | None = None
+    policy: dict[str, Any] | None = None
 
 
 LEGACY_TASK_KEYS: tuple[str, ...] = ("pos_range_m", "rot_range_deg", "around", "time_limit_s", "clearance_m",
@@ -198,11 +204,12 @@ def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[s
     Args:
         path: the JSON file.
         model_dir: the checkpoint (default: the file's "model", taken relative to the current folder, else
-            to the JSON's folder).
+            to the JSON's folder); none for an evaluation whose episodes were recorded.
 
     Raises:
         EnvError: missing or unreadable file, missing keys, an incomplete evaluation, no checkpoint folder, an
-            evaluation of a user policy (`pih evaluate --policy`).
+            evaluation of a user policy (`pih evaluate --policy`) that recorded no episodes, a recording that is not
+            there.
     """
     src = Path(path)
     if not src.is_file():
@@ -213,9 +220,15 @@ def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[s
         raise EnvError(f"{src}: not a readable evaluation JSON ({type(err).__name__}: {err})") from None
     if not isinstance(data, dict):
         raise EnvError(f"{src}: not an evaluation JSON (a JSON object from `pih evaluate --json`)")
-    if isinstance(data.get("policy"), dict):
-        raise EnvError(f"{src}: an evaluation of --policy {data['policy'].get('spec')} cannot be replayed (only the "
-                       "RiemannianFlow skill's, from its checkpoint)")
+    from envs.evaluation.recording import recording_folder
+
+    policy = data.get("policy") if isinstance(data.get("policy"), dict) else None
+    recording = recording_folder(data, src)
+    if policy is not None and recording is None:
+        raise EnvError(f"{src}: an evaluation of --policy {policy.get('spec')} cannot be replayed (a policy is not run "
+                       "again): evaluate it with --record-episodes DIR to export its episodes")
+    if recording is not None and model_dir is not None:
+        raise EnvError(f"--model {model_dir}: {src} recorded its episodes ({recording}); they are exported from there")
     missing = [k for k in ("model", "config", "per_episode", "skill") if k not in data]
     if missing:
         raise EnvError(f"{src}: missing keys {missing} (not written by `pih evaluate --json`?)")
@@ -223,7 +236,9 @@ def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[s
     if not isinstance(records, list) or not records or not all(isinstance(r, dict) for r in records):
         raise EnvError(f"{src}: 'per_episode' must be a non-empty list of episode records")
     check_recorded(data, str(src))
-    if model_dir is None:
+    if recording is not None:
+        pass
+    elif model_dir is None:
         candidates = [Path(str(data["model"])), src.parent / str(data["model"])]
         found = next((c for c in candidates if c.is_dir()), None)
         if found is None:
@@ -233,7 +248,8 @@ def load_evaluation(path: str | os.PathLike[str], model_dir: str | os.PathLike[s
         raise EnvError(f"--model {model_dir}: checkpoint folder not found")
     skill = data["skill"] if isinstance(data["skill"], dict) else {}
     config = evaluation_config_from_dict(data["config"], str(src), data.get("task"))
-    return RecordedEvaluation(src, Path(model_dir), config, data.get("scene") or {}, skill, records)
+    return RecordedEvaluation(src, None if model_dir is None else Path(model_dir), config, data.get("scene") or {},
+                              skill, records, recording, policy)
 
 
 def recorded_starts(evaluation: RecordedEvaluation, indices: Sequence[int] | None = None) -> list[StartPose]:
@@ -308,9 +324,41 @@ def replay_evaluation(evaluation: RecordedEvaluation, indices: Sequence[int] | N
     skipped = {i: str(by_index[i].get("reason")) for i in chosen
                if i in by_index and str(by_index[i].get("reason", "")).startswith(NO_TRAJECTORY)}
     starts = recorded_starts(evaluation, [i for i in chosen if i not in skipped])
+    if evaluation.recording is not None:
+        return _play_recorded(evaluation, starts, by_index, on_step, on_episode, on_trace), skipped
     replays = iter_replays(evaluation.model_dir, evaluation.config, starts, on_step=on_step, on_episode=on_episode)
     for start, (replayed, trace) in zip(starts, replays):
         check_replay(by_index[start.index], replayed, str(evaluation.path))
         if on_trace is not None and trace is not None:
             on_trace(by_index[start.index], replayed, trace)
     return [s.index for s in starts], skipped
+
+
+def _play_recorded(evaluation: RecordedEvaluation, starts: Sequence[StartPose], by_index: dict[int, dict[str, Any]],
+                   on_step: Callable[[Any], None] | None, on_episode: Callable[[StartPose, Any], None] | None,
+                   on_trace: Callable[[dict[str, Any], EpisodeRecord, EpisodeTrace], None] | None) -> list[int]:
+    """`replay_evaluation` of a recorded evaluation: each chosen episode's recording read and checked against its
+    record, played back for ``on_step`` (envs.evaluation.recording.play) and handed to ``on_trace``."""
+    from envs.evaluation.evaluate import build_env
+    from envs.evaluation.recording import check_episode, episode_file, load_episode, play
+    from envs.poses import Pose
+    from envs.rollout.episode import record_from_dict
+
+    assert evaluation.recording is not None
+    source = f"{evaluation.path} (recording {evaluation.recording})"
+    recorded = []
+    for start in starts:  # every file checked before any is exported
+        record = by_index[start.index]
+        kept, trace = load_episode(episode_file(evaluation.recording, start.index))
+        check_episode(kept, record, trace, source)
+        recorded.append((start, record))
+    skill = evaluation.skill
+    env = build_env(skill, Pose(pos=skill["goal_pos"], quat=skill["goal_quat"]), evaluation.config)
+    for start, record in recorded:
+        _, trace = load_episode(episode_file(evaluation.recording, start.index))
+        if on_episode is not None:
+            on_episode(start, env)
+        play(env, start, trace, on_step)
+        if on_trace is not None:
+            on_trace(record, record_from_dict(record), trace)
+    return [s.index for s in starts]

@@ -2,7 +2,9 @@
 
 Statistics. The success rate p = k/n over the scored episodes with its 95 % Wilson score interval
 (envs.statistics.fixed_sample); medians and maxima of the per-episode figures over the finite values; failures counted
-by kind. Infrastructure errors (episodes whose every try lost its worker) are listed apart, not scored.
+by kind. Infrastructure errors (episodes whose every try lost its worker) and a user's policy's errors ("policy_error":
+the policy raised, or returned an action that cannot be commanded; not failed insertions) are listed apart, not
+scored.
 """
 
 from __future__ import annotations
@@ -69,6 +71,10 @@ class EvaluationResult:
         policy: a user policy's spec, options and privilege (`pih evaluate --policy`); None for the skill.
         task: the task the episodes ran: ``config.task`` with the scene it ran in (`Task.with_scene`); None: the
             config's.
+        policy_errors: episodes in which a user's policy failed (failure "policy_error": it raised, or returned an
+            action that cannot be commanded; `pih evaluate --policy --keep-going`): not failed insertions, so not
+            scored -- out of ``records``, the success rate's denominator and the statistics -- and listed apart.
+        recorded_episodes: the folder the episodes' traces were recorded into (envs.evaluation.recording), or None.
     """
 
     config: EvaluationConfig
@@ -87,6 +93,8 @@ class EvaluationResult:
     policy: dict[str, Any] | None = None
     task: Task | None = None
     events_before: int = 0
+    policy_errors: list[EpisodeRecord] = field(default_factory=list)
+    recorded_episodes: str | None = None
 
     @property
     def new_events(self) -> list[dict[str, Any]]:
@@ -179,7 +187,9 @@ class EvaluationResult:
             "per_episode": [r.to_dict() for r in self.records],
             "infrastructure_errors": [r.to_dict() for r in self.infrastructure_errors],
             "infrastructure_events": self.infrastructure_events,
-            **({} if self.policy is None else {"policy": self.policy}),
+            **({} if self.policy is None else {"policy": self.policy,
+                                               "policy_errors": [r.to_dict() for r in self.policy_errors]}),
+            **({} if self.recorded_episodes is None else {"recorded_episodes": {"folder": self.recorded_episodes}}),
         }
 
     def save_json(self, path: str | os.PathLike[str]) -> Path:
@@ -206,7 +216,9 @@ class EvaluationResult:
             ("success rate", f"{100 * self.success_rate:.1f} % ({self.num_success}/{len(self.records)}), "
                              f"95 % CI [{100 * low:.1f}, {100 * high:.1f}] %" if self.records else
                              "none: no episode completed" + (f" ({len(self.infrastructure_errors)} lost to "
-                                                              "infrastructure)" if self.infrastructure_errors else "")),
+                                                              "infrastructure)" if self.infrastructure_errors else "")
+                             + (f" ({len(self.policy_errors)} policy errors, not scored)" if self.policy_errors
+                                else "")),
             ("time to insert (median/max)", f"{fmt(s['median_time_to_insert_s'], 's')} / {fmt(s['max_time_to_insert_s'], 's')}"),
             ("final position error (median)", fmt(s["median_final_pos_error_mm"], "mm")),
             ("final angle error (median)", fmt(s["median_final_angle_error_deg"], "deg")),
@@ -224,11 +236,19 @@ class EvaluationResult:
                                     f"{fmt(s['min_stiffness_n_m'], 'N/m', 0)} to {fmt(s['max_stiffness_n_m'], 'N/m', 0)}"),
             *self._reproduction_rows(),
             ("failures", ", ".join(f"{k}: {v}" for k, v in s["failures_by_kind"].items()) or "none"),
+            *self._policy_error_rows(),
             ("infrastructure", self._infrastructure_text()),
             ("wall time", f"{self.wall_s:.1f} s ({self.workers} worker(s))"),
         ]
         width = max(len(k) for k, _ in rows)
         return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+    def _policy_error_rows(self) -> list[tuple[str, str]]:
+        if not self.policy_errors:
+            return []
+        first = self.policy_errors[0]
+        return [("policy errors", f"{len(self.policy_errors)} episode(s), not scored (first: episode {first.index}, "
+                                  f"{first.reason.removeprefix('policy_error: ')})")]
 
     def _infrastructure_text(self) -> str:
         events = self.infrastructure_events

@@ -86,16 +86,19 @@ def plot_loss(histories: Mapping[str, Mapping[str, Sequence[float]]], path: str 
 
 
 def plot_skill(demos: Sequence[PoseCurve], plans: Sequence[PoseCurve], executed: Sequence[PoseCurve],
-               goal_pos: npt.ArrayLike, path: str | os.PathLike[str], title: str = "") -> Path:
+               goal_pos: npt.ArrayLike, path: str | os.PathLike[str], title: str = "",
+               plan_label: str = "generated") -> Path:
     """The paper's peg-in-hole figure: (a) 3-D positions, (b) Log_g(q) components against time.
 
     Args:
         demos: demonstrations.
-        plans: generated trajectories (from the executed episodes' start poses).
+        plans: generated trajectories (from the executed episodes' start poses), or what a policy commanded
+            (``plan_label`` "commanded").
         executed: measured peg_tip trajectories.
         goal_pos: (3,) goal position (marked).
         path: PNG to write.
         title: figure title.
+        plan_label: the legend's name of ``plans``.
 
     Returns:
         The written path.
@@ -104,7 +107,7 @@ def plot_skill(demos: Sequence[PoseCurve], plans: Sequence[PoseCurve], executed:
     grid = fig.add_gridspec(1, 4, width_ratios=[1.5, 1, 1, 1])
     ax3 = fig.add_subplot(grid[0], projection="3d")
     comp_axes = [fig.add_subplot(grid[k + 1]) for k in range(3)]
-    groups = (("demonstrations", demos, DEMO_STYLE), ("generated", plans, PLAN_STYLE), ("executed", executed, EXEC_STYLE))
+    groups = (("demonstrations", demos, DEMO_STYLE), (plan_label, plans, PLAN_STYLE), ("executed", executed, EXEC_STYLE))
     for label, curves, style in groups:
         for i, c in enumerate(curves):
             lab = label if i == 0 else None

@@ -10,7 +10,11 @@ caller runs episodes here: evaluation, the recording of demos (the scripted expe
 (a replay of recorded poses, scripts/render.py) and the Gymnasium environment.
 
 An unreachable or colliding start is recorded as a failure with its reason, and any exception inside an
-episode is recorded as "error: ..."; an episode never raises.
+episode is recorded as "error: ..."; an episode never raises. Run as a user's policy (``user_policy=True``, `pih
+evaluate --policy`), what the policy itself did wrong is told apart: an exception out of its ``reset`` or ``act``, an
+action that is not an `Action`, or one the controller cannot command (envs.errors.ActionError) ends the episode as
+failure "policy_error", its reason the traceback's last line, and the record keeps the policy's traceback
+(`EpisodeRecord.traceback`) for the evaluation to show or stop on (envs/evaluation/evaluate_policy.py).
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 import numpy.typing as npt
 
-from envs.errors import EnvError
+from envs.errors import ActionError, EnvError
 from envs.policies.interface import Action, Policy, observe
 from envs.poses import Pose, quat_angle_rad
 from envs.rollout.failure import ProgressWindow
@@ -62,9 +66,10 @@ class EpisodeRecord:
         start_pos, start_quat: start pose (m; w, x, y, z).
         success: the physics check declared success.
         reason: "success", "time_limit (...)", "force_limit (...)", "instability: ...", "unreachable start: ...",
-            "error: ...".
+            "error: ...", "policy_error: Type: message at file:line" (a user's policy, module docstring).
         failure: what went wrong when it failed (envs.rollout.failure: "jammed", "free_space_timeout",
-            "left_grasp", "time_limit", "force_limit", "instability", "unreachable_start", "error"); None on success.
+            "left_grasp", "time_limit", "force_limit", "instability", "unreachable_start", "error",
+            "policy_error"); None on success.
         perturbation: the episode's hole-pose error and grasp offset (mm, deg).
         time_to_insert_s: simulated time until success (None on failure).
         final_pos_error_mm: ||p_final - g_p|| against the real (perturbed) hole's goal.
@@ -86,6 +91,8 @@ class EpisodeRecord:
         final_pos, final_quat: measured peg_tip pose at the end.
         steps: control steps run.
         wall_s: wall-clock seconds.
+        traceback: a user's policy's traceback when it failed ("policy_error"), else None (and then left out of
+            ``to_dict``, so every other record reads as before).
     """
 
     index: int
@@ -120,10 +127,11 @@ class EpisodeRecord:
     final_quat: list[float] | None = None
     steps: int = 0
     wall_s: float = 0.0
+    traceback: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (NaN becomes None)."""
-        return {k: _finite_or_none(v) for k, v in asdict(self).items()}
+        """JSON-ready dict (NaN becomes None; ``traceback`` only when there is one)."""
+        return {k: _finite_or_none(v) for k, v in asdict(self).items() if k != "traceback" or v is not None}
 
 
 def record_from_dict(values: dict[str, Any]) -> EpisodeRecord:
@@ -165,6 +173,8 @@ class EpisodeTrace:
         sensed_wrench: (K, 6) what the cell's sensor read of it (noise, bias, low-pass: what the policy saw).
         rot_stiffness: (K,) rotational stiffness commanded for the step ending at each row (as ``stiffness``),
             N m/rad (the mean of K_r's diagonal for a 6x6 stiffness).
+        sim_qpos: (K, nq) the simulator's whole position state (arm, fingers, peg) at each row: what draws the
+            episode again without running it (envs.evaluation.recording).
     """
 
     times_s: FloatArray
@@ -182,6 +192,7 @@ class EpisodeTrace:
     success: npt.NDArray[np.bool_]
     sensed_wrench: FloatArray | None = None
     rot_stiffness: FloatArray | None = None
+    sim_qpos: FloatArray | None = None
 
 
 # --------------------------------------------------------------------------------------------- episode
@@ -189,7 +200,8 @@ class EpisodeTrace:
 
 def run_episode(env: PegInHoleEnv, policy: Policy, start: StartPose, record_trace: bool = False,
                 on_step: Callable[[PegInHoleEnv], None] | None = None, feedforward_gain: float = 1.0,
-                privileged: bool = False, max_steps: int | None = None) -> tuple[EpisodeRecord, EpisodeTrace | None]:
+                privileged: bool = False, max_steps: int | None = None,
+                user_policy: bool = False) -> tuple[EpisodeRecord, EpisodeTrace | None]:
     """Run one episode from ``start`` with ``policy`` and score it (never raises for a failed episode: an action
     that is not an `Action`, or one the controller rejects, ends it as "error: ...").
 
@@ -203,11 +215,13 @@ def run_episode(env: PegInHoleEnv, policy: Policy, start: StartPose, record_trac
         privileged: hand the policy the true hole and goal (``Observation.privileged``), for a teacher only.
         max_steps: end the episode after this many control periods even if the env would go on (a caller's
             horizon, e.g. a demo's plan); None: the env's end (success, time or force limit, instability).
+        user_policy: a user's policy: its own errors end the episode as "policy_error" with its traceback (module
+            docstring); False: as "error" (the built-in skill, the expert recording demos).
 
     Returns:
         (EpisodeRecord, EpisodeTrace or None).
     """
-    run = EpisodeRun(env, policy, start, record_trace, on_step, feedforward_gain, privileged, max_steps)
+    run = EpisodeRun(env, policy, start, record_trace, on_step, feedforward_gain, privileged, max_steps, user_policy)
     run.begin()
     while run.running:
         period = run.command(run.act())
@@ -222,11 +236,11 @@ class EpisodeRun:
     (envs.rollout.lockstep) while each runs exactly the arithmetic of `run_episode`, which is this class run
     alone: ``begin``; while ``running``: ``act`` (or an action from a batched policy), ``command`` -> a prepared
     period, ``physics``, ``complete``; then ``finish``. Any exception inside ends the episode as "error: ..." (never
-    raised)."""
+    raised); with ``user_policy``, the policy's own as "policy_error: ..." (module docstring)."""
 
     def __init__(self, env: PegInHoleEnv, policy: Policy, start: StartPose, record_trace: bool = False,
                  on_step: Callable[[PegInHoleEnv], None] | None = None, feedforward_gain: float = 1.0,
-                 privileged: bool = False, max_steps: int | None = None):
+                 privileged: bool = False, max_steps: int | None = None, user_policy: bool = False):
         self.env = env
         self.policy = policy
         self.start = start
@@ -235,6 +249,7 @@ class EpisodeRun:
         self.gain = feedforward_gain
         self.privileged = privileged
         self.max_steps = max_steps
+        self.user_policy = user_policy
         self.record = EpisodeRecord(start.index, start.demo_index, start.pose.pos.tolist(), start.pose.quat.tolist(),
                                     perturbation=start.perturbation.to_dict())
         self.running = False
@@ -242,6 +257,7 @@ class EpisodeRun:
         self._rows: list[tuple[Any, Pose]] = []  # (observation, commanded tcp pose) of every row
         self._commanded: list[FloatArray] = []  # translational stiffness of every step
         self._rotational: list[float] = []  # rotational stiffness of every step (for the trace)
+        self._states: list[FloatArray] = []  # the simulator's qpos of every row (for the trace)
         self._progress: ProgressWindow | None = None
         self._action: Action | None = None
         self._steps = 0
@@ -259,8 +275,14 @@ class EpisodeRun:
                 self._finished = True
                 return False
             period = env.control_period_s
-            self.policy.reset(observe(env, self.privileged), period)
+            try:
+                self.policy.reset(observe(env, self.privileged), period)
+            except Exception as err:
+                self.fail(err, by_policy=True)
+                return False
             self._rows.append((obs, obs.tcp))
+            if self.record_trace:
+                self._states.append(env.data.qpos.copy())
             self._progress = ProgressWindow(period)
             _add_progress(self._progress, obs)
             if self.on_step is not None:
@@ -277,9 +299,14 @@ class EpisodeRun:
     def act(self) -> Any:
         """The policy's action for the coming period (None after an error, which ended the episode)."""
         try:
-            return self.policy.act(self.observation())
+            observation = self.observation()
         except Exception as err:
             self.fail(err)
+            return None
+        try:
+            return self.policy.act(observation)
+        except Exception as err:
+            self.fail(err, by_policy=True)
             return None
 
     def command(self, action: Any) -> PeriodCommand | None:
@@ -290,13 +317,17 @@ class EpisodeRun:
             return None
         try:
             if not isinstance(action, Action):
-                raise EnvError(f"{type(self.policy).__name__}.act returned a {type(action).__name__}, not an Action")
+                raise ActionError(f"{type(self.policy).__name__}.act returned a {type(action).__name__}, not an "
+                                  "Action")
             for name in ("pose", "anchor"):
                 value = getattr(action, name)
                 if not (isinstance(value, Pose) or (name == "anchor" and value is None)):
-                    raise EnvError(f"{type(self.policy).__name__}.act returned an Action whose {name} is a "
-                                   f"{type(value).__name__}, not an envs.poses.Pose")
+                    raise ActionError(f"{type(self.policy).__name__}.act returned an Action whose {name} is a "
+                                      f"{type(value).__name__}, not an envs.poses.Pose")
             period = self.env.prepare_period(action, feedforward_gain=self.gain)
+        except ActionError as err:
+            self.fail(err, by_policy=True, in_action=True)
+            return None
         except Exception as err:
             self.fail(err)
             return None
@@ -326,6 +357,7 @@ class EpisodeRun:
             self._steps += 1
             if self.record_trace:
                 self._rows.append((result.obs, period.commanded))
+                self._states.append(env.data.qpos.copy())
             if self.on_step is not None:
                 self.on_step(env)
             self.running = not env.done and (self.max_steps is None or self._steps < self.max_steps)
@@ -348,6 +380,8 @@ class EpisodeRun:
             k = np.stack(commanded[:1] + commanded) if commanded else np.full((len(rows), 3, 3), np.nan)
             kr = np.array(self._rotational[:1] + self._rotational) if self._rotational else np.full(len(rows), np.nan)
             trace = _trace_of(rows, k[:len(rows)], kr[:len(rows)])
+            if len(self._states) == len(rows):
+                trace.sim_qpos = np.array(self._states)
         return rec, trace
 
     def _score(self) -> None:
@@ -382,19 +416,57 @@ class EpisodeRun:
             rec.min_stiffness_n_m, rec.max_stiffness_n_m = float(eig.min()), float(eig.max())
             rec.start_stiffness_eig_n_m, rec.final_stiffness_eig_n_m = eig[0].tolist(), eig[-1].tolist()
 
-    def fail(self, err: BaseException) -> None:
-        """End the episode as "error: Type: message at file:line" (an episode must never abort the batch)."""
+    def fail(self, err: BaseException, by_policy: bool = False, in_action: bool = False) -> None:
+        """End the episode as "error: Type: message at file:line" (an episode must never abort the batch); an error
+        ``by_policy`` (its reset or act raised, or ``in_action``: its action is not one the controller can command)
+        of a user's policy as "policy_error: ..." with the policy's traceback (module docstring)."""
         rec = self.record
-        last = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
+        kind = "policy_error" if by_policy and self.user_policy else "error"
+        tb = err.__traceback__
+        if kind == "policy_error":  # where in the policy's own code; none for its action, which our code refused
+            tb = None if in_action else _policy_frames(tb)
+        last = traceback.extract_tb(tb)[-1] if tb else None
         where = f" at {Path(last.filename).name}:{last.lineno}" if last else ""
         try:
             text = str(err)
         except Exception:  # noqa: BLE001 -- an exception that cannot print itself still ends only its episode
             text = "(its message could not be printed)"
-        rec.success, rec.failure = False, "error"
-        rec.reason = f"error: {type(err).__name__}: {text.splitlines()[0] if text else ''}{where}"
+        rec.success, rec.failure = False, kind
+        rec.reason = f"{kind}: {type(err).__name__}: {text.splitlines()[0] if text else ''}{where}"
+        if kind == "policy_error":
+            rec.traceback = policy_traceback(err, tb, self.policy)
         self.running = False
         self._finished = True
+
+
+_LOOP_MODULES = (__name__, "envs.rollout.lockstep")
+"""The episode loop's own modules: their frames are left out of a policy's traceback."""
+
+
+def _policy_frames(tb: Any) -> Any:
+    """The traceback ``tb`` from its first frame outside the episode loop on (the policy's own call)."""
+    while tb is not None and tb.tb_frame.f_globals.get("__name__") in _LOOP_MODULES:
+        tb = tb.tb_next
+    return tb
+
+
+def policy_traceback(err: BaseException, tb: Any, policy: Any) -> str:
+    """The traceback of a user's policy's error as Python prints it, ``tb`` its frames from the policy's own on;
+    without them (an action our code refused), the exception line and where the policy's class is defined."""
+    try:
+        text = "".join(traceback.format_exception(type(err), err, tb))
+    except Exception:  # noqa: BLE001 -- an exception that cannot print itself
+        text = f"{type(err).__name__}: (its message could not be printed)\n"
+    if tb is None:
+        import inspect
+
+        cls = type(policy)
+        try:
+            where = f"{inspect.getsourcefile(cls)}, line {inspect.getsourcelines(cls)[1]}"
+        except (OSError, TypeError):
+            where = "its source is not available"
+        text = f"the policy {cls.__module__}.{cls.__qualname__} ({where}):\n{text}"
+    return text
 
 
 def _add_progress(progress: ProgressWindow, obs: Any) -> None:

@@ -11,7 +11,9 @@ happened, so it is told apart from the peg's last ``window_s`` of control period
                         depth in the hole changed by less than ``jam_progress_m``: stuck under load
     time_limit          none of these: in contact and moving, too slowly or back and forth
 
-The other reasons map to "force_limit", "instability", "unreachable_start" and "error". The defaults: 1 s of no
+The other reasons map to "force_limit", "instability", "unreachable_start", "error" and "policy_error" (a user's
+policy raised or returned an action that cannot be commanded, envs.rollout.episode: not a failed insertion, and not
+scored, envs.evaluation.evaluate_policy). The defaults: 1 s of no
 progress is 100 control periods, longer than the contact adaptation's stall search takes to sweep once (1 s period);
 0.5 mm of depth is the chamfer's slope at the 0.2 mm clearance seen over a second of sliding; 5 N is above the
 wrist sensor's dynamic residue in free space (< 1 N) and below the 40 N force limit; 5 mm of slip is beyond the
@@ -24,7 +26,7 @@ from collections import deque
 from dataclasses import dataclass
 
 FAILURE_KINDS: tuple[str, ...] = ("left_grasp", "free_space_timeout", "jammed", "time_limit", "force_limit",
-                                  "instability", "unreachable_start", "error")
+                                  "instability", "unreachable_start", "error", "policy_error")
 """The kinds `ProgressWindow.failure` gives, in the order they are checked for a time limit, then the others."""
 
 
@@ -68,7 +70,8 @@ class ProgressWindow:
     def failure(self, reason: str) -> str:
         """The failure kind (FAILURE_KINDS) of an episode that ended for ``reason`` without success."""
         for prefix, kind in (("force_limit", "force_limit"), ("instability", "instability"),
-                             ("unreachable start", "unreachable_start"), ("error", "error")):
+                             ("unreachable start", "unreachable_start"), ("error", "error"),
+                             ("policy_error", "policy_error")):
             if reason.startswith(prefix):
                 return kind
         c = self.criteria

@@ -26,7 +26,7 @@ from contextlib import nullcontext
 from typing import Any, Callable, Sequence
 
 from envs.errors import EnvError
-from envs.rollout.episode import EpisodeRecord, EpisodeRun, StartPose
+from envs.rollout.episode import EpisodeRecord, EpisodeRun, EpisodeTrace, StartPose
 
 
 def act_for(runs: Sequence[EpisodeRun]) -> list[Any]:
@@ -56,7 +56,7 @@ def act_for(runs: Sequence[EpisodeRun]) -> list[Any]:
             continue
         for i, action in zip(members, batch):
             if isinstance(action, Exception):
-                runs[i].fail(action)
+                runs[i].fail(action, by_policy=True)
                 action = None
             actions[i] = action
     return actions
@@ -71,7 +71,8 @@ def _batch_key(policy: Any) -> Any:
 
 def run_lockstep(envs: Sequence[Any], policies: Sequence[Any], starts: Sequence[StartPose],
                  feedforward_gain: float = 1.0, privileged: bool = False, threads: int = 1,
-                 on_record: Callable[[EpisodeRecord], None] | None = None) -> list[EpisodeRecord]:
+                 on_record: Callable[[EpisodeRecord], None] | None = None, user_policy: bool = False,
+                 on_trace: Callable[[EpisodeRecord, EpisodeTrace], None] | None = None) -> list[EpisodeRecord]:
     """Run the episodes of ``starts`` in lockstep on the slots (envs[i], policies[i]) (module docstring).
 
     Args:
@@ -82,6 +83,9 @@ def run_lockstep(envs: Sequence[Any], policies: Sequence[Any], starts: Sequence[
         feedforward_gain, privileged: as for `run_episode`.
         threads: threads that run the slots' physics (1: in this thread).
         on_record: called with each record as its episode ends.
+        user_policy: as for `run_episode` (a user's policy's errors are "policy_error").
+        on_trace: called with each episode's record and trace (`EpisodeTrace`, recorded only when this is given) as
+            it ends, before ``on_record``.
 
     Returns:
         The records in the order of ``starts``.
@@ -101,15 +105,17 @@ def run_lockstep(envs: Sequence[Any], policies: Sequence[Any], starts: Sequence[
     slots: list[tuple[int, EpisodeRun] | None] = [None] * len(envs)
 
     def finish(index: int, run: EpisodeRun) -> None:
-        records[index] = run.finish()[0]
+        records[index], trace = run.finish()
+        if on_trace is not None and trace is not None:
+            on_trace(records[index], trace)
         if on_record is not None:
             on_record(records[index])
 
     def fill(slot: int) -> None:
         while queue:
             index, start = queue.pop()
-            run = EpisodeRun(envs[slot], policies[slot], start, feedforward_gain=feedforward_gain,
-                             privileged=privileged)
+            run = EpisodeRun(envs[slot], policies[slot], start, record_trace=on_trace is not None,
+                             feedforward_gain=feedforward_gain, privileged=privileged, user_policy=user_policy)
             if run.begin():
                 slots[slot] = (index, run)
                 return

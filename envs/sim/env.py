@@ -48,7 +48,7 @@ from controllers.interface import Controller
 from envs.cell.scene import Scene, build_scene
 from envs.cell.scene_config import SceneConfig, goal_from_hole
 from envs.cell.shapes import PEG_LENGTH_M, peg_cross_section
-from envs.errors import EnvError
+from envs.errors import ActionError, EnvError
 from envs.geometry import as_vector
 from envs.poses import (Pose, format_pose, quat_from_rotvec_one, quat_mul_one, nominal_start, rotate,
                         sample_start_poses, validate_pose)
@@ -442,7 +442,8 @@ class PegInHoleEnv:
         `finish_period`.
 
         Raises:
-            EnvError: a malformed command or stiffness, or stepping an episode that has ended.
+            ActionError: an action the controller cannot command, or a bad stiffness (an EnvError).
+            EnvError: a malformed command, or stepping an episode that has ended.
         """
         if self._done:
             raise EnvError(f"the episode has ended ({self._reason}); call reset() first")
@@ -456,13 +457,13 @@ class PegInHoleEnv:
         try:
             target, stiffness = self.controller.command(self.data, action, feedforward_gain)
         except ControllerError as err:
-            raise EnvError(f"the controller cannot command this action: {err}") from None
+            raise ActionError(f"the controller cannot command this action: {err}") from None
         pose = self._as_pose(target, "target pose")
         if stiffness is not None:
             try:
                 stiffness = self.controller.checked_stiffness(stiffness)
             except ControllerError as err:
-                raise EnvError(f"bad stiffness: {err}") from None
+                raise ActionError(f"bad stiffness: {err}") from None
         try:
             q_ref = self.nullspace.update(pose.pos, pose.quat)
         except ControllerError:  # the posture QP had no solution this period: hold the measured posture

@@ -97,3 +97,61 @@ def hangs_at_start(task: PolicyTask) -> Any:
     import time
 
     time.sleep(3600.0)
+
+
+class Typo(HoldStart):
+    """Its act has a typo (``self.gaol``): AttributeError at its first action, as a new user's policy would."""
+
+    def act(self, observation: Observation) -> Action:
+        return Action(self.gaol)  # type: ignore[attr-defined]  # noqa: the error under test
+
+
+def typo(task: PolicyTask) -> Typo:
+    """A policy whose act raises AttributeError."""
+    return Typo()
+
+
+class ReturnsArray(HoldStart):
+    """Returns the measured position as an ndarray instead of an Action."""
+
+    def act(self, observation: Observation) -> Any:
+        return np.asarray(observation.tcp.pos)
+
+
+def returns_array(task: PolicyTask) -> ReturnsArray:
+    """A policy whose act returns no Action."""
+    return ReturnsArray()
+
+
+_RESETS = [0]
+"""Resets of `TypoEveryOther` in this process."""
+
+
+class TypoEveryOther(HoldStart):
+    """Holds its start, but in every second episode this process runs (the 2nd, the 4th, ...) its act has the typo of
+    `Typo`: with one worker and --lockstep 1, episodes 1, 3, ... fail and 0, 2, ... run to their time limit."""
+
+    def reset(self, observation: Observation, period_s: float) -> None:
+        super().reset(observation, period_s)
+        _RESETS[0] += 1
+        self.broken = _RESETS[0] % 2 == 0
+
+    def act(self, observation: Observation) -> Action:
+        if self.broken:
+            return Action(self.gaol)  # type: ignore[attr-defined]  # noqa: the error under test
+        return super().act(observation)
+
+
+def typo_every_other(task: PolicyTask) -> TypoEveryOther:
+    """A policy that fails in every second episode."""
+    return TypoEveryOther()
+
+
+def seeded(task: PolicyTask, demo_seed: str, demo_file: str, **options: str) -> HoldStart:
+    """A learner's factory as `pih benchmark --policy` calls it: it reads the replicate's demos (where a learner would
+    train on them, seeded with ``demo_seed``) and holds its start."""
+    from envs.demos.file import load_demos
+
+    load_demos(demo_file)
+    int(demo_seed)
+    return HoldStart()

@@ -90,12 +90,14 @@ def test_a_policy_meets_the_starts_and_perturbations_of_the_skill_trained_on_the
     assert goal_run["scene"] == skill_run["scene"]
 
 
-def test_a_policy_evaluation_is_refused_by_the_episode_export(goal_run, tmp_path, capsys) -> None:
+def test_a_policy_evaluation_without_recorded_episodes_is_refused_by_the_episode_export(goal_run, tmp_path,
+                                                                                        capsys) -> None:
     path = tmp_path / "goal.json"
     path.write_text(json.dumps(goal_run))
     assert main(["export", "--episodes", str(path), "--format", "lerobot", "--out", str(tmp_path / "ds")]) == 2
     err = capsys.readouterr().err.strip()
     assert "--policy tests.helpers.policies_for_tests:goal cannot be replayed" in err and "\n" not in err
+    assert "--record-episodes" in err
 
 
 @pytest.mark.parametrize("spec,words", [
@@ -118,7 +120,8 @@ def test_a_bad_policy_spec_is_one_line_and_exit_2_with_nothing_written(demos, tm
 @pytest.mark.parametrize("args,words", [
     (["--policy", f"{POLICIES}:hold"], "--policy needs --demos"),
     (["--policy", f"{POLICIES}:hold", "--demos", "DEMOS", "--mode", "open-loop"], "--mode: not with --policy"),
-    (["--policy", f"{POLICIES}:hold", "--demos", "DEMOS", "--video", "v.mp4"], "--video: not with --policy"),
+    (["--policy", f"{POLICIES}:hold", "--demos", "DEMOS", "--speed", "2"], "--speed: not with --policy"),
+    (["--model", "DEMOS", "--keep-going"], "--keep-going: only with --policy"),
     (["--policy", f"{POLICIES}:hold", "--demos", "DEMOS", "--policy-option", "x"], "must be KEY=VALUE"),
     (["--demos", "DEMOS"], "give --model DIR"),
 ])
@@ -175,8 +178,8 @@ def test_a_resume_refuses_a_policy_whose_source_changed(demos, tmp_path, monkeyp
     (tmp_path / "pih_resumed_policy.py").write_text(POLICY_SOURCE.replace("VERSION", "first"))
     monkeypatch.chdir(tmp_path)  # the policy's module is found in the current folder first
     argv = ["evaluate", "--policy", "pih_resumed_policy:make", "--demos", str(demos), "--episodes", "2",
-            "--time-limit-s", "0.05", "--quiet", "--json", str(tmp_path / "e.json"),
-            "--journal", str(tmp_path / "e.jsonl")]  # named: kept once the run is complete
+            "--time-limit-s", "0.05", "--quiet", "--json", str(tmp_path / "e.json"), "--journal",
+            str(tmp_path / "e.jsonl")]  # a journal named with --journal is kept once the run completes
     assert main(argv) == 0 and main([*argv, "--resume"]) == 0  # the same source: the run continues (all done)
     (tmp_path / "pih_resumed_policy.py").write_text(POLICY_SOURCE.replace("VERSION", "second"))
     capsys.readouterr()
