@@ -123,6 +123,17 @@ def _home_posture(model: mujoco.MjModel) -> npt.NDArray[np.float64]:
     return model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
 
 
+def _timed_workload(model: mujoco.MjModel, n: int, name: str) -> tuple[npt.NDArray[np.float64], mujoco.MjData]:
+    """The home posture and fresh data of ``model`` for a timing of ``n`` calls.
+
+    Raises:
+        ControllerError: n < 1 (named ``name``).
+    """
+    if n < 1:
+        raise ControllerError(f"{name}={n} must be >= 1")
+    return _home_posture(model), mujoco.MjData(model)
+
+
 def _site_pose(model: mujoco.MjModel, data: mujoco.MjData, site: int) -> tuple[npt.NDArray, npt.NDArray]:
     """The site's world position and quaternion (w, x, y, z) at ``data.qpos`` (runs mj_kinematics)."""
     mujoco.mj_kinematics(model, data)
@@ -153,10 +164,7 @@ def measure_ik_rate(
     Raises:
         ControllerError: n_solves < 1, or a generated pose that cannot be reached.
     """
-    if n_solves < 1:
-        raise ControllerError(f"n_solves={n_solves} must be >= 1")
-    q_home = _home_posture(model)
-    data = mujoco.MjData(model)
+    q_home, data = _timed_workload(model, n_solves, "n_solves")
     target_site = site_id(model, site)
     rng = np.random.default_rng(seed)
     times = []
@@ -193,10 +201,7 @@ def measure_nullspace_update(
     Raises:
         ControllerError: n_updates < 1, or a model the reference cannot run on.
     """
-    if n_updates < 1:
-        raise ControllerError(f"n_updates={n_updates} must be >= 1")
-    q_home = _home_posture(model)
-    data = mujoco.MjData(model)
+    q_home, data = _timed_workload(model, n_updates, "n_updates")
     data.qpos[:] = q_home
     centre, quat = _site_pose(model, data, site_id(model, site))
     reference = NullspaceReference(model, site, q_home)

@@ -166,7 +166,6 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
         EnvError / RFlowError: the replicate cannot be completed (the expert gives up, training fails).
         KeyboardInterrupt: Ctrl-C during the evaluation (its journal keeps the finished episodes).
     """
-    from batch import Journal
     from envs.demos.file import save_demos
     from envs.demos.record import collect_demos
     from envs.evaluation.evaluate import evaluate, journal_run
@@ -201,18 +200,35 @@ def run_replicate(config: ProtocolConfig, folder: Path, demo_seed: int, start_se
                                                             json.loads(eval_path.read_text())["per_episode"]])
     evaluation = dataclasses.replace(config.evaluation, seed=start_seed, workers=workers)
     report(f"seed {demo_seed}: evaluating {evaluation.episodes} episodes (start seed {start_seed})")
+    records = run_journaled(folder, journal_run(model_dir, evaluation), evaluation.episodes,
+                            lambda journal: evaluate(model_dir, evaluation, progress=progress, journal=journal))
+    return outcome_from_records(demo_seed, start_seed, records)
+
+
+def run_journaled(folder: Path, run_identity: dict[str, Any], episodes: int,
+                  run: Callable[[Any], Any]) -> list[Any]:
+    """Run one replicate's evaluation ``run(journal)`` against the journal ``folder/eval.json.journal.jsonl`` (resumed
+    when it exists, refused when ``run_identity`` differs from the journal's), write ``folder/eval.json`` and return
+    its records.
+
+    Raises:
+        KeyboardInterrupt: Ctrl-C during the evaluation (the journal keeps what finished).
+        EnvError: the evaluation ended incomplete.
+    """
+    from batch import Journal
+
     journal_path = folder / "eval.json.journal.jsonl"
-    journal = Journal.open(journal_path, journal_run(model_dir, evaluation), resume=journal_path.exists())
+    journal = Journal.open(journal_path, run_identity, resume=journal_path.exists())
     try:
-        result = evaluate(model_dir, evaluation, progress=progress, journal=journal)
+        result = run(journal)
     finally:
         journal.close()
     if result.interrupted:
         raise KeyboardInterrupt
     if not result.complete:
-        raise EnvError(f"evaluation incomplete: {len(result.records)} of {evaluation.episodes} episodes")
-    result.save_json(eval_path)
-    return outcome_from_records(demo_seed, start_seed, result.records)
+        raise EnvError(f"evaluation incomplete: {len(result.records)} of {episodes} episodes")
+    result.save_json(folder / "eval.json")
+    return list(result.records)
 
 
 def evaluate_replicate_policy(config: ProtocolConfig, folder: Path, demo_seed: int, start_seed: int, workers: int,
@@ -224,7 +240,6 @@ def evaluate_replicate_policy(config: ProtocolConfig, folder: Path, demo_seed: i
         PolicyFailure: the policy failed in an episode (the journal keeps what finished).
         KeyboardInterrupt: Ctrl-C during the evaluation.
     """
-    from batch import Journal
     from envs.evaluation.benchmark import replicate_policy
     from envs.evaluation.evaluate_policy import demo_metadata, evaluate_policy, policy_journal_run
     from envs.rollout.episode import record_from_dict
@@ -238,18 +253,10 @@ def evaluate_replicate_policy(config: ProtocolConfig, folder: Path, demo_seed: i
     evaluation = dataclasses.replace(config.evaluation, seed=start_seed, workers=workers)
     report(f"seed {demo_seed}: evaluating --policy {spec.spec} on {evaluation.episodes} episodes (start seed "
            f"{start_seed}; its factory given demo_seed={demo_seed})")
-    journal_path = folder / "eval.json.journal.jsonl"
-    journal = Journal.open(journal_path, policy_journal_run(spec, metadata, evaluation), resume=journal_path.exists())
-    try:
-        result = evaluate_policy(spec, metadata, evaluation, progress=progress, journal=journal)
-    finally:
-        journal.close()
-    if result.interrupted:
-        raise KeyboardInterrupt
-    if not result.complete:
-        raise EnvError(f"evaluation incomplete: {len(result.records)} of {evaluation.episodes} episodes")
-    result.save_json(eval_path)
-    return outcome_from_records(demo_seed, start_seed, result.records)
+    records = run_journaled(folder, policy_journal_run(spec, metadata, evaluation), evaluation.episodes,
+                            lambda journal: evaluate_policy(spec, metadata, evaluation, progress=progress,
+                                                            journal=journal))
+    return outcome_from_records(demo_seed, start_seed, records)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -27,7 +27,7 @@ from envs.datasets.features import DEFAULT_FPS, ExportEpisode, ExportMeta, episo
 from envs.datasets.resample import MAX_FPS
 from envs.errors import EnvError
 from envs.io.owned_output import MiB, check_output_folder
-from scripts.options import count, refuse_unused, work_begins
+from scripts.options import add_source_arguments, count, refuse_unused, work_begins
 
 DEFAULT_VIDEO_SIZE: dict[str, str] = {"lerobot": "640x480", "robomimic": "128x128"}
 VIDEO_BYTES = 500 * MiB
@@ -40,11 +40,8 @@ EXAMPLES: tuple[str, ...] = ('pih export --demos demos.npz --format lerobot --fp
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih export`."""
-    source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--demos", type=Path, metavar="FILE.npz", help="a demo file from `pih demos`")
-    source.add_argument("--episodes", type=Path, metavar="EVAL.json",
-                        help="an evaluation from `pih evaluate --json`: its recorded episodes (--record-episodes), "
-                             "else the skill's replayed")
+    add_source_arguments(parser, "an evaluation from `pih evaluate --json`: its recorded episodes "
+                                 "(--record-episodes), else the skill's replayed")
     parser.add_argument("--format", choices=LAYOUTS, required=True, help="dataset layout")
     parser.add_argument("--fps", type=count(MAX_FPS),
                         help=f"frames per second of the dataset, an integer: every signal is resampled onto its frames "

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 from typing import Callable, Sequence
 
 from pihutil.bounds import DEMOS, EPISODES, EPOCHS, SAMPLES, SEED, TRIALS, WORKERS, Bound
@@ -92,6 +93,14 @@ def number(minimum: float | None = None, maximum: float | None = None, above: fl
 
 WORK_BEGINS_HOOKS: list[Callable[[], None]] = []
 """Called by `work_begins` (none in a command run; the tests of the option bounds stop a command there)."""
+
+
+def add_source_arguments(parser: argparse.ArgumentParser, episodes_help: str) -> None:
+    """The one required source of a command that reads recorded motion: --demos (a demo file of `pih demos`) or
+    --episodes (an evaluation of `pih evaluate --json`, described by ``episodes_help``)."""
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--demos", type=Path, metavar="FILE.npz", help="a demo file of `pih demos`")
+    source.add_argument("--episodes", type=Path, metavar="EVAL.json", help=episodes_help)
 
 
 def work_begins() -> None:

@@ -35,7 +35,8 @@ from envs.policies.replay import ReplayPolicy
 from envs.rollout.episode import StartPose, run_episode
 from envs.sim.env import PegInHoleEnv
 from envs.sim.episode_config import EpisodeConfig
-from scripts.options import CAMERA_NAMES, MAX_EPISODES, check_camera, count, number, refuse_unused, work_begins
+from scripts.options import (CAMERA_NAMES, MAX_EPISODES, add_source_arguments, check_camera, count, number,
+                             refuse_unused, work_begins)
 
 VIDEO_BYTES = 100 * MiB
 """Generous size of one rendered demo (640x480 H.264, a 10-20 s demo takes a few MiB)."""
@@ -63,10 +64,7 @@ EXAMPLES: tuple[str, ...] = ('pih render --demos demos.npz --index 0 --out demo.
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `pih render`."""
-    source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--demos", type=Path, metavar="FILE.npz", help="a demo file of `pih demos`")
-    source.add_argument("--episodes", type=Path, metavar="EVAL.json",
-                        help="an evaluation (`pih evaluate --json`): the skill's replayed, or its recorded episodes")
+    add_source_arguments(parser, "an evaluation (`pih evaluate --json`): the skill's replayed, or its recorded episodes")
     parser.add_argument("--index", type=count(MAX_EPISODES - 1, minimum=0), default=0,
                         help="which demo, or which episode (its index in the evaluation)")
     parser.add_argument("--model", type=Path, metavar="DIR",

@@ -159,7 +159,7 @@ def _as_command_vector(value: Any, what: str, size: int) -> FloatArray:
     entries whose other axes have length 1 (a policy's (1, size) output is taken; (2, 3) for 6 entries is not).
 
     Raises:
-        EnvError: in one line naming ``what``: not numbers (strings, None, complex), or another shape.
+        EnvError: in one line naming ``what``: not numbers (strings, None, complex), another shape, NaN or inf.
     """
     import numbers
 
@@ -175,7 +175,10 @@ def _as_command_vector(value: Any, what: str, size: int) -> FloatArray:
                        f"{'' if objects else f' (dtype {raw.dtype})'}")
     if raw.size != size or raw.ndim == 0 or max(raw.shape) != size:
         raise EnvError(f"{ENV_ID}: {what} has shape {raw.shape}, expected ({size},)")
-    return np.asarray(value, dtype=np.float64).reshape(-1)
+    vector = np.asarray(value, dtype=np.float64).reshape(-1)
+    if not np.all(np.isfinite(vector)):
+        raise EnvError(f"{ENV_ID}: {what} {vector.tolist()} contains NaN or inf")
+    return vector
 
 
 @dataclass(frozen=True)
@@ -240,8 +243,6 @@ class ActionSchema:
             EnvError: not real numbers, a wrong shape, NaN or inf.
         """
         a = _as_command_vector(action, "action", self.size)
-        if not np.all(np.isfinite(a)):
-            raise EnvError(f"{ENV_ID}: action {a.tolist()} contains NaN or inf")
         centre, half = self._centre_half()
         return centre + np.clip(a, -1.0, 1.0) * half
 
@@ -252,8 +253,6 @@ class ActionSchema:
             EnvError: not real numbers, a wrong shape, NaN or inf.
         """
         u = _as_command_vector(physical, "physical command", self.size)
-        if not np.all(np.isfinite(u)):
-            raise EnvError(f"{ENV_ID}: physical command {u.tolist()} contains NaN or inf")
         centre, half = self._centre_half()
         return ((u - centre) / half).astype(np.float32)
 

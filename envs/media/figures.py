@@ -59,6 +59,14 @@ def _save(fig: Any, path: str | os.PathLike[str]) -> Path:
     return save_figure(fig, out, dpi=120)
 
 
+def _finish(fig: Any, path: str | os.PathLike[str], title: str | None, fontsize: float | None = None) -> Path:
+    """The figure's title (when given) above its laid-out axes, written to ``path`` (`_save`)."""
+    if title:
+        fig.suptitle(title, fontsize=fontsize)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def plot_loss(histories: Mapping[str, Mapping[str, Sequence[float]]], path: str | os.PathLike[str]) -> Path:
     """Loss curves (negative log-likelihood per transition and dimension) of each model.
 
@@ -176,10 +184,7 @@ def plot_stiffness(demos: Sequence[StiffnessCurve], executed: Sequence[Stiffness
         ax.grid(alpha=0.3, which="both")
     axes[0].set_ylabel("stiffness (N/m)")
     axes[0].legend(fontsize=8)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    return _save(fig, path)
+    return _finish(fig, path, title)
 
 
 def outcome_kind(record: Mapping[str, Any]) -> str:
@@ -224,10 +229,7 @@ def plot_outcomes(records: Sequence[Mapping[str, Any]], path: str | os.PathLike[
     for ax in (left, right):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    return _save(fig, path)
+    return _finish(fig, path, title, fontsize=10)
 
 
 

@@ -9,11 +9,11 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
 from tests.helpers import REPO
+from tests.helpers.procfs import process_group
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -39,19 +39,6 @@ with Reaper():
 """
 
 
-def group(pgid: int) -> list[int]:
-    """The living processes (not zombies) of process group ``pgid``."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if fields[0] != "Z" and int(fields[2]) == pgid:
-                found.append(int(entry.name))
-    return found
-
 
 def killed_and_gone(proc: subprocess.Popen, ready: callable) -> list[int]:
     """SIGKILL ``proc`` once ``ready()``, then what is left of its process group after GONE_WITHIN_S (at most)."""
@@ -63,11 +50,11 @@ def killed_and_gone(proc: subprocess.Popen, ready: callable) -> list[int]:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
         deadline = time.monotonic() + GONE_WITHIN_S
-        while group(proc.pid) and time.monotonic() < deadline:
+        while process_group(proc.pid) and time.monotonic() < deadline:
             time.sleep(0.05)
-        return group(proc.pid)
+        return process_group(proc.pid)
     finally:
-        for pid in group(proc.pid):
+        for pid in process_group(proc.pid):
             os.kill(pid, signal.SIGKILL)
 
 
@@ -83,7 +70,7 @@ def test_the_reaper_ends_what_outlived_its_sigkilled_driver():
     proc = subprocess.Popen([sys.executable, "-c", ORPHANING_DRIVER], cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, start_new_session=True)
     assert proc.stdout.readline() == b"started\n"
-    assert len(group(proc.pid)) == 3  # the driver, its reaper and the orphan
+    assert len(process_group(proc.pid)) == 3  # the driver, its reaper and the orphan
     assert killed_and_gone(proc, lambda: True) == []
 
 

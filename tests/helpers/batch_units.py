@@ -5,8 +5,8 @@ A unit is {"n": int, "do": "ok" | "kill" | "exit" | "raise" | "sleep" | "kill_fi
 records on any backend, and whatever worker it runs on. "kill_first" kills its worker on its first ``times``
 tries (counted in files beside ``counter``); "meet" returns once ``count`` such units run at the same time
 (each leaves a file in ``folder``); a setup with "kill_starts" and "counter" kills that many workers in
-``init``, one with "hang_starts" and "counter" hangs that many in ``init``. `worker_processes` finds a run's
-workers, for the tests that kill them from outside.
+``init``, one with "hang_starts" and "counter" hangs that many in ``init`` (tests.helpers.procfs finds a run's
+workers, for the tests that kill them from outside).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import signal
 import time
 from pathlib import Path
 from typing import Any
+
 
 
 def init(setup: dict[str, Any]) -> dict[str, Any]:
@@ -107,17 +108,3 @@ def work_group(context: dict[str, Any], members: list[dict[str, Any]]) -> list[d
     """The records of a group of units, each as `work` makes it, marked as run in a group of this size."""
     return [{**work(context, unit), "group": len(members)} for unit in members]
 
-
-def worker_processes(pid: int) -> list[int]:
-    """The worker processes of ``pid``: its children, forked or spawned, less multiprocessing's resource tracker
-    (Linux /proc)."""
-    kids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat, cmdline = (entry / "stat").read_text(), (entry / "cmdline").read_bytes()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"resource_tracker" not in cmdline:
-                kids.append(int(entry.name))
-    return kids

@@ -17,7 +17,7 @@ import torch
 from rflow.errors import RFlowError
 from rflow.fit_processes import _start, fit_in_processes
 from rflow.skill_io import fit_pose_skill
-from tests.helpers.batch_units import worker_processes
+from tests.helpers.procfs import worker_processes
 from tests.helpers.skill_fixtures import TINY, synthetic_demos, write_demo_file
 
 

@@ -15,6 +15,7 @@ import pytest
 
 from rflow.skill_io import save_skill
 from tests.helpers import REPO
+from tests.helpers.procfs import process_group, worker_processes
 from tests.helpers.skill_fixtures import TINY_ARGS, tiny_skill, write_demo_file
 
 GONE_WITHIN_S = 10.0
@@ -22,33 +23,6 @@ START_LIMIT_S = 240.0
 """Hang guard: how long a command may take to start its workers on a busy machine."""
 
 
-def group(pgid: int) -> list[int]:
-    """The living processes (not zombies) of process group ``pgid`` (Linux /proc)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if fields[0] != "Z" and int(fields[2]) == pgid:
-            found.append(int(entry.name))
-    return found
-
-
-def workers(pid: int) -> list[int]:
-    """The children of ``pid`` that are not multiprocessing's resource tracker."""
-    kids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat, cmdline = (entry / "stat").read_text(), (entry / "cmdline").read_bytes()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"resource_tracker" not in cmdline:
-                kids.append(int(entry.name))
-    return kids
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -74,19 +48,19 @@ def test_sigkill_of_evaluate_train_and_benchmark_leaves_no_process(tmp_path: Pat
         while left and time.monotonic() < deadline:  # kill each once two workers run
             for name, proc in list(left.items()):
                 assert proc.poll() is None, f"pih {name} ended early: {proc.stderr.read().decode()[-2000:]}"
-                if len(workers(proc.pid)) >= 2:
+                if len(worker_processes(proc.pid)) >= 2:
                     os.kill(proc.pid, signal.SIGKILL)
                     proc.wait()
                     del left[name]
             time.sleep(0.1)
         assert not left, f"never started two workers: {sorted(left)}"
         deadline = time.monotonic() + GONE_WITHIN_S
-        while any(group(p.pid) for p in runs.values()) and time.monotonic() < deadline:
+        while any(process_group(p.pid) for p in runs.values()) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert {name: group(p.pid) for name, p in runs.items()} == {name: [] for name in runs}
+        assert {name: process_group(p.pid) for name, p in runs.items()} == {name: [] for name in runs}
     finally:
         for proc in runs.values():
-            for pid in group(proc.pid):
+            for pid in process_group(proc.pid):
                 os.kill(pid, signal.SIGKILL)
             if proc.poll() is None:
                 proc.kill()

@@ -21,7 +21,7 @@ from envs.evaluation.evaluate import EvaluationConfig, evaluate, journal_run
 from envs.task.task import Task, preset
 from rflow.skill_io import save_skill
 from scripts.cli import main as pih
-from tests.helpers.batch_units import worker_processes
+from tests.helpers.procfs import worker_processes
 from tests.helpers.skill_fixtures import tiny_skill
 
 PIH = str(Path(sys.executable).with_name("pih"))
@@ -230,7 +230,7 @@ def test_a_fault_is_one_error_line_with_the_resume_command_and_exit_1(model, tmp
     import envs.evaluation.evaluate as evaluate_module
     from envs.evaluation.result import EvaluationResult
 
-    def lost_head(model_dir, config, progress=True, journal=None):
+    def lost_head(model_dir, config, progress=True, journal=None, record_dir=None):
         journal.append("0", {"index": 0})  # one episode finished before the head was lost
         return EvaluationResult(config, [], 1.0, str(model_dir), complete=False, workers=2,
                                 fault="lost the Ray head at 10.0.0.1:6379: its GCS has not answered for 3 s")
