@@ -67,7 +67,7 @@ def test_an_action_that_is_not_an_action_ends_the_episode_as_an_error(env) -> No
             return (observation.tcp.pos, observation.tcp.quat)
 
     record, _ = run_episode(env, Wrong(), StartPose(0, -1, env.nominal_start()))
-    assert record.reason.startswith("error: EnvError: Wrong.act returned a tuple, not an Action")
+    assert record.reason.startswith("error: ActionError: Wrong.act returned a tuple, not an Action")
 
 
 def test_the_expert_is_a_privileged_teacher(env) -> None:
