@@ -38,10 +38,17 @@ def test_every_variant_pairs_with_the_ideal_cell(model) -> None:
     assert len(table) == 2 + 4 and table[2].startswith("| ideal | ")
 
 
+def _short_task(folder: Path) -> Path:
+    """The contact task with 1 s episodes, as a task file: the command's plumbing, not its rates, is under test."""
+    path = folder / "short.toml"
+    path.write_text(Task().override(time_limit_s=1.0).to_toml())
+    return path
+
+
 def test_the_command_writes_table_json_and_figure(model, tmp_path) -> None:
     out = tmp_path / "sens"
     assert main(["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "2", "--workers", "1",
-                 "--only", "payload"]) == 0
+                 "--only", "payload", "--task", str(_short_task(tmp_path))]) == 0
     data = json.loads((out / "sensitivity.json").read_text())
     assert [row["name"] for row in data["rows"]] == ["ideal", "payload"]
     assert data["rows"][1]["paired_with_ideal"]["success"]["pairs"] == 2
@@ -116,7 +123,7 @@ def test_a_curve_sweeps_one_imperfection_over_its_magnitude() -> None:
 def test_the_command_writes_a_figure_per_curve(model, tmp_path) -> None:
     out = tmp_path / "curves"
     assert main(["sensitivity", "--model", str(model), "--out", str(out), "--episodes", "2", "--workers", "1",
-                 "--curves", "in_hand_tilt"]) == 0
+                 "--curves", "in_hand_tilt", "--task", str(_short_task(tmp_path))]) == 0
     data = json.loads((out / "sensitivity.json").read_text())
     assert [row["name"] for row in data["rows"]] == ["ideal"] + [f"in_hand_tilt@{x:g}" for x in (0.5, 1.0, 1.5, 2.0)]
     assert all(row["paired_with_ideal"]["success"]["pairs"] == 2 for row in data["rows"][1:])
