@@ -94,7 +94,7 @@ def main(args: argparse.Namespace) -> int:
     """Run (or continue) the variants and write the outputs; returns the exit status (module docstring)."""
     from envs.evaluation.config import EvaluationConfig
     from envs.evaluation.sensitivity import (CURVE_SEPARATOR, Stopped, costliest, plot_curves, plot_sensitivity,
-                                             run_sensitivity, sensitivity_table)
+                                             run_sensitivity, sensitivity_table, sensitivity_verdict)
     from envs.evaluation.sensitivity import variants as variants_of
     from envs.io.owned_output import write_json, write_text
 
@@ -127,8 +127,7 @@ def main(args: argparse.Namespace) -> int:
         return stopped(args, None, None, planned)
     table = sensitivity_table(rows)
     worst = costliest(rows)
-    verdict = ("no imperfection alone lowered the success rate on these episodes" if worst is None else
-               f"costliest imperfection: {worst.name} ({worst.successes}/{worst.episodes} seated)")
+    verdict = sensitivity_verdict(rows)
     write_text(paths["table"], table + "\n\n" + verdict + "\n")
     what = ({"model": str(args.model)} if args.policy is None else
             {"policy": policy_spec(args).to_dict(), "demos": str(args.demos)})

@@ -337,6 +337,36 @@ def costliest(rows: Sequence[SensitivityRow]) -> SensitivityRow | None:
     return worst[3] if worst[0] < 0.0 else None
 
 
+def curve_onsets(rows: Sequence[SensitivityRow]) -> dict[str, SensitivityRow | None]:
+    """Per curve among ``rows`` (CURVE@X), its first point in order of magnitude whose paired success difference to the
+    ideal cell is negative; None for a curve where no point lowered the success rate."""
+    onsets: dict[str, SensitivityRow | None] = {}
+    for row in rows:
+        curve, separator, _ = row.name.partition(CURVE_SEPARATOR)
+        if not separator:
+            continue
+        onsets.setdefault(curve, None)
+        if (onsets[curve] is None and row.comparison is not None
+                and row.comparison.success.counts.difference < 0.0):
+            onsets[curve] = row
+    return onsets
+
+
+def sensitivity_verdict(rows: Sequence[SensitivityRow]) -> str:
+    """The lines under the table: the costliest single imperfection (when any ran) and, per curve, the first
+    magnitude that cost successes."""
+    lines = []
+    if any(CURVE_SEPARATOR not in r.name and r.name not in ("ideal", "all") for r in rows):
+        worst = costliest(rows)
+        lines.append("no imperfection alone lowered the success rate on these episodes" if worst is None else
+                     f"costliest imperfection: {worst.name} ({worst.successes}/{worst.episodes} seated)")
+    for curve, row in curve_onsets(rows).items():
+        lines.append(f"curve {curve}: no point lowered the success rate" if row is None else
+                     f"curve {curve}: first cost at {row.name.partition(CURVE_SEPARATOR)[2]} "
+                     f"({row.successes}/{row.episodes} seated)")
+    return "\n".join(lines)
+
+
 def plot_sensitivity(rows: Sequence[SensitivityRow], path: str | os.PathLike[str]) -> Path:
     """Two panels: the success rate of each variant with its Wilson 95 % interval (the ideal cell's as a line),
     and its paired difference to the ideal cell with the Newcombe interval."""

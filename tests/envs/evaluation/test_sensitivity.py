@@ -128,3 +128,26 @@ def test_the_command_writes_a_figure_per_curve(model, tmp_path) -> None:
     assert [row["name"] for row in data["rows"]] == ["ideal"] + [f"in_hand_tilt@{x:g}" for x in (0.5, 1.0, 1.5, 2.0)]
     assert all(row["paired_with_ideal"]["success"]["pairs"] == 2 for row in data["rows"][1:])
     assert (out / "curve_in_hand_tilt.png").stat().st_size > 10_000
+    assert (out / "sensitivity.md").read_text().rstrip().endswith(
+        "curve in_hand_tilt: no point lowered the success rate")  # 1 s episodes: none seats, on either cell
+
+
+def test_the_verdict_names_each_curves_first_costly_point_and_the_costliest_imperfection() -> None:
+    from types import SimpleNamespace
+
+    from envs.evaluation.sensitivity import sensitivity_verdict
+
+    def row(name: str, successes: int, difference: float | None) -> SimpleNamespace:
+        comparison = None if difference is None else SimpleNamespace(
+            success=SimpleNamespace(counts=SimpleNamespace(difference=difference)), )
+        return SimpleNamespace(name=name, successes=successes, episodes=100, comparison=comparison,
+                               median_held_force_n=10.0)
+
+    curves = [row("ideal", 100, None), row("payload@0.1", 100, 0.0), row("payload@0.2", 99, -0.01),
+              row("payload@0.4", 90, -0.1), row("part_friction@0.4", 100, 0.0)]
+    assert sensitivity_verdict(curves).splitlines() == [
+        "curve payload: first cost at 0.2 (99/100 seated)", "curve part_friction: no point lowered the success rate"]
+    single = [row("ideal", 100, None), row("friction", 97, -0.03), row("payload", 99, -0.01), row("all", 50, -0.5)]
+    assert sensitivity_verdict(single) == "costliest imperfection: friction (97/100 seated)"
+    assert sensitivity_verdict(single[:1] + [row("payload", 100, 0.0)]) == (
+        "no imperfection alone lowered the success rate on these episodes")
