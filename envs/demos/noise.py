@@ -22,7 +22,7 @@ centimetres before the hole are not a straight line along the hole axis, and its
    of N(0, sigma_r^2) per axis on the orientation.
 
 The result ends apart (`envs.demos.file.DemoSet.ends_apart`): its goal is the mean of the ends, and each end's distance
-from it is recorded. Where the magnitudes come from is in the README ("Imperfect demonstrations").
+from it is recorded. Where the magnitudes come from: docs/results/imperfect-demos.md.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from envs.demos.file import DemoSet
 from envs.errors import EnvError
+from envs.task.task import check_number
 from envs.poses import (make_continuous, mean_quat, minimum_jerk, quat_angle_rad, quat_from_rotvec, quat_mul,
                         resample_trajectory, rotate)
 from numerics.small_linalg import dot, norm
@@ -67,9 +68,7 @@ class DemoNoise:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise EnvError(f"demo noise {f.name}={value!r} must be a finite number >= 0")
+            check_number(f"demo noise {f.name}", getattr(self, f.name))
         if not 0.0 < self.approach_length_m <= 0.5:
             raise EnvError(f"demo noise approach_length_m={self.approach_length_m!r} must lie in (0, 0.5] m")
         if self.final_pos_scatter_m > 0.01 or self.final_rot_scatter_deg > 10.0:

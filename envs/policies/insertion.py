@@ -46,9 +46,9 @@ from typing import Any, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from envs.errors import EnvError
 from envs.policies.interface import Action, Observation
 from envs.poses import Pose
+from envs.task.task import check_number
 from numerics.quaternion import quat_conj, quat_from_rotvec, quat_mul, quat_to_mat, quat_to_rotvec
 from numerics.small_linalg import dot, matvec, norm
 
@@ -113,9 +113,7 @@ class InsertionConfig:
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise EnvError(f"InsertionConfig.{field.name}={value!r} must be a finite number > 0")
+            check_number(f"InsertionConfig.{field.name}", getattr(self, field.name), strict=True)
 
 
 class InsertionPolicy:

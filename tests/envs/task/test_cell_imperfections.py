@@ -48,6 +48,20 @@ def _above(env: PegInHoleEnv) -> Pose:
     return Pose(env.nominal_goal.pos + 0.06 * env.hole_axis, env.nominal_goal.quat)
 
 
+PULL_STIFFNESS = np.diag([300.0] * 3 + [30.0] * 3)
+"""A compliant arm's stiffness (N/m, N m/rad) for the pulls of the joint-friction tests."""
+
+
+def _pulled(env: PegInHoleEnv, start: Pose, scale: float) -> Pose:
+    """Reset at ``start`` with joint friction x ``scale`` and pull the compliant arm 20 mm along x for 30 periods;
+    the pull's target."""
+    env.reset(start_pose=start, perturbation=Perturbation(joint_friction_scale=scale))
+    target = Pose(start.pos + [0.02, 0.0, 0.0], start.quat)
+    for _ in range(30):
+        env.step(target, PULL_STIFFNESS)
+    return target
+
+
 def _peg_in_hand(env: PegInHoleEnv) -> tuple[np.ndarray, float, float]:
     """(the peg top's offset in the tcp frame (m), tilt about the hand's y (deg), turn about its axis (deg))."""
     data, adr = env.data, env.scene.ids.peg_qpos_adr
@@ -144,15 +158,11 @@ def test_viscous_joint_friction_is_in_the_simulated_arm_and_slows_it(bare) -> No
     part slows it too)."""
     env = bare
     start = _above(env)
-    stiffness = np.diag([300.0] * 3 + [30.0] * 3)
     arm = list(env.scene.ids.arm_dof_adr)
     base_damping = env.model.dof_damping[arm].copy()
     travelled = []
     for scale in (0.0, 10.0):
-        env.reset(start_pose=start, perturbation=Perturbation(joint_friction_scale=scale))
-        target = Pose(start.pos + [0.02, 0.0, 0.0], start.quat)
-        for _ in range(30):
-            env.step(target, stiffness)
+        _pulled(env, start, scale)
         data = env.data
         damping = base_damping + scale * np.asarray(PANDA_VISCOUS_NM_S)
         # (qfrc_passive is of the state the last step started from, qvel of the one it ended in: 2 %)
@@ -168,19 +178,15 @@ def test_the_smooth_joint_friction_is_delivered_less_by_the_joints() -> None:
     its speed (the law's own command does not contain it), zero at rest; a compliant arm pulled 20 mm travels less."""
     env = _bare("smooth")
     start = _above(env)
-    stiffness = np.diag([300.0] * 3 + [30.0] * 3)
     arm = list(env.scene.ids.arm_dof_adr)
     phi = smooth_parameters(2.0)
     travelled = []
     for scale in (0.0, 2.0):
-        env.reset(start_pose=start, perturbation=Perturbation(joint_friction_scale=scale))
-        target = Pose(start.pos + [0.02, 0.0, 0.0], start.quat)
-        for _ in range(30):
-            env.step(target, stiffness)
+        target = _pulled(env, start, scale)
         travelled.append(float(env.observation.tcp.pos[0] - start.pos[0]))
         for _ in range(5):  # single physics steps: the speed each starts from is the one the actuator sees
             qdot = env.data.qvel[arm].copy()
-            env.controller.step(env.data, target.pos, target.quat, stiffness, None, 1)
+            env.controller.step(env.data, target.pos, target.quat, PULL_STIFFNESS, None, 1)
             delivered = env.data.ctrl[:len(arm)] - env.controller.last_torque
             want = -scale / 2.0 * (phi[:, 0] / (1.0 + np.exp(-phi[:, 1] * (qdot + phi[:, 2])))
                                    - phi[:, 0] / (1.0 + np.exp(-phi[:, 1] * phi[:, 2])))
