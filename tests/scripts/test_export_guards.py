@@ -34,7 +34,14 @@ def evaluation(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def leftovers(folder: Path) -> list[str]:
+    """What an export to ``folder / "ds"`` leaves beside it: staging folders and their lock files."""
     return sorted(p.name for p in folder.iterdir() if p.name.startswith(".ds."))
+
+
+def staging(folder: Path) -> bool:
+    """Whether an export's staging folder exists in ``folder`` (its lock file is made first, alone it is no sign
+    that the export is writing)."""
+    return any(p.name.startswith(".ds.tmp-") and p.is_dir() for p in folder.iterdir())
 
 
 def stopped_while_staging(evaluation: Path, out: Path, sig: int) -> tuple[int, str]:
@@ -44,7 +51,7 @@ def stopped_while_staging(evaluation: Path, out: Path, sig: int) -> tuple[int, s
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
     try:
         deadline = time.monotonic() + HANG_GUARD_S
-        while not leftovers(out.parent) and proc.poll() is None and time.monotonic() < deadline:
+        while not staging(out.parent) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.01)
         assert proc.poll() is None, f"ended before its staging folder was seen: {proc.stderr.read()}"
         proc.send_signal(sig)
