@@ -59,6 +59,7 @@ def test_each_unit_of_a_group_is_journalled_as_it_finishes_and_a_resume_skips_it
     assert values(second) == values(run(units(10)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_group_over_its_limit_is_split_and_only_the_hanging_unit_times_out(workers):
     outcome = run(units(12, {2: {"do": "sleep", "seconds": 600.0}}), BatchConfig(workers=workers, unit_timeout_s=2.0),

@@ -133,6 +133,7 @@ def test_a_worker_with_nothing_left_to_do_ends_while_the_others_run(tmp_path):
     assert outcome.records["u001"]["value"] is True  # u000's worker ended while u001 was running
 
 
+@pytest.mark.slow
 @EACH_START
 def test_a_unit_over_the_wall_time_limit_is_killed_and_recorded(start):
     outcome = run(units(4, {1: {"do": "sleep", "seconds": 600.0}}),

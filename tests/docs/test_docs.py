@@ -195,6 +195,7 @@ def test_every_pih_command_shown_in_the_docs_parses():
 # --- the site builds --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_the_site_builds_with_strict(tmp_path):
     missing = [name for name in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers.python")
                if importlib.util.find_spec(name) is None]

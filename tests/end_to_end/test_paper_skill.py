@@ -1,6 +1,8 @@
 """End to end: scripted demos -> small RiemannianFlow skill -> closed-loop insertions scored by physics, in the
 paper's setting (the "paper" task preset: grasped peg, 1 mm clearance, the hole where the demos ended; seated
-within 1 mm, inside the walls, at rest).
+within 1 mm, inside the walls, at rest), and envs.statistics.regression.assert_no_regression on it: the skill passes
+against itself and a time-starved run of it is flagged. Every test of the session's paper_checkpoint lives in this file,
+so one xdist worker trains it, once (tests/conftest.py).
 
 Small on purpose (7 demos of 400 samples instead of 4000, 40 epochs instead of 80, 20 starts in each mode
 from the issue's default region, +-5 cm / +-15 deg around the mean demo start) so it runs in about a minute
@@ -16,6 +18,7 @@ import numpy as np
 import pytest
 
 from envs.evaluation.evaluate import EvaluationConfig, evaluate
+from envs.statistics.regression import assert_no_regression
 from envs.task.task import preset
 from rflow.skill_io import load_skill, save_skill
 
@@ -65,3 +68,17 @@ def test_a_skill_that_follows_the_measured_hole_seats_where_the_bare_flow_misses
                          starts=starts)
     assert blind.num_success == 0
     assert following.num_success == 4, [r.reason[:120] for r in following.records]
+
+
+def test_a_trained_skill_passes_against_itself_and_a_time_starved_run_is_flagged(paper_checkpoint):
+    """Six episodes of the small paper-preset skill (tests/conftest.py) twice, then with half the shortest
+    insertion time as the time limit: every episode the base seated fails, which the check must flag."""
+    config = EvaluationConfig(episodes=6, seed=1, workers=2, task=preset("paper"))
+    base = evaluate(paper_checkpoint, config, progress=False)
+    assert base.num_success >= 5  # the helper needs 5 discordant pairs to flag anything at alpha 0.05
+    assert_no_regression(base, evaluate(paper_checkpoint, config, progress=False))
+    shortest = min(r.time_to_insert_s for r in base.records if r.success)
+    starved_task = config.task.override(time_limit_s=0.5 * shortest)
+    starved = evaluate(paper_checkpoint, dataclasses.replace(config, task=starved_task), progress=False)
+    with pytest.raises(AssertionError, match="regression"):
+        assert_no_regression(base, starved)

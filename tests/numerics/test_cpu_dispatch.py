@@ -25,6 +25,7 @@ def test_numpy_runs_its_pinned_loops_here():
                                                                       "AVX512_SPR"))
 
 
+@pytest.mark.slow
 def test_the_test_session_pins_numpy_before_a_test_module_imports_it():
     """Most test modules import numpy before any package of the project, so the pin has to come from tests/conftest.py
     for the tests to run the arithmetic the commands run: the check above, in a fresh session, after a module that

@@ -1,3 +1,5 @@
+import pytest
+
 from rflow.bench import bench_flow, bench_training, skill_training_configs
 
 TIMINGS = ("train_epoch_s", "flow_step_ms", "closed_loop_step_ms", "rollout_1000_ms", "rollouts_100x1000_ms")
@@ -23,6 +25,7 @@ def test_training_benchmark_compares_the_former_and_the_current_skill_schedule()
     assert former == skill_train_config(**PAPER_SCHEDULE) == dataclasses.replace(current, **PAPER_SCHEDULE)
 
 
+@pytest.mark.slow
 def test_quick_training_benchmark_reports_both_medians_and_their_ratio():
     result = bench_training(quick=True)
     assert result["former_s"] > 0 and result["current_s"] > 0 and result["repeats"] == 1

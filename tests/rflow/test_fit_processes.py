@@ -61,6 +61,7 @@ def test_workers_must_be_a_positive_integer() -> None:
         fit_in_processes({"position": (demos.pos, "euclidean")}, demos.dt, TINY, workers=0)
 
 
+@pytest.mark.slow
 def test_sigint_during_parallel_training_stops_the_workers_and_writes_nothing(tmp_path: Path) -> None:
     demos = write_demo_file(tmp_path)
     out = tmp_path / "model"

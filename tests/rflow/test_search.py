@@ -71,6 +71,7 @@ def test_bad_input_is_a_one_line_error_with_exit_2(argv, tmp_path, capsys) -> No
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_search_writes_the_study_and_a_best_config_that_pih_lasa_reads(tmp_path, capsys) -> None:
     out = tmp_path / "search"
     argv = ["search", "--shape", "Angle", "--trials", "3", "--epochs", "2", "--report-every", "1",

@@ -25,6 +25,7 @@ START_LIMIT_S = 240.0
 
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigkill_of_evaluate_train_and_benchmark_leaves_no_process(tmp_path: Path) -> None:
     model = save_skill(tmp_path / "model", tiny_skill())

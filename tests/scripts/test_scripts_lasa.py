@@ -90,6 +90,7 @@ def test_run_job_records_a_failure_instead_of_raising() -> None:
     assert result.error is not None and result.error.startswith("RFlowError") and math.isnan(result.dtw)
 
 
+@pytest.mark.slow
 def test_a_finished_run_is_not_redone_on_resume_and_a_new_run_is_refused(tmp_path, capsys) -> None:
     argv = ["lasa", "--all", "--out", str(tmp_path), "--shapes", "Angle", "--manifolds", "spd", "--methods", "fdm",
             *TINY]

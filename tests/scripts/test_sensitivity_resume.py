@@ -52,6 +52,7 @@ def interrupted(argv: list[str], moment: str) -> tuple[int, str]:
             proc.kill()
 
 
+@pytest.mark.slow
 def test_three_interruptions_then_resume_give_the_uninterrupted_table(setup) -> None:
     tmp, argv = setup
     assert main([*argv, "--out", str(tmp / "whole")]) == 0

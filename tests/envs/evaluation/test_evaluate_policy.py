@@ -152,6 +152,7 @@ def _pih(*argv: str, cwd: Path, timeout_s: float = 240.0) -> subprocess.Complete
                           text=True, timeout=timeout_s)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("factory,limit,words", [("exits_at_start", [], "with exit code 9"),
                                                  ("hangs_at_start", ["--start-timeout-s", "1"],
                                                   "not ready 1 s after it was started")])

@@ -126,6 +126,7 @@ def test_sequential_compare_runs_policies_on_the_same_starts(demos, tmp_path, ca
     assert status in (0, 1)
 
 
+@pytest.mark.slow
 def test_benchmark_gives_a_policys_factory_each_replicates_demo_seed_and_demos(tmp_path) -> None:
     out = tmp_path / "bench"
     assert main(["benchmark", "--policy", f"{POLICIES}:seeded", "--demo-seeds", "3,4", "--demos", "1",

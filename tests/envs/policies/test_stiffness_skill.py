@@ -289,6 +289,7 @@ def trained_beside():
     return small_stiffness_skill(layout="separate_stiffness")
 
 
+@pytest.mark.slow
 def test_a_stiffness_model_beside_the_pose_models_is_spd_bounded_and_leaves_the_pose_skill(trained_beside, tmp_path):
     """Layout "separate_stiffness": the pose models are the two-model skill's (the same weights as training them
     without stiffness); the stiffness model on R^3 x SPD(3) generates SPD stiffness inside the bounds from 1000

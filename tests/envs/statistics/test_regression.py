@@ -1,5 +1,5 @@
 """envs.statistics.regression.assert_no_regression: passes the same records, fails a degraded candidate with a
-readable message (on physics, with a trained skill: tests/end_to_end/test_regression_check.py)."""
+readable message (on physics, with a trained skill: tests/end_to_end/test_paper_skill.py)."""
 
 from __future__ import annotations
 
