@@ -39,6 +39,7 @@ from batch.journal import Journal, as_json
 from batch.processes import run_in_processes
 from batch.ray_backend import run_on_ray
 from batch.supervision import Failure, Fault, GroupWork, Init, Schedule, UnitGroup, Work, error_reason, unit_limit_s
+from pihutil.interrupts import handling
 
 
 @dataclass
@@ -192,17 +193,10 @@ class _Interrupts:
         self._depth = 0
         self._pending = False
 
-    @contextlib.contextmanager
-    def installed(self) -> Iterator[None]:
-        if threading.current_thread() is not threading.main_thread():
-            yield
-            return
-        previous = {sig: signal.signal(sig, self._handle) for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+    def installed(self) -> contextlib.AbstractContextManager[None]:
+        """The handler for SIGINT and SIGTERM while the batch runs, except over a signal this process was started
+        with ignored (`pihutil.interrupts.handling`)."""
+        return handling((signal.SIGINT, signal.SIGTERM), self._handle)
 
     @contextlib.contextmanager
     def critical(self) -> Iterator[None]:

@@ -32,6 +32,7 @@ from controllers.errors import ControllerError  # noqa: E402
 from envs.errors import EnvError, PolicyFailure  # noqa: E402
 from envs.media.rendering import use_headless_rendering  # noqa: E402
 from numerics.errors import NumericsError  # noqa: E402
+from pihutil.interrupts import handling  # noqa: E402
 
 DESCRIPTION = ("pih-rflow: a simulated Franka Panda learns peg-in-hole from demonstrations with RiemannianFlow and "
                "executes it under Cartesian impedance control. `pih run` records demos, trains and evaluates on the "
@@ -213,18 +214,11 @@ def _sigterm_interrupts() -> Iterator[None]:
     """SIGTERM (a scheduler's or a CI's stop, `kill`) raises KeyboardInterrupt in the main thread while a command runs,
     as Ctrl-C does: the command stops the same way (its journal kept, its temporary outputs removed) and exits 130,
     instead of dying at once with 143 and leaving its staging folders behind."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
     def interrupt(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
+    with handling((signal.SIGTERM,), interrupt):
         yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def run() -> NoReturn:

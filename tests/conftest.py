@@ -1,6 +1,7 @@
 """Test-session defaults: the CPU dispatch `pih` pins (before any test imports numpy or torch, so the tests run the
-arithmetic the commands run), headless rendering through Mesa EGL unless the caller chose a backend; the small
-trained skill that the slow physics tests share; how the tests are shared among xdist workers."""
+arithmetic the commands run), headless rendering through Mesa EGL unless the caller chose a backend, Ctrl-C handled
+even when pytest was started with it ignored; the small trained skill that the slow physics tests share; how the
+tests are shared among xdist workers."""
 
 import os
 
@@ -8,9 +9,16 @@ from numerics.cpu_dispatch import pin_cpu_dispatch
 
 pin_cpu_dispatch()  # first, before any test module imports numpy or torch: the arithmetic `pih` runs
 
+import signal  # noqa: E402
+
 import pytest  # noqa: E402
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    # Started as a background job of a script (a shell ignores SIGINT there): the tests' commands, which stand for a
+    # terminal's, start with Ctrl-C handled, as the tests that send it expect (pihutil.interrupts).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
