@@ -24,11 +24,10 @@ PYTHON="${PYTHON:-python3}"
 .venv/bin/python -m pip install -q --upgrade pip
 # torch first, pinned, so no resolver pulls another build: the CPU file this project's machines hold; elsewhere set
 # TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu (PyPI's torch for Linux is the CUDA build).
-# Its bytecode is compiled below, with everything else's.
-.venv/bin/python -m pip install -q --no-compile ${TORCH_INDEX_URL:+--index-url "$TORCH_INDEX_URL"} "torch==2.13.0"
-# The rest with uv (into the venv, from PyPI): the same resolution as pip, with downloads and the bytecode of the whole
-# venv compiled in parallel (--compile-bytecode; a third of pip's time here). uv reads its own settings, not pip's
-# (UV_INDEX_URL, not PIP_INDEX_URL); the torch installed above satisfies the pin, so uv keeps it.
+.venv/bin/python -m pip install -q ${TORCH_INDEX_URL:+--index-url "$TORCH_INDEX_URL"} "torch==2.13.0"
+# The rest with uv (into the venv, from PyPI): the same resolution as pip, with downloads and bytecode compilation in
+# parallel (a third of pip's time here). uv reads its own settings, not pip's (UV_INDEX_URL, not PIP_INDEX_URL); the
+# torch installed above satisfies the pin, so uv keeps it.
 .venv/bin/python -m pip install -q uv
 .venv/bin/uv pip install -q --python .venv/bin/python --compile-bytecode -e ".[test,cluster,search,datasets,docs]"
 # Compile the numba kernels once (cached beside their modules), so the first `pih run` does not wait ~25 s.
