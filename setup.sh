@@ -30,6 +30,7 @@ PYTHON="${PYTHON:-python3}"
 # torch installed above satisfies the pin, so uv keeps it.
 .venv/bin/python -m pip install -q uv
 .venv/bin/uv pip install -q --python .venv/bin/python --compile-bytecode -e ".[test,cluster,search,datasets,docs]"
-# Compile the numba kernels once (cached beside their modules), so the first `pih run` does not wait ~25 s.
-MUJOCO_GL="${MUJOCO_GL:-egl}" .venv/bin/pih warmup
+# Compile the numba kernels once (cached beside their modules), so the first `pih run` does not wait ~25 s; and at
+# the same time, on the second core, for a generic x86-64 (the test that records do not depend on the CPU runs those).
+MUJOCO_GL="${MUJOCO_GL:-egl}" .venv/bin/pih warmup --generic-too
 echo "setup.sh: ready -- activate with: source .venv/bin/activate"

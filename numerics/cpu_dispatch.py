@@ -27,6 +27,11 @@ from typing import Mapping, MutableMapping
 PINNED_ENVIRONMENT: dict[str, str] = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE",
                                       "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}
 """The dispatch settings every process of this project runs with (module docstring)."""
+GENERIC_CPU_ENVIRONMENT: dict[str, str] = {"NUMBA_CPU_NAME": "generic", "NPY_DISABLE_CPU_FEATURES": "X86_V3",
+                                           "MKL_ENABLE_INSTRUCTIONS": "SSE4_2", "ONEDNN_MAX_CPU_ISA": "SSE41"}
+"""A process that runs the code of a generic x86-64 on this one: numba compiled for a generic x86-64, numpy's AVX2
+loops off, MKL and oneDNN held to SSE4. Its records equal those of a process with the host's features
+(tests/end_to_end/test_cpu_independence.py); `pih warmup --generic-too` compiles its kernels."""
 DISPATCH_VARIABLES: tuple[str, ...] = (*PINNED_ENVIRONMENT, "NPY_ENABLE_CPU_FEATURES")
 """Every variable that chooses these code paths, the user's own choice of numpy's loops included: what a batch sends
 to the workers of a cluster, whose nodes do not share this process's environment (`batch.BatchConfig`)."""
@@ -44,6 +49,13 @@ def pin_cpu_dispatch(environ: MutableMapping[str, str] = os.environ) -> None:
         if key == "NPY_DISABLE_CPU_FEATURES" and "NPY_ENABLE_CPU_FEATURES" in environ:
             continue
         environ.setdefault(key, value)
+
+
+def generic_cpu_environment(environ: Mapping[str, str] = os.environ) -> dict[str, str]:
+    """``environ`` for a process that runs as on a generic x86-64 (`GENERIC_CPU_ENVIRONMENT`); the pinned settings
+    are left for that process to set (`pin_cpu_dispatch`, which keeps the generic numpy setting: it is set)."""
+    keep = {k: v for k, v in environ.items() if k not in GENERIC_CPU_ENVIRONMENT and k not in PINNED_ENVIRONMENT}
+    return {**keep, **GENERIC_CPU_ENVIRONMENT}
 
 
 def check_numpy_dispatch(features: Mapping[str, bool] | None = None,
