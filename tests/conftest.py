@@ -41,7 +41,7 @@ def paper_checkpoint(tmp_path_factory):
 
 
 
-def test_file(item: pytest.Item) -> str:
+def file_of(item: pytest.Item) -> str:
     """The file of a test: the unit of work an xdist worker takes whole (``--dist loadfile``)."""
     return item.nodeid.split("::", 1)[0]
 
@@ -57,9 +57,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
     The session's `paper_checkpoint` is trained by every worker that runs a test of it, so its tests share one
     file; a second file is refused here."""
-    paper = sorted({test_file(item) for item in items if "paper_checkpoint" in item.fixturenames})
+    paper = sorted({file_of(item) for item in items if "paper_checkpoint" in item.fixturenames})
     if len(paper) > 1:
         raise pytest.UsageError(f"tests of paper_checkpoint in {', '.join(paper)}: keep them in one file, so that one "
                                 "xdist worker trains it, once")
-    slow = {test_file(item) for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: test_file(item) not in slow)  # stable: each file keeps its order
+    slow = {file_of(item) for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: file_of(item) not in slow)  # stable: each file keeps its order

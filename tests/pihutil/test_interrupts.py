@@ -1,13 +1,17 @@
 """pihutil.interrupts.handling: the handler for the duration and the previous one after, but a signal the process
-was started with ignored stays ignored (a background job of a shell script gets SIGINT so), in the batch runner too."""
+was started with ignored stays ignored (a background job of a shell script gets SIGINT so), in the batch runner and
+in `pih`'s SIGTERM handler too."""
 
 from __future__ import annotations
 
 import signal
 import threading
 
+import pytest
+
 from batch.runner import _Interrupts
 from pihutil.interrupts import handling
+from scripts.cli import _sigterm_interrupts
 
 
 def _handler(signum, frame) -> None:
@@ -27,9 +31,10 @@ def test_an_ignored_signal_stays_ignored_in_the_command_and_in_a_batch() -> None
         with handling((signal.SIGINT, signal.SIGTERM), _handler):
             assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
             assert signal.getsignal(signal.SIGTERM) is _handler
-        with _Interrupts().installed():
+        interrupts = _Interrupts()
+        with interrupts.installed():
             assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-            assert signal.getsignal(signal.SIGTERM) is not signal.SIG_IGN
+            assert signal.getsignal(signal.SIGTERM) == interrupts._handle
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, previous)
@@ -47,3 +52,17 @@ def test_outside_the_main_thread_nothing_changes() -> None:
     thread.start()
     thread.join()
     assert seen == [before]
+
+
+def test_pih_turns_sigterm_into_ctrl_c_unless_it_was_started_with_sigterm_ignored() -> None:
+    before = signal.getsignal(signal.SIGTERM)
+    with _sigterm_interrupts():
+        with pytest.raises(KeyboardInterrupt):
+            signal.getsignal(signal.SIGTERM)(signal.SIGTERM, None)
+    assert signal.getsignal(signal.SIGTERM) is before
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        with _sigterm_interrupts():
+            assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGTERM, before)

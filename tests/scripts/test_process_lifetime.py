@@ -23,8 +23,6 @@ START_LIMIT_S = 240.0
 """Hang guard: how long a command may take to start its workers on a busy machine."""
 
 
-
-
 @pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigkill_of_evaluate_train_and_benchmark_leaves_no_process(tmp_path: Path) -> None:
